@@ -1,0 +1,87 @@
+"""The fd_monitor command line: ``python -m fd_monitor <subcommand>``.
+
+Every subcommand lives in ``fd_monitor/commands/<name>.py`` and provides
+``add_arguments(parser)`` and ``run(args) -> int``; modules are imported only when their
+subcommand runs, so ``--help`` is fast and a missing optional dependency (rclpy, cvxpy)
+only affects the subcommands that need it. Errors of fd_monitor print one line
+``fd_monitor: error: ...`` and exit with status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from fd_monitor.errors import FdMonitorError
+
+__all__ = ["SUBCOMMANDS", "build_parser", "main"]
+
+#: name -> one-line help. The module is fd_monitor.commands.<name>.
+SUBCOMMANDS: dict[str, str] = {
+    "validate": "check a plant file (or scenario) and print its summary",
+    "simulate": "simulate a scenario with the core simulator (no ROS) and write an MCAP bag",
+    "run": "run one of the ROS 2 nodes (plant_sim, observer, detector, ...)",
+    "record": "record topics to a rosbag2 MCAP bag",
+    "replay": "replay a rosbag2 MCAP bag onto its topics",
+    "demo": "the whole pipeline on the default plant, end to end",
+    "design": "design gains (observers, residual generators, thresholds) into a gain file",
+    "analyze": "run the monitor over a bag offline and print alarms and estimates",
+    "report": "figures and a summary of a bag or a campaign",
+    "evaluate": "Monte Carlo campaigns: false-alarm rate, detection rate and delay",
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that exits with one line on bad usage (status 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _command_module(name: str):  # type: ignore[no-untyped-def]
+    return importlib.import_module(f"fd_monitor.commands.{name}")
+
+
+def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
+    """The top-level parser; only the chosen subcommand's module is imported."""
+    parser = _Parser(prog="fd_monitor", description=__doc__.splitlines()[0],
+                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                     epilog="Run `python -m fd_monitor <subcommand> --help` for details.")
+    sub = parser.add_subparsers(dest="command", metavar="<subcommand>", parser_class=_Parser)
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    for name, help_ in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        if name == chosen:
+            try:
+                mod = _command_module(name)
+            except ModuleNotFoundError as exc:
+                if exc.name and exc.name.startswith("fd_monitor.commands"):
+                    parser.exit(2, f"fd_monitor: error: subcommand {name!r} is not "
+                                   f"available in this version\n")
+                raise
+            mod.add_arguments(p)
+            p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m fd_monitor`` and the ``fd_monitor`` console script."""
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(args_list)
+    args = parser.parse_args(args_list)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except FdMonitorError as exc:
+        print(f"fd_monitor: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

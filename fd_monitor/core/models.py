@@ -1,0 +1,141 @@
+"""Named nonlinear models: discrete-time maps ``x_{k+1} = f(x_k, u_k; params)``.
+
+A plant file's nonlinear mode names one of these (``model: three_tank``) with its
+parameters. Each model is vectorised over leading axes: ``x`` of shape (..., n) and ``u`` of
+shape (..., nu) give (..., n), so Monte Carlo campaigns step many runs at once. Parameters
+are floats or arrays broadcastable to the leading shape (a ``parameter`` fault makes one run's
+parameter differ from another's).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["NonlinearModel", "get_model", "register_model", "model_names", "GRAVITY"]
+
+GRAVITY = 9.81  # m/s^2
+
+Params = Mapping[str, "float | np.ndarray"]
+
+
+@dataclass(frozen=True)
+class NonlinearModel:
+    """A named discrete-time nonlinear model.
+
+    Attributes
+    ----------
+    name : str
+    n_states, n_inputs : int
+    param_names : tuple of str
+    step : callable
+        ``step(x, u, params, dt) -> x_next``; x (..., n), u (..., nu), dt in s.
+    rhs : callable or None
+        ``rhs(x, u, params) -> dx/dt`` of the underlying ODE, where there is one.
+    defaults : dict
+        Parameter defaults (a plant file may omit these).
+    description : str
+    """
+
+    name: str
+    n_states: int
+    n_inputs: int
+    param_names: tuple[str, ...]
+    step: Callable[[np.ndarray, np.ndarray, Params, float], np.ndarray]
+    rhs: Callable[[np.ndarray, np.ndarray, Params], np.ndarray] | None = None
+    defaults: Mapping[str, float] = field(default_factory=dict)
+    description: str = ""
+
+
+_REGISTRY: dict[str, NonlinearModel] = {}
+
+
+def register_model(model: NonlinearModel) -> NonlinearModel:
+    """Add ``model`` to the registry (a name may be registered once)."""
+    if model.name in _REGISTRY:
+        raise ValueError(f"model {model.name!r} is already registered")
+    _REGISTRY[model.name] = model
+    return model
+
+
+def get_model(name: str) -> NonlinearModel:
+    """Return the model ``name``; ``KeyError`` with the known names if there is none."""
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise KeyError(f"a known nonlinear model: {sorted(_REGISTRY)} (unknown model "
+                       f"{name!r})") from None
+
+
+def model_names() -> list[str]:
+    """Names of the registered models."""
+    return sorted(_REGISTRY)
+
+
+def rk4(rhs: Callable[[np.ndarray, np.ndarray, Params], np.ndarray], x: np.ndarray,
+        u: np.ndarray, params: Params, dt: float, substeps: int) -> np.ndarray:
+    """Classical fourth-order Runge-Kutta over ``dt`` in ``substeps`` equal steps, u held."""
+    h = dt / substeps
+    for _ in range(substeps):
+        k1 = rhs(x, u, params)
+        k2 = rhs(x + 0.5 * h * k1, u, params)
+        k3 = rhs(x + 0.5 * h * k2, u, params)
+        k4 = rhs(x + h * k3, u, params)
+        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x
+
+
+# --------------------------------------------------------------------------------------
+# three_tank: T1 - T3 - T2 in series, outflow at T2 (thesis Sec. 7.2, eq. 7.11), plus a
+# switched bypass valve T1-T3 and an upper pipe T3 -> T2 at height h_upper.
+
+
+def _signed_flow(area: "float | np.ndarray", dh: np.ndarray, g: "float | np.ndarray") -> np.ndarray:
+    """Torricelli flow s(dh) S sqrt(2 g |dh|) (thesis eq. 7.11-7.12), m^3/s."""
+    return area * np.sign(dh) * np.sqrt(2.0 * g * np.abs(dh))
+
+
+def _three_tank_rhs(x: np.ndarray, u: np.ndarray, p: Params) -> np.ndarray:
+    h1, h2, h3 = x[..., 0], x[..., 1], x[..., 2]
+    # Pumps cannot run backwards; levels cannot be negative in the outflow laws.
+    q1 = np.maximum(u[..., 0], 0.0)
+    q2 = np.maximum(u[..., 1], 0.0)
+    g = p["g"]
+    q13 = _signed_flow(p["pipe_area"] + p["bypass_area"], h1 - h3, g)
+    q32 = _signed_flow(p["pipe_area"], h3 - h2, g)
+    # Upper pipe: an overflow from T3 into T2 at height h_upper, carrying flow only while
+    # h3 is above it (its area is zero in the modes where it is dry).
+    q32u = p["upper_area"] * np.sqrt(2.0 * g * np.maximum(h3 - p["h_upper"], 0.0))
+    q20 = p["outflow_area"] * np.sqrt(2.0 * g * np.maximum(h2, 0.0))
+    l1 = p["leak_area_1"] * np.sqrt(2.0 * g * np.maximum(h1, 0.0))
+    l2 = p["leak_area_2"] * np.sqrt(2.0 * g * np.maximum(h2, 0.0))
+    l3 = p["leak_area_3"] * np.sqrt(2.0 * g * np.maximum(h3, 0.0))
+    a = p["tank_area"]
+    dh1 = (q1 - q13 - l1) / a
+    dh2 = (q2 + q32 + q32u - q20 - l2) / a
+    dh3 = (q13 - q32 - q32u - l3) / a
+    return np.stack([dh1, dh2, dh3], axis=-1)
+
+
+def _three_tank_step(x: np.ndarray, u: np.ndarray, p: Params, dt: float) -> np.ndarray:
+    return rk4(_three_tank_rhs, x, u, p, dt, int(p["substeps"]))
+
+
+register_model(NonlinearModel(
+    name="three_tank",
+    n_states=3,
+    n_inputs=3,
+    param_names=("tank_area", "pipe_area", "outflow_area", "bypass_area", "upper_area",
+                 "h_upper", "leak_area_1", "leak_area_2", "leak_area_3", "g", "substeps"),
+    step=_three_tank_step,
+    rhs=_three_tank_rhs,
+    defaults={"leak_area_1": 0.0, "leak_area_2": 0.0, "leak_area_3": 0.0, "g": GRAVITY,
+              "substeps": 1.0},
+    description=(
+        "Levels h1, h2, h3 (m) of tanks T1, T2, T3 (T1 - T3 - T2 in series, outflow at T2); "
+        "inputs q1, q2 (pump flows, m^3/s) and the bypass valve command (unused by the "
+        "dynamics: the valve's state is the mode). Torricelli flows (thesis eq. 7.11); the "
+        "discrete map is classical RK4 over one sample in 'substeps' steps."),
+))

@@ -1,0 +1,245 @@
+"""Plant simulator: step-based, seeded, vectorised over a batch of runs.
+
+One sample ``k`` (time ``t_k = k Ts``) of every run, in this order:
+
+1. fault signals ``f_k`` from the scenario (``beta(k - K0)``); a ``state_jump`` fault adds
+   the change of its signal to its state;
+2. ``y_k = C_q x_k + E_q w_k + v_k`` plus sensor biases, with ``w_k``, ``v_k`` drawn within
+   their bounds;
+3. ``u_k`` from the input profiles (a PI controller reads ``y_k``); actuator faults change the
+   applied input only (the published ``u_k`` is the command);
+4. controlled guards on ``u_k``, then ``x_{k+1} = f(q_k, x_k, u_k + f_a) + eta_k`` with
+   ``|eta_i| <= uncertainty_i(q_k)``, then autonomous guards on ``x_{k+1}``: ``q_{k+1}``.
+
+So an autonomous guard fires at the first sample whose state satisfies it, and a controlled
+guard takes effect at the sample after the input that enables it.
+
+Each run has its own generator, seeded from ``SeedSequence(seed)``; noise is drawn in blocks
+of :data:`BLOCK` samples in a fixed order (w, v, eta), so a run is the same whichever batch it
+is in. Time is an argument: nothing here reads a clock.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from fd_monitor.core.plant import SampledPlant
+from fd_monitor.scenario import PIController, Profile, Scenario
+
+__all__ = ["BLOCK", "PlantSimulator", "Sample", "Trajectory", "simulate", "simulate_batch"]
+
+BLOCK = 256
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One sample of a batch of N runs.
+
+    Attributes
+    ----------
+    k : int
+        Sample index.
+    t : float
+        Time, s.
+    u : numpy.ndarray
+        (N, nu) commanded inputs.
+    y : numpy.ndarray
+        (N, ny) measurements.
+    x : numpy.ndarray
+        (N, n) true states.
+    mode : numpy.ndarray
+        (N,) true modes.
+    faults : numpy.ndarray
+        (N, nf) fault signals per plant fault channel.
+    """
+
+    k: int
+    t: float
+    u: np.ndarray
+    y: np.ndarray
+    x: np.ndarray
+    mode: np.ndarray
+    faults: np.ndarray
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A simulated batch: arrays indexed [run, sample, channel].
+
+    Attributes
+    ----------
+    scenario : Scenario
+    seeds : tuple of int
+    k : numpy.ndarray
+        (K,) sample indices.
+    t : numpy.ndarray
+        (K,) times, s.
+    u : numpy.ndarray
+        (N, K, nu)
+    y : numpy.ndarray
+        (N, K, ny)
+    x : numpy.ndarray
+        (N, K, n)
+    mode : numpy.ndarray
+        (N, K) int
+    faults : numpy.ndarray
+        (N, K, nf)
+    """
+
+    scenario: Scenario
+    seeds: tuple[int, ...]
+    k: np.ndarray
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    x: np.ndarray
+    mode: np.ndarray
+    faults: np.ndarray
+
+
+def _unit(rng: np.random.Generator, shape: tuple[int, ...], dist: str) -> np.ndarray:
+    if dist == "extreme":
+        return rng.choice(np.array([-1.0, 1.0]), size=shape)
+    return rng.uniform(-1.0, 1.0, size=shape)
+
+
+class PlantSimulator:
+    """Simulate ``len(seeds)`` runs of a scenario in lock step.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    seeds : sequence of int, optional
+        One per run; default ``[scenario.seed]``.
+    """
+
+    def __init__(self, scenario: Scenario, seeds: Sequence[int] | None = None) -> None:
+        self.scenario = scenario
+        self.system = sys_ = scenario.system
+        self.plant = SampledPlant(sys_)
+        self.seeds = tuple(int(s) for s in (seeds if seeds is not None else [scenario.seed]))
+        N = self.N = len(self.seeds)
+        self.dt = sys_.sample_time
+        self._rngs = [np.random.default_rng(np.random.SeedSequence(s)) for s in self.seeds]
+        self.k = 0
+        self.x = np.tile(scenario.initial_state, (N, 1)).astype(float)
+        self.q = np.full(N, scenario.initial_mode, dtype=int)
+        self._integral = np.zeros((N, sys_.nu))
+        self._prev_faults = np.zeros((N, len(sys_.faults)))
+        self._unc = np.array([m.uncertainty for m in sys_.modes])  # (modes, n)
+        self._block_start = -BLOCK
+        self._w = self._v = self._eta = np.zeros((N, BLOCK, 0))
+        kinds = [f.kind for f in sys_.faults]
+        self._idx = {kind: [i for i, k in enumerate(kinds) if k == kind] for kind in set(kinds)}
+        self._proc_cols = self._idx.get("process", [])
+
+    def _draw(self) -> None:
+        sys_, sc = self.system, self.scenario
+        w, v, eta = [], [], []
+        for rng in self._rngs:
+            w.append(_unit(rng, (BLOCK, sys_.nw), sc.noise_distribution))
+            v.append(_unit(rng, (BLOCK, sys_.ny), sc.noise_distribution))
+            eta.append(_unit(rng, (BLOCK, sys_.n), sc.uncertainty_distribution))
+        self._w = np.asarray(w) * (sys_.disturbance_bound * sc.noise_scale)
+        self._v = np.asarray(v) * (sys_.measurement_noise * sc.noise_scale)
+        self._eta = np.asarray(eta) * sc.uncertainty_scale
+        self._block_start = self.k
+
+    def fault_signals(self, t: float) -> np.ndarray:
+        """(nf,) value of every fault channel's signal at time ``t`` (absolute ones only)."""
+        f = np.zeros(len(self.system.faults))
+        for ev in self.scenario.faults:
+            if not ev.relative:
+                f[ev.channel] += float(ev.beta(t, self.dt))
+        return f
+
+    def step(self) -> Sample:
+        """Produce sample ``k`` of every run and advance the plant to ``k + 1``."""
+        sys_, sc, N = self.system, self.scenario, self.N
+        k, t = self.k, self.k * self.dt
+        if k - self._block_start >= BLOCK:
+            self._draw()
+        j = k - self._block_start
+        w, v, eta = self._w[:, j], self._v[:, j], self._eta[:, j]
+
+        faults = np.tile(self.fault_signals(t), (N, 1))
+        for i in self._idx.get("state_jump", []):
+            self.x[:, sys_.faults[i].index] += faults[:, i] - self._prev_faults[:, i]
+        y = self.plant.output(self.q, self.x, w) + v
+        for i in self._idx.get("sensor_bias", []):
+            y[:, sys_.faults[i].index] += faults[:, i]
+
+        u = np.empty((N, sys_.nu))
+        for i, src in enumerate(sc.inputs):
+            if isinstance(src, Profile):
+                u[:, i] = src.value(t)
+            else:
+                u[:, i] = self._pi(i, src, t, y)
+        u_applied = u.copy()
+        for ev in sc.faults:
+            ch = sys_.faults[ev.channel]
+            if ch.kind == "actuator" and ev.relative:
+                b = float(ev.beta(t, self.dt))
+                faults[:, ev.channel] += -b * u[:, ch.index]
+        for i in self._idx.get("actuator", []):
+            u_applied[:, sys_.faults[i].index] += faults[:, i]
+
+        params_delta = {sys_.faults[i].parameter: faults[:, i]
+                        for i in self._idx.get("parameter", [])}
+        params_delta = {p: d for p, d in params_delta.items() if p is not None}
+        q_mid = self.plant.next_mode(self.q, self.x, u, "controlled")
+        x_next = self.plant.step(self.q, self.x, u_applied, w,
+                                 faults[:, self._proc_cols] if self._proc_cols else None,
+                                 params_delta or None)
+        x_next += eta * self._unc[self.q]
+        sample = Sample(k, t, u, y, self.x.copy(), self.q.copy(), faults)
+        self.q = self.plant.next_mode(q_mid, x_next, u, "autonomous")
+        self.x = x_next
+        self._prev_faults = faults
+        self.k += 1
+        return sample
+
+    def _pi(self, i: int, c: PIController, t: float, y: np.ndarray) -> np.ndarray:
+        e = c.reference.value(t) - y[:, c.output]
+        raw = c.kp * e + c.ki * (self._integral[:, i] + e * self.dt)
+        u = np.clip(raw, c.lo, c.hi)
+        # Conditional integration: the integral only grows while the output is unsaturated.
+        free = raw == u
+        self._integral[free, i] += e[free] * self.dt
+        return u
+
+
+def simulate_batch(scenario: Scenario, seeds: Sequence[int],
+                   n_samples: int | None = None) -> Trajectory:
+    """Simulate one run per seed; arrays are [run, sample, channel].
+
+    Parameters
+    ----------
+    scenario : Scenario
+    seeds : sequence of int
+    n_samples : int, optional
+        Default ``scenario.n_samples``.
+    """
+    sim = PlantSimulator(scenario, seeds)
+    K = scenario.n_samples if n_samples is None else n_samples
+    sys_ = scenario.system
+    N = sim.N
+    u = np.empty((N, K, sys_.nu))
+    y = np.empty((N, K, sys_.ny))
+    x = np.empty((N, K, sys_.n))
+    q = np.empty((N, K), dtype=int)
+    f = np.empty((N, K, len(sys_.faults)))
+    for k in range(K):
+        s = sim.step()
+        u[:, k], y[:, k], x[:, k], q[:, k], f[:, k] = s.u, s.y, s.x, s.mode, s.faults
+    ks = np.arange(K)
+    return Trajectory(scenario, sim.seeds, ks, ks * sys_.sample_time, u, y, x, q, f)
+
+
+def simulate(scenario: Scenario, seed: int | None = None,
+             n_samples: int | None = None) -> Trajectory:
+    """Simulate a single run (batch of one); default seed: the scenario's."""
+    return simulate_batch(scenario, [scenario.seed if seed is None else seed], n_samples)

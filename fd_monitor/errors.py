@@ -1,0 +1,47 @@
+"""Errors raised by fd_monitor.
+
+Every error carries a one-line message that names *where* the problem is (a file and a
+key path, a topic, a sample) and *what* was expected. The command line prints
+``fd_monitor: error: <message>`` and exits with status 2; nodes log the message and report it
+on ``/diagnostics`` without stopping.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "FdMonitorError",
+    "SystemFileError",
+    "ScenarioError",
+    "GainFileError",
+    "DesignError",
+    "BagError",
+    "MessageError",
+]
+
+
+class FdMonitorError(Exception):
+    """Base class of every error fd_monitor raises on purpose."""
+
+
+class SystemFileError(FdMonitorError, ValueError):
+    """A plant description is missing, unreadable or invalid."""
+
+
+class ScenarioError(FdMonitorError, ValueError):
+    """A scenario file (inputs, faults, duration) is invalid."""
+
+
+class GainFileError(FdMonitorError, ValueError):
+    """A gain file is invalid, for another plant, or its certificate does not hold."""
+
+
+class DesignError(FdMonitorError, RuntimeError):
+    """A designer could not produce a gain file (infeasible LMI, solver failure, ...)."""
+
+
+class BagError(FdMonitorError, OSError):
+    """A bag is missing, unreadable, or lacks a topic that is needed."""
+
+
+class MessageError(FdMonitorError, ValueError):
+    """A message is malformed (wrong length, NaN/Inf, missing stamp)."""

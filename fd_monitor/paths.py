@@ -1,0 +1,78 @@
+"""Where shipped configuration lives: plant files, scenarios, gain files, parameter files.
+
+Looked up in this order: ``$FD_MONITOR_CONFIG``; the ``config/`` folder of a source checkout
+(beside the package); ``<prefix>/share/fd_monitor/config`` of this Python's prefix (a pip
+install); the same under every ``AMENT_PREFIX_PATH`` entry (a colcon workspace).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+__all__ = ["config_dirs", "config_dir", "find_config_file", "repo_root"]
+
+
+def repo_root() -> Path | None:
+    """The source checkout holding this package, or None for an installed package."""
+    root = Path(__file__).resolve().parent.parent
+    return root if (root / "package.xml").is_file() and (root / "config").is_dir() else None
+
+
+def config_dirs() -> list[Path]:
+    """Candidate ``config/`` folders, most specific first (only those that exist)."""
+    cands: list[Path] = []
+    env = os.environ.get("FD_MONITOR_CONFIG")
+    if env:
+        cands.append(Path(env))
+    root = repo_root()
+    if root is not None:
+        cands.append(root / "config")
+    cands.append(Path(sys.prefix) / "share" / "fd_monitor" / "config")
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            cands.append(Path(prefix) / "share" / "fd_monitor" / "config")
+    seen: list[Path] = []
+    for c in cands:
+        if c.is_dir() and c not in seen:
+            seen.append(c)
+    return seen
+
+
+def config_dir() -> Path:
+    """The first existing ``config/`` folder; raise FileNotFoundError if there is none."""
+    dirs = config_dirs()
+    if not dirs:
+        raise FileNotFoundError("no fd_monitor config folder found (set FD_MONITOR_CONFIG)")
+    return dirs[0]
+
+
+def find_config_file(source: str | Path, kind: str, error: type[Exception],
+                     what: str = "file") -> Path:
+    """Resolve ``source``: an existing path, or a shipped name in ``config/<kind>/``.
+
+    Parameters
+    ----------
+    source : str or pathlib.Path
+        A path, or a bare name such as ``three_tank`` (``.yaml`` may be omitted).
+    kind : str
+        Sub-folder of ``config/``: ``systems``, ``scenarios``, ``gains``.
+    error : type of Exception
+        Raised, with a one-line message listing the shipped names, when nothing is found.
+    what : str
+        Word for the message (``plant``, ``scenario``...).
+    """
+    p = Path(source)
+    if p.is_file():
+        return p
+    looks_like_path = p.suffix in (".yaml", ".yml") or len(p.parts) > 1
+    if not looks_like_path:
+        for d in config_dirs():
+            for cand in (d / kind / f"{p.name}.yaml", d / kind / f"{p.name}.yml"):
+                if cand.is_file():
+                    return cand
+        known = sorted({f.stem for d in config_dirs() for f in (d / kind).glob("*.y*ml")})
+        raise error(f"{source}: unknown {what} (shipped: {', '.join(known) or 'none'}; "
+                    f"or give a path to a YAML file)")
+    raise error(f"{p}: file not found")

@@ -1,0 +1,401 @@
+"""Scenarios: what a simulation feeds the plant (inputs, faults, noise) and for how long.
+
+A scenario is a small YAML file (``config/scenarios/``)::
+
+    name: three_tank_bias_h1
+    description: free text
+    system: three_tank            # a shipped plant name or a path (relative to this file)
+    duration: 400.0               # s
+    seed: 0                       # default seed (the command line may override it)
+    initial: {mode: closed_low, state: [0.4, 0.2, 0.3]}   # optional, overrides the plant's
+    noise: {scale: 1.0, distribution: uniform}        # w and v; uniform | extreme (vertices)
+    uncertainty: {scale: 1.0, distribution: uniform}  # eta
+    inputs:                       # one entry per plant input
+      q1: {pi: {output: h1, reference: {steps: [[0, 0.4], [200, 0.55]]},
+                kp: 2.0e-3, ki: 2.0e-5, min: 0.0, max: 1.5e-4}}
+      q2: 3.0e-5                  # a constant
+      v13: {steps: [[0, 0.0], [300, 1.0]]}
+    faults:
+      - {channel: bias_h1, profile: abrupt, time: 150.0, magnitude: 0.01}
+      - {channel: bias_h2, profile: incipient, time: 150.0, magnitude: 0.01, rate: 0.05}
+      - {channel: pump1, profile: abrupt, time: 80.0, magnitude: 0.3, relative: true}
+
+Input profiles: a number; ``{constant: c}``; ``{steps: [[t, v], ...]}`` (value of the last
+step at or before t; 0 before the first); ``{ramp: {start, end, from, to}}``;
+``{sine: {amplitude, period, offset, phase}}``; ``{pi: {output, reference, kp, ki, min, max}}``
+(a PI level controller on a measured output with conditional-integration anti-windup; the
+reference is itself a profile).
+
+Fault profiles ``beta(k - K0)``: ``abrupt`` (Heracleous et al. eq. 4; magnitude from sample
+``K0 = round(time / Ts)`` on) and ``incipient`` (thesis eq. 1.4: ``magnitude (1 -
+exp(-rate (t - t_f)))``). An actuator fault with ``relative: true`` is the loss of
+effectiveness ``f = -beta u`` (thesis Sec. 1.2); otherwise it adds ``beta`` to the input.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.errors import ScenarioError, SystemFileError
+from fd_monitor.paths import find_config_file
+from fd_monitor.system import System, load_system, read_yaml
+
+__all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "load_scenario",
+           "parse_scenario"]
+
+_DISTRIBUTIONS = ("uniform", "extreme")
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A time profile of one scalar, s -> value.
+
+    Attributes
+    ----------
+    kind : str
+        ``constant``, ``steps``, ``ramp`` or ``sine``.
+    data : tuple of float
+        Parameters: (c,), (t0, v0, t1, v1, ...), (start, end, from, to),
+        (amplitude, period, offset, phase).
+    """
+
+    kind: str
+    data: tuple[float, ...]
+
+    def value(self, t: float) -> float:
+        """The profile's value at time ``t`` (s)."""
+        d = self.data
+        if self.kind == "constant":
+            return d[0]
+        if self.kind == "steps":
+            v = 0.0
+            for i in range(0, len(d), 2):
+                if t >= d[i]:
+                    v = d[i + 1]
+            return v
+        if self.kind == "ramp":
+            start, end, v0, v1 = d
+            if t <= start:
+                return v0
+            if t >= end:
+                return v1
+            return v0 + (v1 - v0) * (t - start) / (end - start)
+        amplitude, period, offset, phase = d
+        return offset + amplitude * math.sin(2.0 * math.pi * t / period + phase)
+
+
+@dataclass(frozen=True)
+class PIController:
+    """A PI controller ``u = clip(kp e + ki int e, lo, hi)``, ``e = reference(t) - y[output]``.
+
+    Attributes
+    ----------
+    output : int
+        Index of the measured output it regulates.
+    reference : Profile
+        Set point, in the output's unit.
+    kp, ki : float
+        Gains (input unit per output unit, and per output unit and second).
+    lo, hi : float
+        Saturation of the input.
+    """
+
+    output: int
+    reference: Profile
+    kp: float
+    ki: float
+    lo: float
+    hi: float
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """One injected fault.
+
+    Attributes
+    ----------
+    channel : int
+        Index of the plant's fault channel.
+    profile : str
+        ``abrupt`` or ``incipient``.
+    time : float
+        Onset time t_f, s.
+    magnitude : float
+        delta, in the channel's unit (a fraction for relative actuator faults).
+    rate : float
+        alpha of an incipient fault, 1/s.
+    relative : bool
+        Actuator loss of effectiveness (``f = -beta u``).
+    """
+
+    channel: int
+    profile: str
+    time: float
+    magnitude: float
+    rate: float = 0.0
+    relative: bool = False
+
+    def beta(self, t: np.ndarray | float, dt: float) -> np.ndarray:
+        """``beta(t - t_f)`` on sample times ``t`` (s); the onset sample is round(t_f / dt)."""
+        t = np.asarray(t, dtype=float)
+        k = np.rint(t / dt)
+        k0 = round(self.time / dt)
+        on = k >= k0
+        if self.profile == "abrupt":
+            return np.where(on, self.magnitude, 0.0)
+        tau = (k - k0) * dt
+        return np.where(on, self.magnitude * (1.0 - np.exp(-self.rate * np.maximum(tau, 0.0))),
+                        0.0)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario for one plant.
+
+    Attributes
+    ----------
+    name : str
+    description : str
+    system : System
+    duration : float
+        s; the run has ``n_samples = round(duration / Ts)`` samples (k = 0 .. n_samples-1).
+    seed : int
+    initial_mode : int
+    initial_state : numpy.ndarray
+        (n,)
+    noise_scale, uncertainty_scale : float
+        Multipliers of the plant's bounds (1 = the bounds; > 1 breaks the guarantees).
+    noise_distribution, uncertainty_distribution : str
+        ``uniform`` in [-bound, bound], or ``extreme`` (+-bound).
+    inputs : tuple
+        Per input, a Profile or a PIController.
+    faults : tuple of FaultEvent
+    source : str
+    """
+
+    name: str
+    description: str
+    system: System
+    duration: float
+    seed: int
+    initial_mode: int
+    initial_state: np.ndarray
+    noise_scale: float
+    noise_distribution: str
+    uncertainty_scale: float
+    uncertainty_distribution: str
+    inputs: tuple[Profile | PIController, ...]
+    faults: tuple[FaultEvent, ...] = field(default_factory=tuple)
+    source: str = "<dict>"
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples of a run."""
+        return int(round(self.duration / self.system.sample_time))
+
+
+def load_scenario(source: str | Path, system: System | None = None) -> Scenario:
+    """Load and validate a scenario file (a path, or a name in ``config/scenarios/``).
+
+    Parameters
+    ----------
+    source : str or pathlib.Path
+    system : System, optional
+        Use this plant instead of the one the file names.
+    """
+    path = find_config_file(source, "scenarios", ScenarioError, what="scenario")
+    data = read_yaml(path, ScenarioError)
+    return parse_scenario(data, str(path), system)
+
+
+def _fail(origin: str, key: str, expected: str, got: Any = None, show: bool = True) -> None:
+    tail = f", got {got!r}" if show else ""
+    raise ScenarioError(f"{origin}: {key}: expected {expected}{tail}")
+
+
+def _num(origin: str, key: str, v: Any, *, positive: bool = False, nonneg: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        _fail(origin, key, "a finite number", v)
+    x = float(v)
+    if positive and x <= 0:
+        _fail(origin, key, "a number > 0", v)
+    if nonneg and x < 0:
+        _fail(origin, key, "a number >= 0", v)
+    return x
+
+
+def _profile(origin: str, key: str, v: Any) -> Profile:
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return Profile("constant", (_num(origin, key, v),))
+    if not isinstance(v, Mapping) or len(v) != 1:
+        _fail(origin, key, "a number or one of {constant, steps, ramp, sine}", v)
+    (kind, spec), = v.items()
+    if kind == "constant":
+        return Profile("constant", (_num(origin, f"{key}.constant", spec),))
+    if kind == "steps":
+        if not isinstance(spec, list) or not spec:
+            _fail(origin, f"{key}.steps", "a list of [time, value] pairs", spec)
+        flat: list[float] = []
+        last = -math.inf
+        for i, pair in enumerate(spec):
+            if not isinstance(pair, list) or len(pair) != 2:
+                _fail(origin, f"{key}.steps[{i}]", "a [time, value] pair", pair)
+            t = _num(origin, f"{key}.steps[{i}][0]", pair[0])
+            if t < last:
+                _fail(origin, f"{key}.steps[{i}][0]", "times in increasing order", pair[0])
+            last = t
+            flat += [t, _num(origin, f"{key}.steps[{i}][1]", pair[1])]
+        return Profile("steps", tuple(flat))
+    if kind == "ramp":
+        if not isinstance(spec, Mapping) or set(spec) != {"start", "end", "from", "to"}:
+            _fail(origin, f"{key}.ramp", "{start, end, from, to}", spec)
+        vals = [_num(origin, f"{key}.ramp.{k}", spec[k]) for k in ("start", "end", "from", "to")]
+        if vals[1] <= vals[0]:
+            _fail(origin, f"{key}.ramp.end", "end > start", spec["end"])
+        return Profile("ramp", tuple(vals))
+    if kind == "sine":
+        if not isinstance(spec, Mapping) or not {"amplitude", "period"} <= set(spec):
+            _fail(origin, f"{key}.sine", "{amplitude, period[, offset, phase]}", spec)
+        return Profile("sine", (
+            _num(origin, f"{key}.sine.amplitude", spec["amplitude"]),
+            _num(origin, f"{key}.sine.period", spec["period"], positive=True),
+            _num(origin, f"{key}.sine.offset", spec.get("offset", 0.0)),
+            _num(origin, f"{key}.sine.phase", spec.get("phase", 0.0))))
+    _fail(origin, key, "one of {constant, steps, ramp, sine, pi}", kind)
+    raise AssertionError  # unreachable
+
+
+def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = None) -> Scenario:
+    """Validate parsed YAML ``data`` into a :class:`Scenario` (see the module docstring)."""
+    if not isinstance(data, Mapping):
+        _fail(origin, "(top level)", "a mapping of scenario keys", type(data).__name__)
+    allowed = {"name", "description", "system", "duration", "seed", "initial", "noise",
+               "uncertainty", "inputs", "faults"}
+    for k in data:
+        if k not in allowed:
+            _fail(origin, str(k), f"one of the keys {sorted(allowed)} (unknown key)", show=False)
+    if system is None:
+        if "system" not in data:
+            _fail(origin, "system", "a plant name or path (missing key)", show=False)
+        ref = str(data["system"])
+        rel = Path(origin).parent / ref
+        try:
+            system = load_system(rel if rel.is_file() else ref)
+        except SystemFileError as exc:
+            raise ScenarioError(f"{origin}: system: {exc}") from None
+    name = str(data.get("name", Path(origin).stem))
+    if "duration" not in data:
+        _fail(origin, "duration", "the run length in s (missing key)", show=False)
+    duration = _num(origin, "duration", data["duration"], positive=True)
+    if duration < system.sample_time:
+        _fail(origin, "duration", f"at least one sample ({system.sample_time} s)", duration)
+    seed = data.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        _fail(origin, "seed", "an integer >= 0", seed)
+
+    q0, x0 = system.initial_mode, system.initial_state
+    if "initial" in data:
+        init = data["initial"]
+        if not isinstance(init, Mapping):
+            _fail(origin, "initial", "{mode, state}", init)
+        if "mode" in init:
+            if init["mode"] not in system.mode_names:
+                _fail(origin, "initial.mode", f"one of {list(system.mode_names)}", init["mode"])
+            q0 = system.mode_index(init["mode"])
+        if "state" in init:
+            st = init["state"]
+            if not isinstance(st, list) or len(st) != system.n:
+                _fail(origin, "initial.state", f"a list of {system.n} numbers", st)
+            x0 = np.array([_num(origin, f"initial.state[{i}]", v) for i, v in enumerate(st)])
+
+    def noise_spec(key: str) -> tuple[float, str]:
+        spec = data.get(key, {}) or {}
+        if not isinstance(spec, Mapping) or not set(spec) <= {"scale", "distribution"}:
+            _fail(origin, key, "{scale, distribution}", spec)
+        scale = _num(origin, f"{key}.scale", spec.get("scale", 1.0), nonneg=True)
+        dist = spec.get("distribution", "uniform")
+        if dist not in _DISTRIBUTIONS:
+            _fail(origin, f"{key}.distribution", f"one of {list(_DISTRIBUTIONS)}", dist)
+        return scale, str(dist)
+
+    nscale, ndist = noise_spec("noise")
+    uscale, udist = noise_spec("uncertainty")
+
+    raw_inputs = data.get("inputs", {}) or {}
+    if not isinstance(raw_inputs, Mapping):
+        _fail(origin, "inputs", "a mapping of input names to profiles", raw_inputs)
+    for k in raw_inputs:
+        if k not in system.inputs:
+            _fail(origin, f"inputs.{k}", f"an input of plant {system.name!r}: "
+                  f"{list(system.inputs)}", show=False)
+    inputs: list[Profile | PIController] = []
+    for name_u in system.inputs:
+        key = f"inputs.{name_u}"
+        if name_u not in raw_inputs:
+            _fail(origin, key, "a profile for every plant input (missing input)", show=False)
+        spec = raw_inputs[name_u]
+        if isinstance(spec, Mapping) and "pi" in spec:
+            pi = spec["pi"]
+            need = {"output", "reference", "kp", "ki", "min", "max"}
+            if not isinstance(pi, Mapping) or set(pi) != need:
+                _fail(origin, f"{key}.pi", f"the keys {sorted(need)}", pi)
+            if pi["output"] not in system.outputs:
+                _fail(origin, f"{key}.pi.output", f"one of {list(system.outputs)}", pi["output"])
+            lo = _num(origin, f"{key}.pi.min", pi["min"])
+            hi = _num(origin, f"{key}.pi.max", pi["max"])
+            if hi <= lo:
+                _fail(origin, f"{key}.pi.max", "max > min", pi["max"])
+            inputs.append(PIController(
+                system.outputs.index(pi["output"]), _profile(origin, f"{key}.pi.reference",
+                                                             pi["reference"]),
+                _num(origin, f"{key}.pi.kp", pi["kp"]), _num(origin, f"{key}.pi.ki", pi["ki"]),
+                lo, hi))
+        else:
+            inputs.append(_profile(origin, key, spec))
+
+    faults: list[FaultEvent] = []
+    raw_faults = data.get("faults", []) or []
+    if not isinstance(raw_faults, list):
+        _fail(origin, "faults", "a list of faults", raw_faults)
+    names = [f.name for f in system.faults]
+    for i, f in enumerate(raw_faults):
+        key = f"faults[{i}]"
+        if not isinstance(f, Mapping):
+            _fail(origin, key, "{channel, profile, time, magnitude[, rate, relative]}", f)
+        extra = set(f) - {"channel", "profile", "time", "magnitude", "rate", "relative"}
+        if extra:
+            _fail(origin, f"{key}.{sorted(extra)[0]}", "channel, profile, time, magnitude, "
+                  "rate or relative (unknown key)", show=False)
+        for req in ("channel", "profile", "time", "magnitude"):
+            if req not in f:
+                _fail(origin, f"{key}.{req}", "a value (missing key)", show=False)
+        if f["channel"] not in names:
+            _fail(origin, f"{key}.channel", f"a fault channel of plant {system.name!r}: {names}",
+                  f["channel"])
+        ch = names.index(f["channel"])
+        prof = f["profile"]
+        if prof not in ("abrupt", "incipient"):
+            _fail(origin, f"{key}.profile", "'abrupt' or 'incipient'", prof)
+        rate = 0.0
+        if prof == "incipient":
+            if "rate" not in f:
+                _fail(origin, f"{key}.rate", "the decay rate alpha > 0 of an incipient fault "
+                      "(thesis eq. 1.4; missing key)", show=False)
+            rate = _num(origin, f"{key}.rate", f["rate"], positive=True)
+        relative = bool(f.get("relative", False))
+        if relative and system.faults[ch].kind != "actuator":
+            _fail(origin, f"{key}.relative", "relative faults only on actuator channels",
+                  show=False)
+        faults.append(FaultEvent(ch, str(prof), _num(origin, f"{key}.time", f["time"],
+                                                      nonneg=True),
+                                 _num(origin, f"{key}.magnitude", f["magnitude"]), rate,
+                                 relative))
+    return Scenario(name, str(data.get("description", "")), system, duration, int(seed), q0,
+                    np.asarray(x0, dtype=float), nscale, ndist, uscale, udist, tuple(inputs),
+                    tuple(faults), origin)

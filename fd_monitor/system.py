@@ -1,0 +1,753 @@
+"""Plant descriptions: load, validate and identify the hybrid automaton of a monitored plant.
+
+A plant file is YAML (see ``config/systems/``). The plant is a hybrid automaton
+(Heracleous et al., eq. 1-3): named states, inputs and outputs; modes, each with linear or
+affine dynamics (continuous or discrete time) or a named nonlinear model; guards, each
+autonomous (on a state) or controlled (on an input); bounds on measurement noise,
+disturbances and per-mode modelling uncertainty; fault channels; a sample time; an initial
+mode and state.
+
+Schema (``format_version: 1``)::
+
+    format_version: 1
+    name: pwa_cascade                 # identifier, [A-Za-z0-9_]+
+    description: free text            # not part of the plant's identity
+    time: continuous                  # continuous | discrete (default of every mode)
+    sample_time: 0.01                 # s, > 0
+    states: [x1, x2, b1, b2]
+    inputs: []                        # may be empty
+    outputs: [y1, y2]
+    disturbances: [w1, w2, w3, w4]    # bounded unknown inputs w (may be empty)
+    bounds:
+      disturbance: [1.0, 1.0, 1.0, 1.0]    # |w_i| <= bound, one per disturbance
+      measurement_noise: [0.0, 0.0]        # |v_i| <= bound, one per output
+    shared: {B: ..., C: ..., D: ..., E: ...}  # defaults for every mode that omits them
+    modes:
+      safe:
+        dynamics: linear              # linear | nonlinear
+        time: continuous              # optional override of the plant's default
+        A: [[...]]                    # n x n
+        B: [[...]]                    # n x nu (default zeros)
+        C: [[...]]                    # ny x n (required, here or in shared)
+        D: [[...]]                    # n x nw (default zeros)
+        E: [[...]]                    # ny x nw (default zeros)
+        offset: [...]                 # n, affine term (default zeros)
+        uncertainty: [...]            # n, |eta_i| <= bound added to x_{k+1} (default zeros)
+      tank_mode:
+        dynamics: nonlinear
+        model: three_tank             # a model of fd_monitor.core.models
+        params: {name: value, ...}    # checked against the model's parameter list
+        C: ...                        # as above
+    guards:
+      - name: g_safe_to_x2            # optional; default "<from>-><to>"
+        from: safe
+        to: x2_high
+        kind: autonomous              # autonomous (conditions on states) | controlled (on inputs)
+        when: [{var: x2, op: ">", value: 0.4}]   # all conditions must hold
+    faults:
+      - {name: bias_y1, kind: sensor_bias, output: y1}      # y_i += f
+      - {name: act_u1, kind: actuator, input: u1}           # u_j += f (in the plant only)
+      - {name: b1_step, kind: state_jump, state: b1}        # x_j jumps by the change of f
+      - {name: leak, kind: process, F: [1.0, 0.0, 0.0]}     # dx (or x_{k+1}) += F f
+      - {name: leak1, kind: parameter, parameter: leak_area_1}  # model parameter += f
+    initial:
+      mode: safe
+      state: [0.0, 0.6, 0.0, 0.1]
+
+Semantics: in mode ``q`` a continuous-time linear mode is ``dx/dt = A x + B u + D w + offset``
+(discretised exactly with zero-order hold on u and w, see :mod:`fd_monitor.core.plant`); a
+discrete-time one is ``x_{k+1} = A x_k + B u_k + D w_k + offset``; a nonlinear one is
+``x_{k+1} = model(x_k, u_k, params) + D w_k``. Outputs are ``y_k = C x_k + E w_k + v_k`` plus
+sensor faults. The modelling uncertainty ``eta_k`` (``|eta_i| <= uncertainty_i`` of the
+current mode) is added to ``x_{k+1}``. Guards are checked at every sample on ``x_{k+1}``
+(autonomous) or ``u_k`` (controlled); the first guard of the current mode that holds fires.
+
+Every validation error names the file, the key path and what was expected.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from fd_monitor.errors import SystemFileError
+from fd_monitor.paths import find_config_file
+
+__all__ = [
+    "Condition",
+    "FaultChannel",
+    "Guard",
+    "Mode",
+    "System",
+    "SUPPORTED_FORMAT_VERSIONS",
+    "load_system",
+    "parse_system",
+    "read_yaml",
+]
+
+SUPPORTED_FORMAT_VERSIONS = (1,)
+_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_OPS = ("<", "<=", ">", ">=", "==")
+_FAULT_KINDS = ("sensor_bias", "actuator", "state_jump", "process", "parameter")
+_TOP_KEYS = {
+    "format_version", "name", "description", "time", "sample_time", "states", "inputs",
+    "outputs", "disturbances", "bounds", "shared", "modes", "guards", "faults", "initial",
+}
+_MODE_KEYS = {
+    "dynamics", "time", "A", "B", "C", "D", "E", "offset", "uncertainty", "model", "params",
+    "description",
+}
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One enabling condition ``var op value`` of a guard.
+
+    Attributes
+    ----------
+    var : str
+        State name (autonomous guard) or input name (controlled guard).
+    index : int
+        Index of ``var`` in the state vector or the input vector.
+    op : str
+        One of ``<``, ``<=``, ``>``, ``>=``, ``==``.
+    value : float
+        Threshold, in the unit of ``var``.
+    """
+
+    var: str
+    index: int
+    op: str
+    value: float
+
+    def holds(self, v: float) -> bool:
+        """Return whether the condition holds for the value ``v`` of its variable."""
+        if self.op == "<":
+            return v < self.value
+        if self.op == "<=":
+            return v <= self.value
+        if self.op == ">":
+            return v > self.value
+        if self.op == ">=":
+            return v >= self.value
+        return v == self.value
+
+
+@dataclass(frozen=True)
+class Guard:
+    """A transition ``source -> target`` enabled when every condition holds.
+
+    Attributes
+    ----------
+    name : str
+    source, target : int
+        Mode indices.
+    kind : str
+        ``"autonomous"`` (conditions on states) or ``"controlled"`` (conditions on inputs).
+    conditions : tuple of Condition
+    """
+
+    name: str
+    source: int
+    target: int
+    kind: str
+    conditions: tuple[Condition, ...]
+
+    def enabled(self, x: np.ndarray, u: np.ndarray) -> bool:
+        """Return whether the guard's conditions hold for state ``x`` (n,) and input ``u`` (nu,)."""
+        vec = x if self.kind == "autonomous" else u
+        return all(c.holds(float(vec[c.index])) for c in self.conditions)
+
+
+@dataclass(frozen=True)
+class FaultChannel:
+    """A place where a fault can enter the plant.
+
+    Attributes
+    ----------
+    name : str
+    kind : str
+        ``sensor_bias`` (added to output ``index``), ``actuator`` (added to input ``index``),
+        ``state_jump`` (state ``index`` jumps by the change of the fault signal), ``process``
+        (``F f`` added to the state derivative or update), ``parameter`` (added to the
+        nonlinear model parameter ``parameter``).
+    index : int
+        Output, input or state index; -1 for ``process`` and ``parameter``.
+    F : numpy.ndarray or None
+        (n,) direction of a ``process`` fault.
+    parameter : str or None
+        Parameter name of a ``parameter`` fault.
+    """
+
+    name: str
+    kind: str
+    index: int = -1
+    F: np.ndarray | None = None
+    parameter: str | None = None
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One discrete mode of the plant.
+
+    Attributes
+    ----------
+    name : str
+    dynamics : str
+        ``"linear"`` or ``"nonlinear"``.
+    time : str
+        ``"continuous"`` or ``"discrete"`` (linear modes; nonlinear models are discrete maps).
+    A : numpy.ndarray or None
+        (n, n) state matrix (linear modes).
+    B : numpy.ndarray
+        (n, nu) input matrix.
+    C : numpy.ndarray
+        (ny, n) output matrix.
+    D : numpy.ndarray
+        (n, nw) disturbance-to-state matrix.
+    E : numpy.ndarray
+        (ny, nw) disturbance-to-output matrix.
+    offset : numpy.ndarray
+        (n,) affine term.
+    uncertainty : numpy.ndarray
+        (n,) bound on the additive modelling uncertainty of ``x_{k+1}``, state units.
+    model : str or None
+        Name of the nonlinear model.
+    params : dict
+        Parameters of the nonlinear model.
+    """
+
+    name: str
+    dynamics: str
+    time: str
+    A: np.ndarray | None
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    E: np.ndarray
+    offset: np.ndarray
+    uncertainty: np.ndarray
+    model: str | None = None
+    params: Mapping[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class System:
+    """A validated plant description (a hybrid automaton).
+
+    Attributes
+    ----------
+    name : str
+    description : str
+    sample_time : float
+        Sample time Ts, s.
+    states, inputs, outputs, disturbances : tuple of str
+        Channel names; their lengths are n, nu, ny, nw.
+    modes : tuple of Mode
+    guards : tuple of Guard
+    faults : tuple of FaultChannel
+    disturbance_bound : numpy.ndarray
+        (nw,) bounds on |w_i|.
+    measurement_noise : numpy.ndarray
+        (ny,) bounds on |v_i|, output units.
+    initial_mode : int
+    initial_state : numpy.ndarray
+        (n,)
+    source : str
+        The file it was read from (or ``"<dict>"``).
+    sha256 : str
+        SHA-256 of the canonical form: the plant's identity.
+    """
+
+    name: str
+    description: str
+    sample_time: float
+    states: tuple[str, ...]
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    disturbances: tuple[str, ...]
+    modes: tuple[Mode, ...]
+    guards: tuple[Guard, ...]
+    faults: tuple[FaultChannel, ...]
+    disturbance_bound: np.ndarray
+    measurement_noise: np.ndarray
+    initial_mode: int
+    initial_state: np.ndarray
+    source: str
+    canonical: str
+    sha256: str
+
+    @property
+    def n(self) -> int:
+        """Number of states."""
+        return len(self.states)
+
+    @property
+    def nu(self) -> int:
+        """Number of inputs."""
+        return len(self.inputs)
+
+    @property
+    def ny(self) -> int:
+        """Number of outputs."""
+        return len(self.outputs)
+
+    @property
+    def nw(self) -> int:
+        """Number of disturbance channels."""
+        return len(self.disturbances)
+
+    @property
+    def mode_names(self) -> tuple[str, ...]:
+        """Mode names, in index order."""
+        return tuple(m.name for m in self.modes)
+
+    def mode_index(self, name: str) -> int:
+        """Return the index of mode ``name``; raise ``KeyError`` naming the known modes."""
+        for i, m in enumerate(self.modes):
+            if m.name == name:
+                return i
+        raise KeyError(f"unknown mode {name!r} of plant {self.name!r}; modes: {self.mode_names}")
+
+    def fault(self, name: str) -> FaultChannel:
+        """Return the fault channel ``name``; raise ``KeyError`` naming the known channels."""
+        for f in self.faults:
+            if f.name == name:
+                return f
+        known = tuple(f.name for f in self.faults)
+        raise KeyError(f"unknown fault channel {name!r} of plant {self.name!r}; channels: {known}")
+
+    def guards_from(self, mode: int, kind: str | None = None) -> tuple[Guard, ...]:
+        """Guards leaving ``mode`` (optionally only those of ``kind``), in file order."""
+        return tuple(
+            g for g in self.guards if g.source == mode and (kind is None or g.kind == kind)
+        )
+
+    @property
+    def is_linear(self) -> bool:
+        """True when every mode has linear (affine) dynamics."""
+        return all(m.dynamics == "linear" for m in self.modes)
+
+
+# --------------------------------------------------------------------------------------
+# reading
+
+
+def read_yaml(path: Path, error: type[Exception] = SystemFileError) -> Any:
+    """Read a YAML file; raise ``error`` with a one-line message on any failure."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{path}: invalid YAML{where}: {problem}") from None
+
+
+def load_system(source: str | Path) -> System:
+    """Load and validate a plant description.
+
+    Parameters
+    ----------
+    source : str or pathlib.Path
+        A path to a YAML file, or the name of a shipped plant (``three_tank``), looked up in
+        ``config/systems/``.
+
+    Returns
+    -------
+    System
+
+    Raises
+    ------
+    SystemFileError
+        With a message naming the file, the key path and what was expected.
+    """
+    path = find_config_file(source, "systems", SystemFileError, what="plant")
+    data = read_yaml(path)
+    return parse_system(data, str(path))
+
+
+class _Ctx:
+    """Error context: the file name, prefixed to every message."""
+
+    def __init__(self, origin: str) -> None:
+        self.origin = origin
+
+    def fail(self, key: str, expected: str, got: Any = None, *, show_got: bool = True) -> None:
+        tail = f", got {_short(got)}" if show_got else ""
+        raise SystemFileError(f"{self.origin}: {key}: expected {expected}{tail}")
+
+
+def _short(v: Any) -> str:
+    s = repr(v)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+def _names(ctx: _Ctx, data: Mapping[str, Any], key: str, required: bool) -> tuple[str, ...]:
+    if key not in data:
+        if required:
+            ctx.fail(key, "a list of names (missing key)", show_got=False)
+        return ()
+    v = data[key]
+    if v is None:
+        v = []
+    if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
+        ctx.fail(key, "a list of names", v)
+    for i, s in enumerate(v):
+        if not _NAME_RE.match(s):
+            ctx.fail(f"{key}[{i}]", "a name of letters, digits and '_'", s)
+    dup = {s for s in v if v.count(s) > 1}
+    if dup:
+        ctx.fail(key, "unique names", sorted(dup))
+    return tuple(v)
+
+
+def _number(ctx: _Ctx, key: str, v: Any, *, positive: bool = False, nonneg: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        ctx.fail(key, "a number", v)
+    x = float(v)
+    if not math.isfinite(x):
+        ctx.fail(key, "a finite number", v)
+    if positive and x <= 0:
+        ctx.fail(key, "a number > 0", v)
+    if nonneg and x < 0:
+        ctx.fail(key, "a number >= 0 (a bound cannot be negative)", v)
+    return x
+
+
+def _matrix(ctx: _Ctx, key: str, v: Any, shape: tuple[int, int]) -> np.ndarray:
+    rows, cols = shape
+    if rows == 0 or cols == 0:
+        if v in (None, [], [[]]):
+            return np.zeros(shape)
+    if not isinstance(v, list) or not all(isinstance(r, list) for r in v):
+        ctx.fail(key, f"a {rows}x{cols} matrix (a list of rows)", v)
+    got = (len(v), len(v[0]) if v else 0)
+    if len(v) != rows or any(len(r) != cols for r in v):
+        widths = sorted({len(r) for r in v})
+        ctx.fail(key, f"a {rows}x{cols} matrix", f"{got[0]} rows of length {widths}",
+                 show_got=True)
+    out = np.empty(shape)
+    for i, r in enumerate(v):
+        for j, e in enumerate(r):
+            out[i, j] = _number(ctx, f"{key}[{i}][{j}]", e)
+    return out
+
+
+def _vector(ctx: _Ctx, key: str, v: Any, size: int, *, nonneg: bool = False) -> np.ndarray:
+    if size == 0 and v in (None, []):
+        return np.zeros(0)
+    if not isinstance(v, list):
+        ctx.fail(key, f"a list of {size} numbers", v)
+    if len(v) != size:
+        ctx.fail(key, f"a list of {size} numbers", f"{len(v)} numbers")
+    return np.array([_number(ctx, f"{key}[{i}]", e, nonneg=nonneg) for i, e in enumerate(v)])
+
+
+def _mapping(ctx: _Ctx, key: str, v: Any) -> Mapping[str, Any]:
+    if not isinstance(v, Mapping):
+        ctx.fail(key, "a mapping", v)
+    return v
+
+
+def _check_keys(ctx: _Ctx, key: str, data: Mapping[str, Any], allowed: set[str]) -> None:
+    for k in data:
+        if k not in allowed:
+            where = f"{key}.{k}" if key else str(k)
+            ctx.fail(where, f"one of the keys {sorted(allowed)} (unknown key)", show_got=False)
+
+
+def parse_system(data: Any, origin: str = "<dict>") -> System:
+    """Validate parsed YAML ``data`` and build a :class:`System`.
+
+    Parameters
+    ----------
+    data : Any
+        What ``yaml.safe_load`` returned.
+    origin : str
+        Name of the file, used in error messages.
+    """
+    from fd_monitor.core.models import get_model  # late: core imports this module's types
+
+    ctx = _Ctx(origin)
+    if not isinstance(data, Mapping):
+        ctx.fail("(top level)", "a mapping of plant keys", type(data).__name__)
+    _check_keys(ctx, "", data, _TOP_KEYS)
+    version = data.get("format_version", 1)
+    if version not in SUPPORTED_FORMAT_VERSIONS:
+        ctx.fail("format_version", f"one of {SUPPORTED_FORMAT_VERSIONS}", version)
+    if "name" not in data:
+        ctx.fail("name", "the plant's name (missing key)", show_got=False)
+    name = data["name"]
+    if not isinstance(name, str) or not _NAME_RE.match(name):
+        ctx.fail("name", "a name of letters, digits and '_'", name)
+    description = str(data.get("description", ""))
+    default_time = data.get("time", "continuous")
+    if default_time not in ("continuous", "discrete"):
+        ctx.fail("time", "'continuous' or 'discrete'", default_time)
+    if "sample_time" not in data:
+        ctx.fail("sample_time", "the sample time in s (missing key)", show_got=False)
+    ts = _number(ctx, "sample_time", data["sample_time"], positive=True)
+
+    states = _names(ctx, data, "states", required=True)
+    if not states:
+        ctx.fail("states", "at least one state", [])
+    inputs = _names(ctx, data, "inputs", required=False)
+    outputs = _names(ctx, data, "outputs", required=True)
+    if not outputs:
+        ctx.fail("outputs", "at least one output", [])
+    dists = _names(ctx, data, "disturbances", required=False)
+    n, nu, ny, nw = len(states), len(inputs), len(outputs), len(dists)
+
+    bounds = _mapping(ctx, "bounds", data.get("bounds", {}) or {})
+    _check_keys(ctx, "bounds", bounds, {"disturbance", "measurement_noise"})
+    wbar = (_vector(ctx, "bounds.disturbance", bounds["disturbance"], nw, nonneg=True)
+            if "disturbance" in bounds else np.ones(nw))
+    if nw and "disturbance" not in bounds:
+        ctx.fail("bounds.disturbance", f"a bound for each of the {nw} disturbances (missing key)",
+                 show_got=False)
+    vbar = (_vector(ctx, "bounds.measurement_noise", bounds["measurement_noise"], ny, nonneg=True)
+            if "measurement_noise" in bounds else np.zeros(ny))
+
+    shared = _mapping(ctx, "shared", data.get("shared", {}) or {})
+    _check_keys(ctx, "shared", shared, {"B", "C", "D", "E", "uncertainty"})
+
+    if "modes" not in data:
+        ctx.fail("modes", "a mapping of mode names to dynamics (missing key)", show_got=False)
+    modes_raw = _mapping(ctx, "modes", data["modes"])
+    if not modes_raw:
+        ctx.fail("modes", "at least one mode", {})
+    modes: list[Mode] = []
+    for mname, spec in modes_raw.items():
+        key = f"modes.{mname}"
+        if not isinstance(mname, str) or not _NAME_RE.match(mname):
+            ctx.fail(key, "a mode name of letters, digits and '_'", mname)
+        spec = _mapping(ctx, key, spec)
+        _check_keys(ctx, key, spec, _MODE_KEYS)
+        merged = {**shared, **spec}
+        dyn = spec.get("dynamics", "linear")
+        if dyn not in ("linear", "nonlinear"):
+            ctx.fail(f"{key}.dynamics", "'linear' or 'nonlinear'", dyn)
+        mtime = spec.get("time", default_time)
+        if mtime not in ("continuous", "discrete"):
+            ctx.fail(f"{key}.time", "'continuous' or 'discrete'", mtime)
+
+        def mat(k: str, shape: tuple[int, int], required: bool = False,
+                _m: Mapping[str, Any] = merged, _key: str = key) -> np.ndarray:
+            if k not in _m:
+                if required:
+                    ctx.fail(f"{_key}.{k}", f"a {shape[0]}x{shape[1]} matrix (missing key; "
+                             f"give it in the mode or in 'shared')", show_got=False)
+                return np.zeros(shape)
+            where = f"{_key}.{k}" if k in spec else f"shared.{k}"
+            return _matrix(ctx, where, _m[k], shape)
+
+        C = mat("C", (ny, n), required=True)
+        B = mat("B", (n, nu))
+        D = mat("D", (n, nw))
+        E = mat("E", (ny, nw))
+        offset = (_vector(ctx, f"{key}.offset", spec["offset"], n) if "offset" in spec
+                  else np.zeros(n))
+        unc_key = f"{key}.uncertainty" if "uncertainty" in spec else "shared.uncertainty"
+        unc = (_vector(ctx, unc_key, merged["uncertainty"], n, nonneg=True)
+               if "uncertainty" in merged else np.zeros(n))
+        A: np.ndarray | None = None
+        model: str | None = None
+        params: dict[str, float] = {}
+        if dyn == "linear":
+            if "model" in spec or "params" in spec:
+                ctx.fail(f"{key}.model", "no 'model'/'params' in a linear mode (set "
+                         "dynamics: nonlinear)", show_got=False)
+            A = mat("A", (n, n), required=True)
+        else:
+            if "A" in spec:
+                ctx.fail(f"{key}.A", "no 'A' in a nonlinear mode (the model gives the "
+                         "dynamics)", show_got=False)
+            if "model" not in spec:
+                ctx.fail(f"{key}.model", "the name of a nonlinear model (missing key)",
+                         show_got=False)
+            model = spec["model"]
+            try:
+                mdl = get_model(str(model))
+            except KeyError as exc:
+                ctx.fail(f"{key}.model", str(exc.args[0]), show_got=False)
+                raise AssertionError from exc  # unreachable: fail raises
+            if mdl.n_states != n or mdl.n_inputs != nu:
+                ctx.fail(f"{key}.model", f"a model with {n} states and {nu} inputs (model "
+                         f"{model!r} has {mdl.n_states} and {mdl.n_inputs})", show_got=False)
+            praw = _mapping(ctx, f"{key}.params", spec.get("params", {}) or {})
+            for p in praw:
+                if p not in mdl.param_names:
+                    ctx.fail(f"{key}.params.{p}", f"a parameter of model {model!r}: "
+                             f"{list(mdl.param_names)}", show_got=False)
+            for p in mdl.param_names:
+                if p not in praw:
+                    if p in mdl.defaults:
+                        params[p] = float(mdl.defaults[p])
+                        continue
+                    ctx.fail(f"{key}.params.{p}", "a number (missing parameter)",
+                             show_got=False)
+                params[p] = _number(ctx, f"{key}.params.{p}", praw[p])
+        modes.append(Mode(mname, dyn, mtime, A, B, C, D, E, offset, unc, model, params))
+    mode_names = [m.name for m in modes]
+
+    def mode_ref(key: str, v: Any) -> int:
+        if v not in mode_names:
+            ctx.fail(key, f"one of the modes {mode_names} (unknown mode)", v)
+        return mode_names.index(v)
+
+    guards: list[Guard] = []
+    graw = data.get("guards", []) or []
+    if not isinstance(graw, list):
+        ctx.fail("guards", "a list of guards", graw)
+    for gi, g in enumerate(graw):
+        key = f"guards[{gi}]"
+        g = _mapping(ctx, key, g)
+        _check_keys(ctx, key, g, {"name", "from", "to", "kind", "when"})
+        for req in ("from", "to", "kind", "when"):
+            if req not in g:
+                ctx.fail(f"{key}.{req}", "a value (missing key)", show_got=False)
+        src = mode_ref(f"{key}.from", g["from"])
+        dst = mode_ref(f"{key}.to", g["to"])
+        if src == dst:
+            ctx.fail(f"{key}.to", "a mode other than 'from'", g["to"])
+        kind = g["kind"]
+        if kind not in ("autonomous", "controlled"):
+            ctx.fail(f"{key}.kind", "'autonomous' (on states) or 'controlled' (on inputs)", kind)
+        names = states if kind == "autonomous" else inputs
+        what = "state" if kind == "autonomous" else "input"
+        when = g["when"]
+        if isinstance(when, Mapping):
+            when = [when]
+        if not isinstance(when, list) or not when:
+            ctx.fail(f"{key}.when", "a non-empty list of {var, op, value}", when)
+        conds = []
+        for ci, c in enumerate(when):
+            ckey = f"{key}.when[{ci}]"
+            c = _mapping(ctx, ckey, c)
+            _check_keys(ctx, ckey, c, {"var", "op", "value"})
+            var = c.get("var")
+            if var not in names:
+                ctx.fail(f"{ckey}.var", f"a {what} of a {kind} guard: {list(names)}", var)
+            op = c.get("op")
+            if op not in _OPS:
+                ctx.fail(f"{ckey}.op", f"one of {list(_OPS)}", op)
+            if "value" not in c:
+                ctx.fail(f"{ckey}.value", "a number (missing key)", show_got=False)
+            conds.append(Condition(var, names.index(var), op, _number(ctx, f"{ckey}.value",
+                                                                        c["value"])))
+        gname = g.get("name", f"{g['from']}->{g['to']}")
+        if not isinstance(gname, str):
+            ctx.fail(f"{key}.name", "a string", gname)
+        guards.append(Guard(gname, src, dst, kind, tuple(conds)))
+    if len({g.name for g in guards}) != len(guards):
+        ctx.fail("guards", "unique guard names", [g.name for g in guards])
+
+    faults: list[FaultChannel] = []
+    fraw = data.get("faults", []) or []
+    if not isinstance(fraw, list):
+        ctx.fail("faults", "a list of fault channels", fraw)
+    for fi, f in enumerate(fraw):
+        key = f"faults[{fi}]"
+        f = _mapping(ctx, key, f)
+        kind = f.get("kind")
+        if kind not in _FAULT_KINDS:
+            ctx.fail(f"{key}.kind", f"one of {list(_FAULT_KINDS)}", kind)
+        target_key = {"sensor_bias": "output", "actuator": "input", "state_jump": "state",
+                      "process": "F", "parameter": "parameter"}[kind]
+        _check_keys(ctx, key, f, {"name", "kind", target_key})
+        if target_key not in f:
+            ctx.fail(f"{key}.{target_key}", f"the {target_key} of a {kind} fault (missing key)",
+                     show_got=False)
+        fname = f.get("name")
+        if not isinstance(fname, str) or not _NAME_RE.match(fname):
+            ctx.fail(f"{key}.name", "a name of letters, digits and '_'", fname)
+        tgt = f[target_key]
+        if kind in ("sensor_bias", "actuator", "state_jump"):
+            pool = {"sensor_bias": outputs, "actuator": inputs, "state_jump": states}[kind]
+            if tgt not in pool:
+                ctx.fail(f"{key}.{target_key}", f"one of {list(pool)}", tgt)
+            faults.append(FaultChannel(fname, kind, pool.index(tgt)))
+        elif kind == "process":
+            faults.append(FaultChannel(fname, kind, -1, F=_vector(ctx, f"{key}.F", tgt, n)))
+        else:
+            for m in modes:
+                if m.dynamics != "nonlinear" or tgt not in m.params:
+                    ctx.fail(f"{key}.parameter", f"a parameter of the nonlinear model of every "
+                             f"mode (mode {m.name!r} lacks it)", tgt)
+            faults.append(FaultChannel(fname, kind, -1, parameter=str(tgt)))
+    if len({f.name for f in faults}) != len(faults):
+        ctx.fail("faults", "unique fault names", [f.name for f in faults])
+
+    if "initial" not in data:
+        ctx.fail("initial", "{mode, state} (missing key)", show_got=False)
+    init = _mapping(ctx, "initial", data["initial"])
+    _check_keys(ctx, "initial", init, {"mode", "state"})
+    if "mode" not in init:
+        ctx.fail("initial.mode", "a mode name (missing key)", show_got=False)
+    q0 = mode_ref("initial.mode", init["mode"])
+    if "state" not in init:
+        ctx.fail("initial.state", f"a list of {n} numbers (missing key)", show_got=False)
+    x0 = _vector(ctx, "initial.state", init["state"], n)
+
+    canonical = _canonical(name, ts, states, inputs, outputs, dists, wbar, vbar, modes,
+                           guards, faults, q0, x0)
+    digest = hashlib.sha256(canonical.encode()).hexdigest()
+    return System(name, description, ts, states, inputs, outputs, dists, tuple(modes),
+                  tuple(guards), tuple(faults), wbar, vbar, q0, x0, origin, canonical, digest)
+
+
+def _canonical(name: str, ts: float, states: Sequence[str], inputs: Sequence[str],
+               outputs: Sequence[str], dists: Sequence[str], wbar: np.ndarray,
+               vbar: np.ndarray, modes: Sequence[Mode], guards: Sequence[Guard],
+               faults: Sequence[FaultChannel], q0: int, x0: np.ndarray) -> str:
+    """Canonical JSON of everything that defines the plant (not its description or layout)."""
+
+    def arr(a: np.ndarray | None) -> Any:
+        return None if a is None else np.asarray(a, dtype=float).tolist()
+
+    doc = {
+        "format_version": 1,
+        "name": name,
+        "sample_time": ts,
+        "states": list(states),
+        "inputs": list(inputs),
+        "outputs": list(outputs),
+        "disturbances": list(dists),
+        "disturbance_bound": arr(wbar),
+        "measurement_noise": arr(vbar),
+        "modes": [
+            {"name": m.name, "dynamics": m.dynamics, "time": m.time, "A": arr(m.A),
+             "B": arr(m.B), "C": arr(m.C), "D": arr(m.D), "E": arr(m.E),
+             "offset": arr(m.offset), "uncertainty": arr(m.uncertainty), "model": m.model,
+             "params": dict(sorted(m.params.items()))}
+            for m in modes
+        ],
+        "guards": [
+            {"name": g.name, "from": g.source, "to": g.target, "kind": g.kind,
+             "when": [[c.var, c.op, c.value] for c in g.conditions]}
+            for g in guards
+        ],
+        "faults": [
+            {"name": f.name, "kind": f.kind, "index": f.index, "F": arr(f.F),
+             "parameter": f.parameter}
+            for f in faults
+        ],
+        "initial": {"mode": q0, "state": arr(x0)},
+    }
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"))

@@ -1,0 +1,84 @@
+"""ament_python package fd_monitor; also installs with pip into a virtualenv.
+
+Console scripts go to ``bin/`` for pip installs; colcon installs them to
+``lib/fd_monitor/`` through setup.cfg. The same programs are also shipped as launchers in
+``lib/fd_monitor/`` (data files), so ``ros2 run fd_monitor <exe>`` finds them in a pip
+prefix too.
+"""
+
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+package_name = "fd_monitor"
+here = Path(__file__).resolve().parent
+
+# Executables: name -> module with main(). One list feeds the console scripts, the launchers
+# under lib/fd_monitor/ and the `python -m fd_monitor run <node>` table.
+EXECUTABLES = {
+    "fd_monitor": "fd_monitor.cli",
+    "plant_sim": "fd_monitor.nodes.plant_sim",
+    "observer": "fd_monitor.nodes.observer",
+    "detector": "fd_monitor.nodes.detector",
+    "agei": "fd_monitor.nodes.agei",
+    "bias_estimator": "fd_monitor.nodes.bias_estimator",
+    "monitor": "fd_monitor.nodes.monitor",
+    "replay": "fd_monitor.commands.replay",
+    "record": "fd_monitor.commands.record",
+    "design": "fd_monitor.commands.design",
+    "report": "fd_monitor.commands.report",
+}
+
+
+def data_tree(src: str, dest: str) -> list[tuple[str, list[str]]]:
+    """(install dir, files) pairs for every file below ``src``, kept in the same layout."""
+    out: dict[str, list[str]] = {}
+    for p in sorted((here / src).rglob("*")):
+        if p.is_file() and "__pycache__" not in p.parts:
+            rel = p.relative_to(here)
+            out.setdefault(str(Path(dest) / rel.parent.relative_to(src)), []).append(str(rel))
+    return sorted(out.items())
+
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "benchmarks"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("lib/" + package_name, sorted(f"launchers/{n}" for n in EXECUTABLES)),
+        *data_tree("config", f"share/{package_name}/config"),
+    ],
+    install_requires=[
+        "setuptools",
+        "numpy",
+        "scipy",
+        "cvxpy",
+        "clarabel",
+        "pyyaml",
+        "rosbags",
+        "mcap",
+        "mcap-ros2-support",
+        "matplotlib",
+    ],
+    extras_require={
+        "ros": [
+            "ros-jazzy-rclpy",
+            "ros-jazzy-std-msgs",
+            "ros-jazzy-diagnostic-msgs",
+            "ros-jazzy-rmw-fastrtps-cpp",
+        ],
+        "dev": ["pytest", "ruff", "mypy", "types-PyYAML", "colcon-core", "colcon-ros",
+                "colcon-python-setup-py"],
+    },
+    zip_safe=True,
+    maintainer="fd_monitor developers",
+    maintainer_email="fd-monitor@example.com",
+    description="Model-based fault detection for ROS 2 plants and robots",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [f"{n} = {m}:main" for n, m in EXECUTABLES.items()],
+    },
+)

@@ -1,0 +1,38 @@
+"""Test configuration: isolate DDS and ROS logs for the whole run.
+
+Every test run gets its own ROS_DOMAIN_ID and localhost-only discovery, so tests never see
+(or disturb) another ROS graph on the machine; ROS logs go to a temporary folder.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+# Set before any rclpy import (the RMW reads them at init).
+os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.pop("ROS_LOCALHOST_ONLY", None)
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="fd_monitor_roslog_"))
+os.environ.setdefault("MPLBACKEND", "Agg")
+os.environ.pop("FD_MONITOR_CONFIG", None)
+
+
+@pytest.fixture(scope="session")
+def repo() -> Path:
+    """The repository root."""
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def python() -> str:
+    """The interpreter running the tests (the project's .venv under scripts/test.sh)."""
+    return sys.executable
