@@ -1,0 +1,69 @@
+"""``python -m fd_monitor design <method> SYSTEM -o GAINS``: run a designer, write a gain file.
+
+Each method is a module ``fd_monitor.design.<method>`` with ``add_arguments(parser)`` (its
+own options; SYSTEM, ``-o`` and ``--json`` are added here) and ``run(args) -> int``. cvxpy is
+imported only by those modules.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from fd_monitor.commands._common import add_json_flag
+
+__all__ = ["METHODS", "add_arguments", "run", "main"]
+
+#: method -> one-line help; the module is fd_monitor.design.<method>.
+METHODS: dict[str, str] = {
+    "qb": "quadratic-boundedness observer (LTI / PWA), Alessandri, Boem & Parisini",
+    "thresholds": "filters, filtered-residual thresholds and AGEI matrix, Heracleous et al.",
+    "hinf_sc": "bank of H-infinity residual generators with a sensitivity constraint (thesis)",
+    "hminus_switched": "switched H-minus generalized observer, Farhat & Koenig",
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add one sub-parser per method; only the chosen method's module is imported."""
+    sub = parser.add_subparsers(dest="method", metavar="<method>", required=True,
+                                parser_class=type(parser))
+    chosen = _chosen_method(sys.argv[1:])
+    for name, help_ in METHODS.items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        p.add_argument("system", metavar="SYSTEM",
+                       help="plant file, or the name of a shipped plant (config/systems/)")
+        p.add_argument("-o", "--output", metavar="GAINS", default=None,
+                       help="gain file to write (default: config/gains/<plant>_<method>.yaml "
+                            "in a checkout, else ./<plant>_<method>.yaml)")
+        add_json_flag(p)
+        if name == chosen:
+            mod = importlib.import_module(f"fd_monitor.design.{name}")
+            mod.add_arguments(p)
+            p.set_defaults(_method_run=mod.run)
+
+
+def _chosen_method(argv: Sequence[str]) -> str | None:
+    words = [a for a in argv if not a.startswith("-")]
+    if "design" in words:
+        i = words.index("design")
+        if i + 1 < len(words):
+            return words[i + 1]
+    elif words and words[0] in METHODS:  # the `design` console script
+        return words[0]
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the chosen method's designer."""
+    if not hasattr(args, "_method_run"):
+        raise SystemExit(f"fd_monitor design: error: method {args.method!r} is not available")
+    return int(args._method_run(args) or 0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The ``design`` console script / ``ros2 run fd_monitor design``."""
+    from fd_monitor.cli import main as cli_main
+
+    return cli_main(["design", *(sys.argv[1:] if argv is None else argv)])
