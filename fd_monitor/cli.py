@@ -16,7 +16,10 @@ from collections.abc import Sequence
 
 from fd_monitor.errors import FdMonitorError
 
-__all__ = ["SUBCOMMANDS", "build_parser", "main"]
+__all__ = ["ARGV", "SUBCOMMANDS", "build_parser", "main"]
+
+#: The arguments being parsed (subcommands with sub-subcommands read it to import lazily).
+ARGV: list[str] = []
 
 #: name -> one-line help. The module is fd_monitor.commands.<name>.
 SUBCOMMANDS: dict[str, str] = {
@@ -46,6 +49,7 @@ def _command_module(name: str):  # type: ignore[no-untyped-def]
 
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     """The top-level parser; only the chosen subcommand's module is imported."""
+    ARGV[:] = list(argv)
     parser = _Parser(prog="fd_monitor", description=__doc__.splitlines()[0],
                      formatter_class=argparse.RawDescriptionHelpFormatter,
                      epilog="Run `python -m fd_monitor <subcommand> --help` for details.")

@@ -29,7 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add one sub-parser per method; only the chosen method's module is imported."""
     sub = parser.add_subparsers(dest="method", metavar="<method>", required=True,
                                 parser_class=type(parser))
-    chosen = _chosen_method(sys.argv[1:])
+    from fd_monitor.cli import ARGV
+
+    chosen = _chosen_method(ARGV)
     for name, help_ in METHODS.items():
         p = sub.add_parser(name, help=help_, description=help_)
         p.add_argument("system", metavar="SYSTEM",
@@ -46,12 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _chosen_method(argv: Sequence[str]) -> str | None:
     words = [a for a in argv if not a.startswith("-")]
-    if "design" in words:
-        i = words.index("design")
-        if i + 1 < len(words):
-            return words[i + 1]
-    elif words and words[0] in METHODS:  # the `design` console script
-        return words[0]
+    if words and words[0] == "design" and len(words) > 1:
+        return words[1]
     return None
 
 
