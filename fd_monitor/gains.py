@@ -158,7 +158,7 @@ def save_gains(path: str | Path, method: str, system: System, parameters: Mappin
         "format_version": FORMAT_VERSION,
         "method": method,
         "system": {"name": system.name, "sha256": system.sha256},
-        "created": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "created": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "solver": to_plain(solver),
         "parameters": to_plain(parameters),
         "results": to_plain(results),

@@ -197,7 +197,7 @@ class Scenario:
     @property
     def n_samples(self) -> int:
         """Number of samples of a run."""
-        return int(round(self.duration / self.system.sample_time))
+        return round(self.duration / self.system.sample_time)
 
 
 def load_scenario(source: str | Path, system: System | None = None) -> Scenario:

@@ -393,7 +393,13 @@ class _Ctx:
         raise SystemFileError(f"{self.origin}: {key}: expected {expected}{tail}")
 
 
+class _Got(str):
+    """A description of what was found, printed as is (not quoted)."""
+
+
 def _short(v: Any) -> str:
+    if isinstance(v, _Got):
+        return str(v)
     s = repr(v)
     return s if len(s) <= 60 else s[:57] + "..."
 
@@ -440,8 +446,8 @@ def _matrix(ctx: _Ctx, key: str, v: Any, shape: tuple[int, int]) -> np.ndarray:
     got = (len(v), len(v[0]) if v else 0)
     if len(v) != rows or any(len(r) != cols for r in v):
         widths = sorted({len(r) for r in v})
-        ctx.fail(key, f"a {rows}x{cols} matrix", f"{got[0]} rows of length {widths}",
-                 show_got=True)
+        ctx.fail(key, f"a {rows}x{cols} matrix",
+                 _Got(f"{got[0]} rows of length {', '.join(map(str, widths))}"))
     out = np.empty(shape)
     for i, r in enumerate(v):
         for j, e in enumerate(r):
@@ -455,7 +461,7 @@ def _vector(ctx: _Ctx, key: str, v: Any, size: int, *, nonneg: bool = False) -> 
     if not isinstance(v, list):
         ctx.fail(key, f"a list of {size} numbers", v)
     if len(v) != size:
-        ctx.fail(key, f"a list of {size} numbers", f"{len(v)} numbers")
+        ctx.fail(key, f"a list of {size} numbers", _Got(f"{len(v)} numbers"))
     return np.array([_number(ctx, f"{key}[{i}]", e, nonneg=nonneg) for i, e in enumerate(v)])
 
 
@@ -548,13 +554,14 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
             ctx.fail(f"{key}.time", "'continuous' or 'discrete'", mtime)
 
         def mat(k: str, shape: tuple[int, int], required: bool = False,
-                _m: Mapping[str, Any] = merged, _key: str = key) -> np.ndarray:
+                _m: Mapping[str, Any] = merged, _key: str = key,
+                _spec: Mapping[str, Any] = spec) -> np.ndarray:
             if k not in _m:
                 if required:
                     ctx.fail(f"{_key}.{k}", f"a {shape[0]}x{shape[1]} matrix (missing key; "
                              f"give it in the mode or in 'shared')", show_got=False)
                 return np.zeros(shape)
-            where = f"{_key}.{k}" if k in spec else f"shared.{k}"
+            where = f"{_key}.{k}" if k in _spec else f"shared.{k}"
             return _matrix(ctx, where, _m[k], shape)
 
         C = mat("C", (ny, n), required=True)
@@ -649,8 +656,8 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                 ctx.fail(f"{ckey}.op", f"one of {list(_OPS)}", op)
             if "value" not in c:
                 ctx.fail(f"{ckey}.value", "a number (missing key)", show_got=False)
-            conds.append(Condition(var, names.index(var), op, _number(ctx, f"{ckey}.value",
-                                                                        c["value"])))
+            conds.append(Condition(str(var), names.index(var), str(op),
+                                   _number(ctx, f"{ckey}.value", c["value"])))
         gname = g.get("name", f"{g['from']}->{g['to']}")
         if not isinstance(gname, str):
             ctx.fail(f"{key}.name", "a string", gname)
@@ -682,15 +689,15 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
             pool = {"sensor_bias": outputs, "actuator": inputs, "state_jump": states}[kind]
             if tgt not in pool:
                 ctx.fail(f"{key}.{target_key}", f"one of {list(pool)}", tgt)
-            faults.append(FaultChannel(fname, kind, pool.index(tgt)))
+            faults.append(FaultChannel(str(fname), kind, pool.index(tgt)))
         elif kind == "process":
-            faults.append(FaultChannel(fname, kind, -1, F=_vector(ctx, f"{key}.F", tgt, n)))
+            faults.append(FaultChannel(str(fname), kind, -1, F=_vector(ctx, f"{key}.F", tgt, n)))
         else:
             for m in modes:
                 if m.dynamics != "nonlinear" or tgt not in m.params:
                     ctx.fail(f"{key}.parameter", f"a parameter of the nonlinear model of every "
                              f"mode (mode {m.name!r} lacks it)", tgt)
-            faults.append(FaultChannel(fname, kind, -1, parameter=str(tgt)))
+            faults.append(FaultChannel(str(fname), kind, -1, parameter=str(tgt)))
     if len({f.name for f in faults}) != len(faults):
         ctx.fail("faults", "unique fault names", [f.name for f in faults])
 

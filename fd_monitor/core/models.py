@@ -92,7 +92,7 @@ def rk4(rhs: Callable[[np.ndarray, np.ndarray, Params], np.ndarray], x: np.ndarr
 # switched bypass valve T1-T3 and an upper pipe T3 -> T2 at height h_upper.
 
 
-def _signed_flow(area: "float | np.ndarray", dh: np.ndarray, g: "float | np.ndarray") -> np.ndarray:
+def _signed_flow(area: float | np.ndarray, dh: np.ndarray, g: float | np.ndarray) -> np.ndarray:
     """Torricelli flow s(dh) S sqrt(2 g |dh|) (thesis eq. 7.11-7.12), m^3/s."""
     return area * np.sign(dh) * np.sqrt(2.0 * g * np.abs(dh))
 

@@ -88,7 +88,8 @@ class SampledPlant:
         self.system = system
         self.dt = system.sample_time
         self.process_faults = [f for f in system.faults if f.kind == "process"]
-        F = (np.column_stack([f.F for f in self.process_faults]) if self.process_faults
+        F = (np.column_stack([f.F for f in self.process_faults if f.F is not None])
+             if self.process_faults
              else np.zeros((system.n, 0)))
         self.modes = tuple(self._discretise(m, F) for m in system.modes)
         self._models = tuple(get_model(m.model) if m.model else None for m in system.modes)

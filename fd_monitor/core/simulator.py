@@ -187,9 +187,11 @@ class PlantSimulator:
         for i in self._idx.get("actuator", []):
             u_applied[:, sys_.faults[i].index] += faults[:, i]
 
-        params_delta = {sys_.faults[i].parameter: faults[:, i]
-                        for i in self._idx.get("parameter", [])}
-        params_delta = {p: d for p, d in params_delta.items() if p is not None}
+        params_delta: dict[str, np.ndarray] = {}
+        for i in self._idx.get("parameter", []):
+            name = sys_.faults[i].parameter
+            if name is not None:
+                params_delta[name] = faults[:, i]
         q_mid = self.plant.next_mode(self.q, self.x, u, "controlled")
         x_next = self.plant.step(self.q, self.x, u_applied, w,
                                  faults[:, self._proc_cols] if self._proc_cols else None,
