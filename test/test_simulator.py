@@ -205,3 +205,24 @@ BAD_SCENARIOS: list[Any] = [
 def test_bad_scenarios(tmp_path: Path, doc: Any, match: str) -> None:
     with pytest.raises(ScenarioError, match=match):
         parse_scenario(doc, str(tmp_path / "s.yaml"))
+
+
+def test_three_tank_scalar_path_is_bit_identical_to_the_vectorised_one() -> None:
+    """A single stream takes a float fast path; it must give the batch path's exact bits."""
+    from fd_monitor.core.models import get_model
+
+    mdl = get_model("three_tank")
+    system = load_system("three_tank")
+    rng = np.random.default_rng(5)
+    X = rng.uniform(0.0, 0.7, (400, 3))
+    X[:5] = [[0.35, 0.2, 0.35], [0.4, 0.4, 0.4], [0.0, 0.0, 0.0], [0.5, 0.1, 0.36],
+             [0.3, 0.2, 0.3]]  # equal levels, empty tanks, the pipe edge
+    U = np.column_stack([rng.uniform(-1e-5, 1.5e-4, 400), rng.uniform(0, 1e-4, 400),
+                         rng.integers(0, 2, 400)])
+    for mode in system.modes:
+        batch = mdl.step(X, U, mode.params, 0.1)
+        for i in range(X.shape[0]):
+            single = mdl.step(X[i:i + 1], U[i:i + 1], mode.params, 0.1)
+            assert single.shape == (1, 3)
+            np.testing.assert_array_equal(single[0], batch[i])
+            np.testing.assert_array_equal(mdl.step(X[i], U[i], mode.params, 0.1), batch[i])

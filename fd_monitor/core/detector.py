@@ -1,0 +1,142 @@
+"""Filtered residual and detection threshold (Heracleous et al., eq. 8-19).
+
+Per sample k: ``w_k = H[y~]_k`` (eq. 10), ``w^_k = H[x^]_k`` (eq. 13), ``r_k = w_k - w^_k``
+(eq. 14), and the threshold in force
+
+    R_{i,k} = max(nominal_{i,k}, override_{i,k-1})      (override: AGEI, NaN = none)
+    nominal_{i,k} = noise_term_i + H_p_bar[eta_bar_i(q^) + remainder_bar_i(q^)]_k
+
+(the combined form of eq. 19, see :mod:`fd_monitor.core.thresholds`). ``alarm_{i,k} = |r_{i,k}| >
+R_{i,k}``: no latching (a per-sample flag, as published on ``/fd/alarm``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fd_monitor.core.filters import FilterBank, FilterSpec
+from fd_monitor.core.thresholds import DiagnosisGains
+from fd_monitor.system import System
+
+__all__ = ["ResidualDetector", "DetectorOutput", "no_override"]
+
+
+def no_override(ny: int, batch: int | None = None) -> np.ndarray:
+    """The 'no threshold override' value: NaN everywhere, (ny,) or (N, ny)."""
+    return np.full(ny if batch is None else (batch, ny), np.nan)
+
+
+@dataclass(frozen=True)
+class DetectorOutput:
+    """Detector output at sample k.
+
+    Attributes
+    ----------
+    k : int
+    residual : numpy.ndarray
+        (ny,) r_k, output units.
+    w : numpy.ndarray
+        (ny,) w_k = H[y~]_k, the filtered compensated measurement (AGEI input), output units.
+    threshold : numpy.ndarray
+        (ny,) R_k in force (override included).
+    nominal : numpy.ndarray
+        (ny,) nominal threshold r_bar at k (without override; AGEI's recognition test).
+    alarm : numpy.ndarray
+        (ny,) bool, |r_k| > R_k.
+
+    Topics: ``/fd/residual`` = residual then w (labels ``r:<name>``, ``w:<name>``);
+    ``/fd/threshold`` = threshold then nominal (``R:<name>``, ``rbar:<name>``); ``/fd/alarm`` =
+    alarm as 0.0/1.0 (output names). See :meth:`payloads`.
+    """
+
+    k: int
+    residual: np.ndarray
+    w: np.ndarray
+    threshold: np.ndarray
+    nominal: np.ndarray
+    alarm: np.ndarray
+
+    def payloads(self, system: System) -> dict[str, tuple[tuple[str, ...], np.ndarray]]:
+        """``{topic: (labels, values)}`` for the detector's three topics (single stream)."""
+        o = system.outputs
+        return {
+            "/fd/residual": ((*(f"r:{n}" for n in o), *(f"w:{n}" for n in o)),
+                             np.concatenate([self.residual, self.w])),
+            "/fd/threshold": ((*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o)),
+                              np.concatenate([self.threshold, self.nominal])),
+            "/fd/alarm": (tuple(o), np.asarray(self.alarm, dtype=float)),
+        }
+
+
+class ResidualDetector:
+    """Residual generator and threshold schedule.
+
+    Parameters
+    ----------
+    system : System
+    gains : DiagnosisGains
+    batch : int or None
+        None: single stream; N: N runs.
+    """
+
+    def __init__(self, system: System, gains: DiagnosisGains, *,
+                 batch: int | None = None) -> None:
+        self.system = system
+        self.gains = gains
+        self.batch = batch
+        self.N = 1 if batch is None else int(batch)
+        ny = system.ny
+        self._H_y = FilterBank(gains.filter, (self.N, ny))
+        self._H_x = FilterBank(gains.filter, (self.N, ny))
+        self._Hbar = FilterBank(FilterSpec(gains.h_p_bar, np.array([1.0])), (self.N, ny))
+        self._noise = gains.noise_term[None, :]
+        self._b = gains.per_sample_bound  # (s, ny)
+
+    def reset(self) -> None:
+        """Forget the filters' history."""
+        for f in (self._H_y, self._H_x, self._Hbar):
+            f.reset()
+
+    def step_batch(self, k: int, y_tilde: np.ndarray, x_hat: np.ndarray, mode: np.ndarray,
+                   override: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Batched step: (N, ny), (N, n), (N,), (N, ny) -> (r, w, R, nominal, alarm)."""
+        w = self._H_y.step(y_tilde)
+        w_hat = self._H_x.step(x_hat)
+        r = w - w_hat
+        nominal = self._noise + self._Hbar.step(self._b[mode])
+        R = np.where(np.isnan(override), nominal, np.fmax(nominal, override))
+        alarm = np.abs(r) > R
+        return r, w, R, nominal, alarm
+
+    def step(self, k: int, y_tilde: np.ndarray, x_hat: np.ndarray, mode: int | np.ndarray,
+             override: np.ndarray | None = None) -> DetectorOutput:
+        """Process sample k.
+
+        Parameters
+        ----------
+        k : int
+        y_tilde : numpy.ndarray
+            (ny,) y~_k from the observer.
+        x_hat : numpy.ndarray
+            (n,) x^_k from the observer.
+        mode : int
+            q^_k from the observer.
+        override : numpy.ndarray, optional
+            (ny,) thresholds decided by AGEI at k - 1 (NaN: none).
+
+        Returns
+        -------
+        DetectorOutput
+        """
+        ny = self.system.ny
+        if self.batch is None:
+            ov = no_override(ny) if override is None else np.asarray(override, float)
+            r, w, R, nom, al = self.step_batch(
+                k, np.asarray(y_tilde, float)[None], np.asarray(x_hat, float)[None],
+                np.array([int(np.asarray(mode))]), ov[None])
+            return DetectorOutput(k, r[0], w[0], R[0], nom[0], al[0])
+        ov = no_override(ny, self.N) if override is None else override
+        r, w, R, nom, al = self.step_batch(k, y_tilde, x_hat, np.asarray(mode, int), ov)
+        return DetectorOutput(k, r, w, R, nom, al)

@@ -1,0 +1,198 @@
+"""Hybrid automaton observer (Heracleous et al., eq. 5-7).
+
+Per sample k the observer receives ``u_k``, ``y_k``, the bias estimate ``sigma^_k`` (from the
+estimator at k - 1) and the autonomous-guard trigger decided by AGEI at k - 1, and
+
+1. completes its mode: ``q^_k = trigger(q_mid_k)``, where ``q_mid_k`` are the controlled guards
+   on ``u_{k-1}`` applied to ``q^_{k-1}`` (prepared at k - 1); the trigger names a guard of the
+   AGEI matrix and is applied when ``q_mid_k`` is its enabling mode (or the same condition
+   leaves ``q_mid_k``: the parallel composition of eq. 7);
+2. outputs ``(q^_k, x^_k)`` and the compensated measurement ``y~_k = y_k - sigma^_k``;
+3. prepares ``x^_{k+1} = f(q^_k, y~_k, u_k)`` (eq. 6) and ``q_mid_{k+1}`` (controlled guards on
+   ``u_k``). Autonomous guards are never evaluated here: only AGEI triggers them.
+
+The first sample initialises ``x^ = y~`` (the paper's ``x^_0 = y_0``) and ``q^`` to the plant's
+initial mode (or ``initial_mode``).
+
+Everything is batched over N runs; with ``batch=None`` the public :meth:`HybridObserver.step`
+takes and returns 1-D arrays (the node / :class:`~fd_monitor.core.monitor.Monitor` case).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fd_monitor.core.models import get_model
+from fd_monitor.core.plant import SampledPlant
+from fd_monitor.system import System
+
+__all__ = ["HybridObserver", "ModeDynamics", "ObserverOutput", "NO_TRIGGER"]
+
+#: Trigger value meaning "no autonomous guard event".
+NO_TRIGGER = -1
+
+
+class ModeDynamics:
+    """``f(q, x, u)`` for a batch with per-run modes, in one model call when possible.
+
+    When every mode is a nonlinear mode of the same model (three_tank), the parameters are
+    gathered per run from a (modes,) table and the model is called once on the whole batch
+    (exactly the per-mode values, elementwise arithmetic: the same bits as
+    :meth:`SampledPlant.step` mode by mode). Otherwise it defers to :class:`SampledPlant`.
+
+    Parameters
+    ----------
+    system : System
+    """
+
+    def __init__(self, system: System) -> None:
+        self.plant = SampledPlant(system)
+        self.dt = system.sample_time
+        models = {m.model for m in system.modes}
+        self._model = None
+        if all(m.dynamics == "nonlinear" for m in system.modes) and len(models) == 1 and \
+                all(m.D.size == 0 or not np.any(m.D) for m in system.modes):
+            name = next(iter(models))
+            assert name is not None
+            self._model = get_model(name)
+            keys = set().union(*(m.params.keys() for m in system.modes))
+            self._table = {k: np.array([float(m.params[k]) for m in system.modes])
+                           for k in keys}
+            # scalars where every mode agrees (e.g. 'substeps' must stay a scalar)
+            self._const = {k: float(v[0]) for k, v in self._table.items() if np.all(v == v[0])}
+
+    def __call__(self, q: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """(N,) int modes, (N, n) states, (N, nu) inputs -> (N, n) next states."""
+        if self._model is None:
+            return self.plant.step(q, x, u)
+        p: dict[str, float | np.ndarray] = dict(self._const)
+        for k, v in self._table.items():
+            if k not in self._const:
+                p[k] = v[q]
+        return self._model.step(x, u, p, self.dt)
+
+
+@dataclass(frozen=True)
+class ObserverOutput:
+    """Observer output at sample k (published on ``/fd/state_estimate``).
+
+    Attributes
+    ----------
+    k : int
+        Sample index.
+    mode : int or numpy.ndarray
+        q^_k: mode index (batch: (N,) int).
+    x_hat : numpy.ndarray
+        (n,) x^_k, state units (batch: (N, n)).
+    y_tilde : numpy.ndarray
+        (ny,) y~_k = y_k - sigma^_k, output units (batch: (N, ny)).
+
+    ``/fd/state_estimate`` layout (Float64MultiArray, data[0] = k, then): ``mode``, ``x_hat``
+    (state names), ``y_tilde`` (labels ``y~<name>``); see :meth:`payload`.
+    """
+
+    k: int
+    mode: int | np.ndarray
+    x_hat: np.ndarray
+    y_tilde: np.ndarray
+
+    def payload(self, system: System) -> tuple[tuple[str, ...], np.ndarray]:
+        """Labels and values for ``/fd/state_estimate`` (single stream)."""
+        labels = ("mode", *system.states, *(f"y~{o}" for o in system.outputs))
+        vals = np.concatenate([[float(np.asarray(self.mode))], np.ravel(self.x_hat),
+                               np.ravel(self.y_tilde)])
+        return labels, vals
+
+
+class HybridObserver:
+    """The hybrid automaton observer of eq. 5-7.
+
+    Parameters
+    ----------
+    system : System
+        Full-state measured plant (y = x + v).
+    batch : int or None
+        None: single stream (1-D arrays); N: N runs in lock step ((N, .) arrays).
+    initial_mode : int, optional
+        q^_0; default the plant's initial mode.
+    """
+
+    def __init__(self, system: System, *, batch: int | None = None,
+                 initial_mode: int | None = None) -> None:
+        self.system = system
+        self.plant = SampledPlant(system)
+        self.f = ModeDynamics(system)
+        self.batch = batch
+        self.N = 1 if batch is None else int(batch)
+        self.initial_mode = system.initial_mode if initial_mode is None else int(initial_mode)
+        # trigger table: for guard j (autonomous) and current mode m, the guard to apply
+        s = len(system.modes)
+        self._trig = np.full((len(system.guards) + 1, s), -1, dtype=int)
+        for j, g in enumerate(system.guards):
+            if g.kind != "autonomous":
+                continue
+            for m in range(s):
+                for g2 in system.guards_from(m, "autonomous"):
+                    if g2.conditions == g.conditions:
+                        self._trig[j, m] = g2.target
+                        break
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the state before the first sample."""
+        self.k_next: int | None = None
+        self.q_mid = np.full(self.N, self.initial_mode, dtype=int)
+        self.x_next = np.zeros((self.N, self.system.n))
+
+    def _apply_trigger(self, q: np.ndarray, trigger: np.ndarray) -> np.ndarray:
+        t = np.where(trigger >= 0, trigger, len(self.system.guards))
+        tgt = self._trig[t, q]
+        return np.where(tgt >= 0, tgt, q)
+
+    def step_batch(self, k: int, u: np.ndarray, y: np.ndarray, sigma_hat: np.ndarray,
+                   trigger: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Batched step; arrays (N, nu), (N, ny), (N, ny), (N,) int -> (q^, x^, y~).
+
+        Inputs are assumed validated (see :func:`fd_monitor.core.monitor.validate_sample`).
+        """
+        y_t = y - sigma_hat
+        q = self._apply_trigger(self.q_mid, trigger)
+        if self.k_next is None:
+            x_hat = y_t.copy()
+        else:
+            x_hat = self.x_next
+        self.x_next = self.f(q, y_t, u)
+        self.q_mid = self.plant.next_mode(q, y_t, u, "controlled")
+        self.k_next = k + 1
+        return q, x_hat, y_t
+
+    def step(self, k: int, u: np.ndarray, y: np.ndarray, sigma_hat: np.ndarray,
+             trigger: int | np.ndarray = NO_TRIGGER) -> ObserverOutput:
+        """Process sample k.
+
+        Parameters
+        ----------
+        k : int
+            Sample index (consecutive: k of the previous call + 1).
+        u : numpy.ndarray
+            (nu,) inputs u_k (batch: (N, nu)).
+        y : numpy.ndarray
+            (ny,) measurements y_k, output units (batch: (N, ny)).
+        sigma_hat : numpy.ndarray
+            (ny,) sigma^_k from the estimator at k - 1 (zeros before detection).
+        trigger : int
+            Guard index decided by AGEI at k - 1, or ``NO_TRIGGER`` (batch: (N,) int).
+
+        Returns
+        -------
+        ObserverOutput
+        """
+        if self.batch is None:
+            q, x, yt = self.step_batch(k, np.asarray(u, float)[None], np.asarray(y, float)[None],
+                                       np.asarray(sigma_hat, float)[None],
+                                       np.array([int(np.asarray(trigger))]))
+            return ObserverOutput(k, int(q[0]), x[0].copy(), yt[0].copy())
+        q, x, yt = self.step_batch(k, u, y, sigma_hat, np.asarray(trigger, dtype=int))
+        return ObserverOutput(k, q, x.copy(), yt)

@@ -1,0 +1,511 @@
+"""Design of filters, thresholds, AGEI matrix and bias-estimator gains (Heracleous et al.).
+
+``python -m fd_monitor design thresholds SYSTEM -o GAINS [--json] [options]``
+
+Plant class: ``x_{k+1} = f(q_k, x_k, u_k) + eta_k``, ``y_k = x_k + v_k (+ sigma)`` (eq. 3),
+``|v_i| <= v_bar_i``, ``|eta_i| <= eta_bar_i(q)``; observer ``x^_{k+1} = f(q^_k, y~_k, u_k)``
+(eq. 6) with ``x^_0 = y~_0``; residual ``r = H[y~] - H[x^]`` (eq. 14).
+
+Threshold derivation (why not eq. 19 term by term)
+--------------------------------------------------
+By linearity ``r = H[e]`` with the one-step prediction error ``e_k = y~_k - x^_k`` (``e_0 = 0``).
+Fault-free and with ``q^ = q``::
+
+    e_k = v_k - [f(q, x_{k-1} + v_{k-1}, u) - f(q, x_{k-1}, u)] + eta_{k-1}
+        = v_k - A_q v_{k-1} - rho_{k-1} + eta_{k-1},
+
+where ``A_q`` is the linear part of mode q (exact for linear modes; the Jacobian at the centre of
+the mode's operating region for nonlinear ones) and ``rho = f(x + v) - f(x) - A_q v`` the
+nonlinear remainder. Hence (eq. 16 with the noise kept as one sequence)::
+
+    r_{i,k} = sum_m sum_l (delta_il h(m) - A_q,il h(m-1)) v_{l,k-m}
+              + H_p[eta_i - rho_i]_k
+
+    |r_{i,k}| <= sum_l v_bar_l || delta_il h - A_q,il h_p ||_1          (exact l1 norm, "noise_l1")
+                 + H_p_bar[eta_bar_i(q^) + rho_bar_i(q^)]_k              (eq. 19's H_p_bar term)
+
+The noise enters twice (v_k through H[y], v_{k-1} through f(y_{k-1})); for a low-pass H with
+``H(1) = 1`` and ``A_q ~ I`` the two contributions nearly cancel: the l1 norm of
+``h - A h_p`` is about ``2 max|h|`` (``2/L`` for a moving average of L samples), while bounding
+them separately (eq. 19: ``v_F_bar = ||h||_1 v_bar`` plus ``Delta-f_bar >= ||h_p||_1 |A| v_bar``)
+gives about ``2 ||h||_1 v_bar = 2 v_bar`` whatever the filter. The combined bound is exact (tight)
+for the linear part and guaranteed; ``rho_bar`` is the paper's Monte Carlo bound (Assumption 4)
+applied to the small remainder only: the maximum of |rho| over ``mc_samples`` samples of states
+in the operating region, inputs seen there and noise in the box (half of them at its vertices),
+times ``(1 + mc_margin)``. ``r_bar_separate`` (eq. 19 term by term) is written for comparison.
+
+Operating region (Assumption 1): the states and inputs of fault-free simulations of the design
+scenarios (``--scenario``, default every shipped ``<plant>_*`` scenario, faults removed), per
+mode, widened by ``--tube`` (state units) and clipped to the mode's invariant (the negation of
+its single-condition autonomous guards).
+
+Filter: a moving average of L samples by default; with it a bias step sigma appears in r as
+``sigma h(t)`` while the noise bound is ``2 v_bar / L + L-independent terms``, and the model part
+costs ``||h_p_bar||_1 (eta_bar + rho_bar)``; L is the largest length with
+``L max_q (eta_bar + rho_bar) <= kappa 2 v_bar`` (``kappa`` = 0.25, the model part at most a quarter
+of the noise part) capped by ``--max-window`` seconds (``/ Ts``). ``--filter iir --pole p`` gives
+the first-order filter ``(1 - p)/(1 - p z^-1)``. ``H_p_bar = |h_p|`` (exact majorant, truncated
+where the tail is below 1e-12 for IIR).
+
+AGEI (eq. 20-22): one row per autonomous guard ``x_i op xi`` from q^ to q*; ``Xi^± = (1 ± delta)
+|H(1) xi|``; the affected residuals are those where the mode mismatch ``mu = f(q*, x) - f(q^, x)``
+is not negligible (> 1 % of its largest component) in the guard band; the band ``d_band`` is 1.5
+times the distance past the guard at which ``|mu_i| >= 2 r_bar_i`` for some affected i (beyond it
+the event is recognised for sure, since ``|r_i| >= |H[mu_i]| - r_bar_i > r_bar_i``);
+``r_bar* = max(r_bar(q^), r_bar(q*)) + ||h_p_bar||_1 mu_bar`` with ``mu_bar`` the Monte Carlo
+bound (with margin) of |mu| over the band. Hold length K = settling length of h.
+
+Estimator (eq. 23-26): ``Lambda = lambda I`` (small: trust the model), ``Gamma = gamma I``
+(learning time constant ~1/gamma samples), started from the presmoother's fault-free state (see
+:mod:`fd_monitor.core.bias_estimator`). Certified: Lambda Schur, Gamma SPD, the linearised error
+dynamics ``[[J_q - Lambda, -Lambda], [-Gamma, I - Gamma]]`` Schur at every mode's Jacobian J_q.
+Isolation threshold: the l1 bound of the map (v, eta) -> sigma~_i of the linearised error
+dynamics plus the peak response to the presmoother's initial-error bound (worst mode): a healthy
+sensor's |sigma^_i| stays below it (to first order). Isolation delay: samples for the response
+of sigma~ to a unit bias to fall below 5 % (worst mode).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.core.filters import (
+    first_order,
+    impulse_response,
+    moving_average,
+    settling_length,
+)
+from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.simulator import simulate_batch
+from fd_monitor.core.thresholds import DEFAULT_DELTA, estimator_error_matrix, noise_l1_bound
+from fd_monitor.errors import DesignError
+from fd_monitor.gains import save_gains
+from fd_monitor.paths import config_dirs, repo_root
+from fd_monitor.scenario import Scenario, load_scenario
+from fd_monitor.system import System, load_system
+
+__all__ = ["design_thresholds", "add_arguments", "run", "default_scenarios"]
+
+_NEG = {">": "<=", ">=": "<", "<": ">=", "<=": ">", "==": None}
+
+
+def default_scenarios(system: System) -> list[str]:
+    """Shipped scenarios ``<plant>_*.yaml`` of ``system`` (design region)."""
+    names: list[str] = []
+    for d in config_dirs():
+        sd = d / "scenarios"
+        if sd.is_dir():
+            names += sorted(str(p) for p in sd.glob(f"{system.name}_*.yaml"))
+    return names
+
+
+def _jacobian(plant: SampledPlant, q: int, x: np.ndarray, u: np.ndarray,
+              eps: float = 1e-7) -> np.ndarray:
+    n = x.size
+    X = np.repeat(x[None], 2 * n, axis=0)
+    for j in range(n):
+        X[2 * j, j] += eps
+        X[2 * j + 1, j] -= eps
+    F = plant.step(np.full(2 * n, q), X, np.repeat(u[None], 2 * n, axis=0))
+    return np.asarray(((F[0::2] - F[1::2]) / (2 * eps)).T)
+
+
+def _clip_invariant(system: System, q: int, x: np.ndarray, gap: float) -> np.ndarray:
+    """Move sampled states into mode q's invariant (negated single-condition guards)."""
+    x = x.copy()
+    for g in system.guards_from(q, "autonomous"):
+        if len(g.conditions) != 1:
+            continue
+        c = g.conditions[0]
+        neg = _NEG[c.op]
+        if neg in ("<=", "<"):
+            x[:, c.index] = np.minimum(x[:, c.index], c.value - (gap if neg == "<" else 0.0))
+        elif neg in (">", ">="):
+            x[:, c.index] = np.maximum(x[:, c.index], c.value + (gap if neg == ">" else 0.0))
+    return x
+
+
+def _region(system: System, scenarios: Sequence[str], seeds: int) -> dict[str, Any]:
+    """Fault-free simulated states/inputs per mode of the design scenarios."""
+    X, U, Q = [], [], []
+    used = []
+    for name in scenarios:
+        sc: Scenario = load_scenario(name)
+        if sc.system.sha256 != system.sha256:
+            continue
+        sc = replace(sc, faults=())
+        tr = simulate_batch(sc, list(range(seeds)))
+        X.append(tr.x.reshape(-1, system.n))
+        U.append(tr.u.reshape(-1, system.nu))
+        Q.append(tr.mode.ravel())
+        used.append(sc.name)
+    if not X:
+        raise DesignError(f"no design scenario for plant {system.name} (pass --scenario)")
+    return {"x": np.concatenate(X), "u": np.concatenate(U), "q": np.concatenate(Q),
+            "scenarios": used}
+
+
+def _sample(rng: np.random.Generator, reg: dict[str, Any], system: System, q: int, M: int,
+            tube: float) -> tuple[np.ndarray, np.ndarray]:
+    sel = np.nonzero(reg["q"] == q)[0]
+    if sel.size == 0:
+        sel = np.arange(reg["q"].size)
+    i = rng.choice(sel, M)
+    x = reg["x"][i] + rng.uniform(-tube, tube, (M, system.n))
+    return _clip_invariant(system, q, x, 1e-9), reg["u"][i]
+
+
+def _noise(rng: np.random.Generator, v_bar: np.ndarray, M: int) -> np.ndarray:
+    ny = v_bar.size
+    vert = rng.choice(np.array([-1.0, 1.0]), (M, ny))
+    unif = rng.uniform(-1.0, 1.0, (M, ny))
+    return np.where(rng.random((M, 1)) < 0.5, vert, unif) * v_bar
+
+
+def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
+                      seeds: int = 4, tube: float | None = None, mc_samples: int = 200000,
+                      mc_margin: float = 0.25, mc_seed: int = 0, filter_kind: str = "fir",
+                      length: int | None = None, pole: float | None = None,
+                      kappa: float = 0.25, max_window: float = 2.0,
+                      delta: float = DEFAULT_DELTA, gamma: float = 0.02, lam: float = 1e-3,
+                      alpha: float = 0.02, init: str = "presmoother",
+                      M_sigma: float | None = None, isolation_factor: float = 1.0
+                      ) -> dict[str, Any]:
+    """Design everything; return ``{parameters, results, certificate, summary}``.
+
+    Parameters
+    ----------
+    system : System
+        Full-state measured (C = I in every mode).
+    scenarios : sequence of str, optional
+        Design scenarios (operating region); default :func:`default_scenarios`.
+    seeds : int
+        Fault-free runs per scenario.
+    tube : float, optional
+        Widening of the region, state units; default 20 max(v_bar).
+    mc_samples, mc_margin, mc_seed : int, float, int
+        Monte Carlo bounds: samples per mode, relative margin, seed.
+    filter_kind, length, pole : str, int, float
+        ``fir`` (moving average of ``length``; default automatic) or ``iir`` (first order).
+    kappa, max_window : float
+        Automatic length rule (see module doc); window in s.
+    delta : float
+        AGEI band (eq. 21).
+    gamma, lam : float
+        Estimator gains Gamma = gamma I, Lambda = lam I.
+    alpha : float
+        Presmoother gain.
+    init : str
+        ``presmoother`` or ``measurement`` (the paper's x^s_{K_d} = y_{K_d}).
+    M_sigma : float, optional
+        Projection radius; default 100 max(v_bar).
+    isolation_factor : float
+        Isolation threshold = factor x the l1 noise bound of sigma~.
+    """
+    t0 = time.perf_counter()
+    n, ny, s = system.n, system.ny, len(system.modes)
+    if ny != n or not all(np.allclose(m.C, np.eye(n)) for m in system.modes):
+        raise DesignError(f"{system.name}: the sensor-bias chain (Heracleous et al.) needs "
+                          f"full-state measurements y = x + v (C = I in every mode)")
+    plant = SampledPlant(system)
+    v_bar = np.asarray(system.measurement_noise, dtype=float)
+    if not np.all(v_bar > 0):
+        raise DesignError(f"{system.name}: bounds.measurement_noise must be > 0 for every output")
+    eta_bar = np.array([m.uncertainty for m in system.modes], dtype=float)
+    tube = float(20.0 * v_bar.max() if tube is None else tube)
+    scen = list(scenarios) if scenarios else default_scenarios(system)
+    reg = _region(system, scen, seeds)
+    rng = np.random.default_rng(mc_seed)
+
+    # ---- linear parts and remainders per mode (Monte Carlo, Assumption 4)
+    A = np.zeros((s, n, n))
+    rho_bar = np.zeros((s, ny))
+    sep_bar = np.zeros((s, ny))
+    for q in range(s):
+        x, u = _sample(rng, reg, system, q, mc_samples, tube)
+        A[q] = _jacobian(plant, q, x.mean(axis=0), u.mean(axis=0))
+        v = _noise(rng, v_bar, mc_samples)
+        qq = np.full(mc_samples, q)
+        d = plant.step(qq, x + v, u) - plant.step(qq, x, u)
+        rho_bar[q] = (1.0 + mc_margin) * np.abs(d - v @ A[q].T).max(axis=0)
+        sep_bar[q] = (1.0 + mc_margin) * np.abs(d).max(axis=0)
+    b = eta_bar + rho_bar
+
+    # ---- filter
+    if filter_kind == "fir":
+        if length is None:
+            L_noise = math.floor(kappa * 2.0 * v_bar.min() / b.max())
+            L_time = round(max_window / system.sample_time)
+            length = max(1, min(L_noise, L_time))
+        spec = moving_average(int(length))
+    elif filter_kind == "iir":
+        if pole is None:
+            L = round(max_window / system.sample_time)
+            pole = 1.0 - 2.0 / (L + 1.0)   # same noise bandwidth as a window of L samples
+        spec = first_order(float(pole))
+    else:
+        raise DesignError(f"--filter: expected fir or iir, got {filter_kind!r}")
+    K_h = settling_length(spec, 1e-12) + 1
+    h = impulse_response(spec, K_h)
+    h_p = np.concatenate([[0.0], h[:-1]])
+    h_p_bar = np.abs(h_p)
+    hold = settling_length(spec, 1e-6)
+    l1_hpbar = float(h_p_bar.sum())
+
+    noise_l1 = np.array([noise_l1_bound(h, A[q], v_bar) for q in range(s)])
+    noise_term = noise_l1.max(axis=0)
+    r_bar = noise_term[None, :] + l1_hpbar * b
+    v_F = float(np.abs(h).sum()) * v_bar
+    r_sep = v_F[None, :] + float(np.abs(h_p).sum()) * (sep_bar + eta_bar)
+
+    # ---- AGEI matrix
+    rows = []
+    for j, g in enumerate(system.guards):
+        if g.kind != "autonomous":
+            continue
+        if len(g.conditions) != 1:
+            raise DesignError(f"guard {g.name!r}: AGEI supports one enabling condition per "
+                              f"autonomous guard")
+        c = g.conditions[0]
+        qh, qs = g.source, g.target
+        rb = np.maximum(r_bar[qh], r_bar[qs])
+        side = 1.0 if c.op in (">", ">=") else -1.0
+        x, u = _sample(rng, reg, system, qh, mc_samples, tube)
+
+        def mism(dist: np.ndarray, x: np.ndarray = x, u: np.ndarray = u, c: Any = c,
+                 side: float = side, qh: int = qh, qs: int = qs) -> np.ndarray:
+            xx = x.copy()
+            xx[:, c.index] = c.value + side * dist
+            M = xx.shape[0]
+            return np.asarray(plant.step(np.full(M, qs), xx, u)
+                              - plant.step(np.full(M, qh), xx, u))
+
+        # affected residuals: where the mismatch is not negligible 1 mm.. 10 cm past the guard
+        sub = slice(0, min(5000, x.shape[0]))
+        probe = np.abs(mism(np.full(x.shape[0], 0.1 * tube)))
+        scale = probe.max(axis=0)
+        if scale.max() <= 1e-3 * float(rb.min()):
+            # the two modes' models agree past the guard: no mismatch, nothing to override;
+            # AGEI executes the event when the filtered measurement satisfies the condition
+            affected = np.arange(0)
+            d_band = 0.0
+            mu_bar_aff = np.zeros(ny)
+        else:
+            affected = np.nonzero(scale > 0.01 * scale.max())[0]
+            d_rec = None
+            for dist in np.geomspace(1e-4, 10.0, 200):
+                mu = np.abs(mism(np.full(x.shape[0], dist)[sub], x[sub], u[sub]))[:, affected]
+                if np.all(np.any(mu >= 2.0 * rb[affected], axis=1)):
+                    d_rec = float(dist)
+                    break
+            if d_rec is None:
+                raise DesignError(f"guard {g.name!r}: the mode mismatch never exceeds twice "
+                                  f"the nominal threshold within 10 state units")
+            # never wider than the operating region reaches past the guard (Assumption 1)
+            beyond = side * (reg["x"][:, c.index] - c.value)
+            reach = float(max(beyond.max(), 0.0)) + tube
+            d_band = min(1.5 * d_rec, reach)
+            mu = np.abs(mism(rng.uniform(0.0, d_band, x.shape[0])))
+            v = _noise(rng, v_bar, x.shape[0])
+            xx = x.copy()
+            xx[:, c.index] = c.value + side * rng.uniform(0.0, d_band, x.shape[0])
+            mu_n = np.abs(plant.step(np.full(x.shape[0], qs), xx, u)
+                          - plant.step(np.full(x.shape[0], qh), xx + v, u)
+                          + v @ A[qh].T)
+            mu_bar = (1.0 + mc_margin) * np.maximum(mu.max(axis=0), mu_n.max(axis=0))
+            mu_bar_aff = np.zeros(ny)
+            mu_bar_aff[affected] = mu_bar[affected]
+        star = rb + l1_hpbar * mu_bar_aff
+        dc = spec.dc_gain
+        rows.append({
+            "guard": j, "name": g.name, "enabling_mode": system.modes[qh].name,
+            "target_mode": system.modes[qs].name, "state": system.states[c.index],
+            "op": c.op, "value": c.value, "output": system.outputs[c.index],
+            "affected": [system.outputs[i] for i in affected],
+            "xi_minus": (1.0 - delta) * abs(dc * c.value),
+            "xi_plus": (1.0 + delta) * abs(dc * c.value),
+            "band": d_band, "mismatch_bar": mu_bar_aff, "r_bar_star": star,
+        })
+
+    # ---- estimator (eq. 23-26): diagonal gains, certified on every mode's Jacobian
+    Js = np.array([_jacobian(plant, q, *[a.mean(axis=0) for a in
+                                          _sample(rng, reg, system, q, 2000, tube)])
+                   for q in range(s)])
+    Lam = lam * np.eye(n)
+    Gam = gamma * np.eye(n)
+    D = int(2 * hold + 2)
+    # error bound of the presmoother's state at K_d (l1 of its noise/uncertainty maps and the
+    # D-step open-loop propagation), worst mode
+    x0_bar = np.zeros(n)
+    for q in range(s):
+        Ez = (1.0 - alpha) * Js[q]
+        acc = np.zeros(n)
+        Ek = np.eye(n)
+        for _ in range(20000):
+            acc += np.abs(Ek * alpha) @ v_bar
+            Ek = Ek @ Ez
+            if np.abs(Ek).max() < 1e-12:
+                break
+        Jd = np.linalg.matrix_power(Js[q], D)
+        x0_bar = np.maximum(x0_bar, np.abs(Jd) @ acc)
+    if init == "measurement":
+        x0_bar = np.zeros(n)   # x~_{K_d} = sigma + v: the bias itself, not a noise term
+    radii = []
+    iso_bound = np.zeros(ny)
+    eta_drift = np.zeros(ny)
+    settle = 0
+    for q in range(s):
+        E = estimator_error_matrix(Js[q], Lam, Gam)
+        sr = float(np.max(np.abs(np.linalg.eigvals(E))))
+        radii.append(sr)
+        if not sr < 1.0:
+            raise DesignError(f"estimator error dynamics not Schur in mode "
+                              f"{system.modes[q].name} (spectral radius {sr})")
+        # l1 norm of (v, eta) -> sigma~ and the response to the initial state error
+        Bv = np.vstack([Lam, Gam])
+        Be = np.vstack([-np.eye(n), np.zeros((n, n))])
+        acc = np.zeros(ny)
+        acc_eta = np.zeros(ny)
+        peak = np.zeros(ny)
+        Ek = np.eye(2 * n)
+        resp = np.zeros(ny)
+        t_settle = 0
+        for t in range(200000):
+            acc += np.abs((Ek @ Bv)[n:]) @ v_bar
+            acc_eta += np.abs((Ek @ Be)[n:]) @ eta_bar[q]
+            peak = np.maximum(peak, np.abs(Ek[n:, :n]) @ x0_bar)
+            # response of sigma~ to sigma~_0 = -e_i (unit bias), worst component
+            resp = np.abs(Ek[n:, n:]).max(axis=0)
+            if resp.max() > 0.05:
+                t_settle = t + 1
+            if t > t_settle + 64 and np.abs(Ek).max() < 1e-9:
+                break
+            Ek = E @ Ek
+        iso_bound = np.maximum(iso_bound, acc + peak)
+        eta_drift = np.maximum(eta_drift, acc_eta)
+        settle = max(settle, t_settle)
+    M_sig = float(100.0 * v_bar.max() if M_sigma is None else M_sigma)
+
+    results: dict[str, Any] = {
+        "mode_names": list(system.mode_names), "output_names": list(system.outputs),
+        "filter": {"kind": spec.kind, "b": spec.b, "a": spec.a},
+        "impulse": {"h": h, "h_p": h_p, "h_p_bar": h_p_bar},
+        "hold_steps": int(hold),
+        "noise_bound": v_bar, "v_F_bar": v_F,
+        "noise_l1": noise_l1, "eta_bar": eta_bar, "remainder_bar": rho_bar,
+        "r_bar": r_bar, "r_bar_separate": r_sep,
+        "agei": {"delta": float(delta), "rows": rows},
+        "estimator": {"Lambda": Lam, "Gamma": Gam, "M_sigma": M_sig,
+                      "isolation_threshold": isolation_factor * iso_bound,
+                      "isolation_delay": int(settle), "init": init,
+                      "presmoother_gain": alpha, "presmoother_delay": D,
+                      "initial_error_bound": x0_bar,
+                      "uncertainty_drift_bound": eta_drift},
+    }
+    certificate = {
+        "linear_part": A, "jacobians": Js,
+        "filter_spectral_radius": spec.spectral_radius(),
+        "estimator_spectral_radius": radii,
+        "Lambda_spectral_radius": float(np.max(np.abs(np.linalg.eigvals(Lam)))),
+        "Gamma_min_eig": float(np.min(np.linalg.eigvalsh(Gam))),
+        "checks": ["filter stable", "h, h_p from coefficients", "h_p_bar >= |h_p|",
+                   "noise_l1 >= exact l1 of delta h - A_q h_p", "r_bar >= parts",
+                   "r_bar_star >= r_bar", "AGEI rows = autonomous guards",
+                   "Lambda Schur", "Gamma SPD", "estimator error dynamics Schur per mode"],
+    }
+    parameters = {
+        "scenarios": reg["scenarios"], "seeds_per_scenario": seeds, "tube": tube,
+        "mc_samples": mc_samples, "mc_margin": mc_margin, "mc_seed": mc_seed,
+        "filter": filter_kind, "length": None if filter_kind != "fir" else int(length or 0),
+        "pole": pole, "kappa": kappa, "max_window_s": max_window, "delta": delta,
+        "gamma": gamma, "lambda": lam,
+        "presmoother_gain": alpha, "estimator_init": init, "M_sigma": M_sig,
+        "isolation_factor": isolation_factor,
+    }
+    elapsed = time.perf_counter() - t0
+    summary = {
+        "plant": system.name, "filter": f"{spec.kind} b[{spec.b.size}] a[{spec.a.size}]",
+        "hold_steps": int(hold), "v_F_bar": v_F.tolist(),
+        "r_bar": {m: r_bar[q].tolist() for q, m in enumerate(system.mode_names)},
+        "r_bar_separate_eq19": {m: r_sep[q].tolist() for q, m in enumerate(system.mode_names)},
+        "agei": [{"guard": r["name"], "affected": r["affected"], "band": r["band"],
+                  "r_bar_star": np.asarray(r["r_bar_star"]).tolist()} for r in rows],
+        "isolation_threshold": (isolation_factor * iso_bound).tolist(),
+        "isolation_delay": int(settle), "estimator_spectral_radius": max(radii),
+        "uncertainty_drift_bound": eta_drift.tolist(),
+        "design_time_s": elapsed,
+    }
+    return {"parameters": parameters, "results": results, "certificate": certificate,
+            "summary": summary, "solver": {"name": "numpy/scipy (DARE, Monte Carlo)",
+                                           "status": "optimal", "time_s": elapsed}}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``design thresholds`` (SYSTEM, -o and --json come from the dispatcher)."""
+    parser.add_argument("--scenario", action="append", default=None, metavar="SCENARIO",
+                        help="design scenario (repeatable); default every shipped "
+                             "<plant>_*.yaml scenario, faults removed")
+    parser.add_argument("--seeds", type=int, default=4, help="fault-free runs per scenario")
+    parser.add_argument("--tube", type=float, default=None,
+                        help="widening of the operating region, state units (default 20 v_bar)")
+    parser.add_argument("--mc-samples", type=int, default=200000,
+                        help="Monte Carlo samples per mode (default 200000)")
+    parser.add_argument("--mc-margin", type=float, default=0.25,
+                        help="relative margin on Monte Carlo maxima (default 0.25)")
+    parser.add_argument("--mc-seed", type=int, default=0)
+    parser.add_argument("--filter", choices=("fir", "iir"), default="fir")
+    parser.add_argument("--length", type=int, default=None,
+                        help="moving-average length (default: automatic)")
+    parser.add_argument("--pole", type=float, default=None, help="IIR pole in [0, 1)")
+    parser.add_argument("--max-window", type=float, default=2.0,
+                        help="longest filter window, s (default 2.0)")
+    parser.add_argument("--delta", type=float, default=DEFAULT_DELTA,
+                        help="AGEI band delta of eq. 21 (default 0.05)")
+    parser.add_argument("--gamma", type=float, default=0.02,
+                        help="estimator learning rate: Gamma = gamma I (default 0.02)")
+    parser.add_argument("--lambda", dest="lam", type=float, default=1e-3,
+                        help="estimator output injection: Lambda = lambda I (default 1e-3)")
+    parser.add_argument("--alpha", type=float, default=0.02,
+                        help="presmoother gain (default 0.02)")
+    parser.add_argument("--init", choices=("presmoother", "measurement"),
+                        default="presmoother",
+                        help="estimator initial state at detection (default presmoother; "
+                             "measurement = the paper's x^s = y)")
+    parser.add_argument("--m-sigma", type=float, default=None,
+                        help="projection radius M_sigma (default 100 v_bar)")
+
+
+def _default_output(system: System) -> Path:
+    repo = repo_root()
+    if repo is not None:
+        return repo / "config" / "gains" / f"{system.name}_thresholds.yaml"
+    return Path(f"{system.name}_thresholds.yaml")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Design, write the gain file, re-load it (certificate check) and print a summary."""
+    from fd_monitor.commands._common import emit
+    from fd_monitor.gains import load_gains
+
+    system = load_system(args.system)
+    d = design_thresholds(system, scenarios=args.scenario, seeds=args.seeds, tube=args.tube,
+                          mc_samples=args.mc_samples, mc_margin=args.mc_margin,
+                          mc_seed=args.mc_seed, filter_kind=args.filter, length=args.length,
+                          pole=args.pole, max_window=args.max_window, delta=args.delta,
+                          gamma=args.gamma, lam=args.lam, alpha=args.alpha, init=args.init,
+                          M_sigma=args.m_sigma)
+    out = Path(args.output) if args.output else _default_output(system)
+    save_gains(out, "thresholds", system, d["parameters"], d["results"], d["certificate"],
+               d["solver"])
+    load_gains(out, system)  # re-verifies the certificate
+    summary = {"gain_file": str(out), **d["summary"]}
+    emit(summary, args.json, title=f"thresholds design of {system.name} -> {out}")
+    return 0
