@@ -1,0 +1,770 @@
+"""``design hinf_sc``: a bank of H-infinity residual generators with a sensitivity constraint.
+
+One observer-based residual generator per fault (thesis ch. 4-6, Armeni): generator ``i``
+isolates fault ``i``. For a fixed eigenvalue ``lambda < 0`` the fault direction
+``V_i = A^k F_i`` (k the least integer with ``C A^k F_i != 0``, A-4.4) is made an eigenvector
+of ``A - L C`` (4.37) by the gain parametrisation (4.40)::
+
+    L = (A - lambda I) V (C V)^+ + Lbar (I - C V (C V)^+)
+
+and ``Lbar = P^-1 K`` minimises the weighted attenuation ``a g + b g_w + c g_n`` of the
+nuisance faults, the disturbances and the noise (4.42, squared bounds 4.22) -- an LMI for
+fixed lambda, solved over a grid of lambda (one DPP-parametrised cvxpy problem re-solved
+per grid point); the lambda with the smallest performance ratio (4.35)::
+
+    mu = lambda^2 (a g + b g_w + c g_n) / sigma_min(H C V)^2
+
+is kept. The residual is projected by ``H = I - C Fh (C Fh)^+`` (4.55), Fh the other
+faults' directions. A sensor fault ``y += E f`` becomes the pseudo-actuator fault
+``[F, A F]`` with ``C F = E`` (4.56-4.64). Options: an LMI pole region (2.26-2.28, 4.66);
+the pure attenuation design (4.24) for comparison; an uncertain plant (ch. 5: observer on
+``A0``, extended-state vertex LMIs 5.45/5.50); an LPV plant (ch. 6: ``L(rho) = L0 +
+sum rho_j L_j``, vertex LMIs 6.40 with a common P). Assumptions A-4.1 to A-4.4 (A-5.x,
+A-6.x) are checked before solving and the failing one is named.
+
+Design file section (``config/systems/<plant>.design.yaml``)::
+
+    hinf_sc:
+      kind: lti                      # lti | uncertain | lpv
+      faults: [f1, f2]               # one generator each (default: every plant fault)
+      directions: {leak1: [...]}     # F of faults the plant file cannot express (optional)
+      weights: {a: 1.0, b: 1.0, c: 1.0}
+      lambda_grid: {start: -10.0, stop: -0.1, num: 50}
+      lambda: -1.0                   # optional: use this lambda (no grid selection)
+      noise: false                   # include the measurement-noise channel (D_n = I)
+      region: [{kind: disk, center: 0.0, radius: 50.0}]
+      compare_pure: true             # also design (4.24) for comparison (not run)
+      parameters: {names: [rho1], min: [-1.0], max: [1.0]}   # uncertain / lpv
+      A_rho: [[[...]]]               # (d, n, n) affine parts of A
+      B_rho: [[[...]]]               # (d, n, nu) affine parts of B (lpv, optional)
+      model: {A0, B0, C}             # replaces the plant's matrices (nonlinear plants)
+      scheduling: {map: three_tank_sqrt, params: {...}}   # rho from y at run time
+      thresholds: {method: bound, levels: {nuisance: 1.0, disturbance: 0.0, noise: 0.0},
+                   margin: 3.0}      # or {method: monte_carlo, scenario, runs, settle, margin}
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cvxpy as cp
+import numpy as np
+
+from fd_monitor.core.residual_bank import (
+    AffineModel,
+    Generator,
+    ResidualBank,
+    bound_thresholds,
+    check_generator,
+    monte_carlo_thresholds,
+    vertices,
+)
+from fd_monitor.errors import DesignError, GainFileError
+from fd_monitor.gains import save_gains
+from fd_monitor.system import System, load_system
+
+from ._lmi_common import (
+    Ctx,
+    complement_projector,
+    default_output,
+    is_detectable,
+    is_observable,
+    left_pinv,
+    load_design_section,
+    region_blocks,
+    solve,
+)
+
+__all__ = ["BankSpec", "FaultDir", "add_arguments", "design", "parse_spec", "run"]
+
+EPS = 1e-6  # strictness margin of every LMI (M <= -EPS I, P >= EPS I)
+_SECTION_KEYS = {"kind", "faults", "directions", "weights", "lambda_grid", "lambda", "noise",
+                 "region", "compare_pure", "parameters", "A_rho", "B_rho", "model",
+                 "scheduling", "thresholds", "description"}
+
+
+@dataclass(frozen=True)
+class FaultDir:
+    """How one fault enters the plant.
+
+    Attributes
+    ----------
+    name : str
+    kind : str
+        Plant fault kind (``actuator``, ``process``, ``sensor_bias``, ``parameter``).
+    F : numpy.ndarray
+        (n, q) state directions: one column, or ``[F_pa, A F_pa]`` for a sensor fault.
+    E : numpy.ndarray
+        (p, 1) output direction (zero except for sensor faults).
+    k : int
+        Least k with ``C A^k F != 0`` (A-4.4).
+    V : numpy.ndarray
+        (n, q) eigen-assigned directions ``A^k F`` (4.31).
+    """
+
+    name: str
+    kind: str
+    F: np.ndarray
+    E: np.ndarray
+    k: int
+    V: np.ndarray
+
+
+@dataclass
+class BankSpec:
+    """A validated ``hinf_sc`` design specification."""
+
+    kind: str
+    model: AffineModel
+    faults: list[FaultDir]
+    generators: list[str]
+    weights: dict[str, float]
+    grid: np.ndarray
+    fixed_lambda: float | None
+    Dw: np.ndarray
+    Ew: np.ndarray
+    Dn: np.ndarray
+    region: list[tuple[np.ndarray, np.ndarray]]
+    region_spec: Any
+    compare_pure: bool
+    thresholds: Mapping[str, Any]
+    origin: str
+    sha256: str
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------------------
+# specification
+
+
+def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
+               ) -> BankSpec:
+    """Validate the ``hinf_sc`` section against the plant; build the model and directions."""
+    ctx = Ctx(origin, "hinf_sc")
+    ctx.mapping("", section, _SECTION_KEYS)
+    kind = section.get("kind", "lti")
+    if kind not in ("lti", "uncertain", "lpv"):
+        ctx.fail("kind", "lti, uncertain or lpv", kind)
+    n, p, nu = system.n, system.ny, system.nu
+    mode = system.modes[0]
+    if "model" in section:
+        m = ctx.mapping("model", section["model"], {"A0", "B0", "C"})
+        A0 = ctx.matrix("model.A0", m.get("A0"), (n, n))
+        B0 = ctx.matrix("model.B0", m["B0"], (n, nu)) if "B0" in m else np.zeros((n, nu))
+        C = ctx.matrix("model.C", m["C"], (p, n)) if "C" in m else mode.C
+    else:
+        if mode.dynamics != "linear" or mode.time != "continuous" or len(system.modes) != 1:
+            ctx.fail("model", "{A0, B0, C}: the plant is not a single continuous-time linear "
+                     "mode, so the design needs its continuous-time (LPV) model (thesis "
+                     "ch. 4-6 are continuous-time)", show=False)
+        assert mode.A is not None
+        A0, B0, C = mode.A, mode.B, mode.C
+    d = 0
+    rmin = rmax = np.zeros(0)
+    names: tuple[str, ...] = ()
+    A_rho = np.zeros((0, n, n))
+    B_rho = np.zeros((0, n, nu))
+    if kind in ("uncertain", "lpv"):
+        if "parameters" not in section:
+            ctx.fail("parameters", "{names, min, max} of the parameter box (missing key)",
+                     show=False)
+        pr = ctx.mapping("parameters", section["parameters"], {"names", "min", "max"})
+        nm = pr.get("names")
+        if not isinstance(nm, list) or not nm or not all(isinstance(s, str) for s in nm):
+            ctx.fail("parameters.names", "a non-empty list of names", nm)
+        names = tuple(nm)
+        d = len(names)
+        rmin = ctx.vector("parameters.min", pr.get("min"), d)
+        rmax = ctx.vector("parameters.max", pr.get("max"), d)
+        if np.any(rmax < rmin):
+            ctx.fail("parameters.max", "max >= min for every parameter", pr.get("max"))
+        raw = section.get("A_rho")
+        if not isinstance(raw, list) or len(raw) != d:
+            ctx.fail("A_rho", f"a list of {d} {n}x{n} matrices (one per parameter)", raw)
+        A_rho = np.array([ctx.matrix(f"A_rho[{j}]", a, (n, n)) for j, a in enumerate(raw)])
+        if "B_rho" in section:
+            if kind == "uncertain":
+                ctx.fail("B_rho", "no B_rho in an uncertain design (5.1 has a constant B)",
+                         show=False)
+            rb = section["B_rho"]
+            if not isinstance(rb, list) or len(rb) != d:
+                ctx.fail("B_rho", f"a list of {d} {n}x{nu} matrices", rb)
+            B_rho = np.array([ctx.matrix(f"B_rho[{j}]", b, (n, nu)) for j, b in enumerate(rb)])
+    elif any(k in section for k in ("parameters", "A_rho", "B_rho")):
+        ctx.fail("kind", "uncertain or lpv when parameters / A_rho are given", kind)
+    sched = None
+    if "scheduling" in section:
+        if kind != "lpv":
+            ctx.fail("scheduling", "a scheduling map only for kind lpv", show=False)
+        from fd_monitor.core.residual_bank import SCHEDULING_MAPS
+
+        s = ctx.mapping("scheduling", section["scheduling"], {"map", "params"})
+        if s.get("map") not in SCHEDULING_MAPS:
+            ctx.fail("scheduling.map", f"one of {sorted(SCHEDULING_MAPS)}", s.get("map"))
+        sched = {"map": s["map"], "params": dict(s.get("params") or {})}
+    model = AffineModel(A0, A_rho, B0, B_rho, C, rmin, rmax, names, sched)
+
+    # fault directions
+    dirs_raw = ctx.mapping("directions", section.get("directions") or {})
+    faults: list[FaultDir] = []
+    for f in system.faults:
+        if f.name in dirs_raw:
+            F = ctx.vector(f"directions.{f.name}", dirs_raw[f.name], n)[:, None]
+            E = np.zeros((p, 1))
+        elif f.kind == "actuator":
+            F, E = B0[:, [f.index]], np.zeros((p, 1))
+        elif f.kind == "process":
+            assert f.F is not None
+            F, E = f.F[:, None], np.zeros((p, 1))
+        elif f.kind == "sensor_bias":
+            E = np.zeros((p, 1))
+            E[f.index, 0] = 1.0
+            Fpa, *_ = np.linalg.lstsq(C, E, rcond=None)
+            if np.linalg.norm(C @ Fpa - E) > 1e-9:
+                raise DesignError(
+                    f"{origin}: hinf_sc: sensor fault {f.name!r}: (4.57) has no solution: "
+                    f"no F with C F = E (output {system.outputs[f.index]!r} is not a "
+                    f"combination of the states seen by C)")
+            F = np.hstack([Fpa, A0 @ Fpa])  # pseudo-actuator fault (4.58)
+        else:
+            continue  # parameter / state_jump without a direction: no generator
+        faults.append(FaultDir(f.name, f.kind, F, E, 0, F))
+    for name in dirs_raw:
+        if name not in [f.name for f in system.faults]:
+            ctx.fail(f"directions.{name}", f"a fault channel of plant {system.name!r}: "
+                     f"{[f.name for f in system.faults]}", show=False)
+    known = [f.name for f in faults]
+    gens = section.get("faults", known)
+    if not isinstance(gens, list) or not gens or not all(g in known for g in gens):
+        ctx.fail("faults", f"a non-empty list of faults with a direction: {known}", gens)
+    faults = [f for f in faults if f.name in gens] if "faults" in section else faults
+    faults = _with_k(faults, A0, C, origin, kind)
+
+    w = ctx.mapping("weights", section.get("weights") or {}, {"a", "b", "c"})
+    weights = {k: ctx.number(f"weights.{k}", w.get(k, 1.0), positive=True)
+               for k in ("a", "b", "c")}
+    g = section.get("lambda_grid", {"start": -10.0, "stop": -0.1, "num": 50})
+    if isinstance(g, list):
+        grid = ctx.vector("lambda_grid", g, None)
+    else:
+        g = ctx.mapping("lambda_grid", g, {"start", "stop", "num"})
+        num = g.get("num", 50)
+        if not isinstance(num, int) or isinstance(num, bool) or num < 1:
+            ctx.fail("lambda_grid.num", "an integer >= 1", num)
+        grid = np.linspace(ctx.number("lambda_grid.start", g.get("start", -10.0)),
+                           ctx.number("lambda_grid.stop", g.get("stop", -0.1)), num)
+    if grid.size == 0 or np.any(grid >= 0):
+        ctx.fail("lambda_grid", "values lambda < 0 (stability, thesis 4.41)", grid.tolist())
+    fixed = None
+    if section.get("lambda") is not None:
+        fixed = ctx.number("lambda", section["lambda"], negative=True)
+    # disturbances (plant D, E) and noise (D_n = I on noisy outputs)
+    if "model" in section or mode.dynamics != "linear":
+        Dw, Ew = np.zeros((n, 0)), np.zeros((p, 0))
+    else:
+        Dw, Ew = mode.D, mode.E
+    noise = section.get("noise", False)
+    if not isinstance(noise, bool):
+        ctx.fail("noise", "true or false", noise)
+    Dn = np.eye(p)[:, system.measurement_noise > 0] if noise else np.zeros((p, 0))
+    if kind == "uncertain" and (Dw.shape[1] or Dn.shape[1]):
+        ctx.fail("kind", "an uncertain design (5.45) without disturbances or noise (it "
+                 "attenuates the nuisance faults only)", show=False)
+    region_spec = section.get("region")
+    region = region_blocks(ctx, "region", region_spec)
+    cp_ = section.get("compare_pure", False)
+    if not isinstance(cp_, bool):
+        ctx.fail("compare_pure", "true or false", cp_)
+    th = ctx.mapping("thresholds", section.get("thresholds") or {"method": "none"})
+    if th.get("method", "none") not in ("none", "bound", "monte_carlo"):
+        ctx.fail("thresholds.method", "none, bound or monte_carlo", th.get("method"))
+    return BankSpec(str(kind), model, faults, [f.name for f in faults], weights, grid, fixed,
+                    Dw, Ew, Dn, region, region_spec, cp_, th, origin, sha)
+
+
+def _with_k(faults: list[FaultDir], A: np.ndarray, C: np.ndarray, origin: str,
+            kind: str) -> list[FaultDir]:
+    """Fill k (A-4.4) and V = A^k F; name the failing assumption."""
+    n = A.shape[0]
+    out = []
+    for f in faults:
+        if np.linalg.matrix_rank(f.F) < f.F.shape[1] or np.linalg.norm(f.F) == 0:
+            raise DesignError(f"{origin}: hinf_sc: assumption A-4.2 fails: the direction of "
+                              f"fault {f.name!r} is not monic (F = 0 or rank deficient)")
+        k_found = None
+        Ak = np.eye(n)
+        for k in range(n):
+            if np.linalg.norm(C @ Ak @ f.F) > 1e-12 * max(1.0, np.linalg.norm(f.F)):
+                k_found = k
+                break
+            Ak = A @ Ak
+        if k_found is None:
+            raise DesignError(f"{origin}: hinf_sc: assumption A-4.4 fails: C A^k F = 0 for "
+                              f"k = 0..{n - 1} for fault {f.name!r} (not input observable)")
+        if k_found > 0 and kind != "lti":
+            a = "A-5.4" if kind == "uncertain" else "A-6.3"
+            raise DesignError(f"{origin}: hinf_sc: assumption {a} fails: C F = 0 for fault "
+                              f"{f.name!r} ({kind} designs need C F_i != 0)")
+        V = np.linalg.matrix_power(A, k_found) @ f.F
+        out.append(FaultDir(f.name, f.kind, f.F, f.E, k_found, V))
+    return out
+
+
+def check_assumptions(spec: BankSpec) -> None:
+    """A-4.1 (A-5.2 / A-6.1 at the vertices) and A-4.3; raise ``DesignError`` naming it."""
+    m = spec.model
+    tag = {"lti": "A-4.1", "uncertain": "A-5.2", "lpv": "A-6.1"}[spec.kind]
+    for v in vertices(m.rho_min, m.rho_max):
+        A = m.A(v)
+        if not is_observable(A, m.C):
+            where = "" if spec.kind == "lti" else f" at the vertex rho = {v.tolist()}"
+            raise DesignError(f"{spec.origin}: hinf_sc: assumption {tag} fails: (A, C) is "
+                              f"not observable{where}")
+    CV = np.hstack([m.C @ f.V for f in spec.faults])
+    r = np.linalg.matrix_rank(CV, tol=1e-9 * max(1.0, float(np.abs(CV).max())))
+    if r < CV.shape[1]:
+        a = {"lti": "A-4.3", "uncertain": "A-5.5", "lpv": "A-6.4"}[spec.kind]
+        raise DesignError(f"{spec.origin}: hinf_sc: assumption {a} fails (output "
+                          f"separability): rank C[A^k F_1 ... A^k F_r] = {r} < {CV.shape[1]}; "
+                          f"faults {[f.name for f in spec.faults]} cannot all be isolated")
+
+
+# --------------------------------------------------------------------------------------
+# one generator
+
+
+@dataclass
+class _GenData:
+    fault: FaultDir
+    V: np.ndarray
+    CVp: np.ndarray
+    Pi: np.ndarray
+    Fhat: np.ndarray
+    H: np.ndarray
+    sens: float  # sigma_min(H C V)
+
+
+def _gen_data(spec: BankSpec, i: int) -> _GenData:
+    m = spec.model
+    f = spec.faults[i]
+    others = [g for j, g in enumerate(spec.faults) if j != i]
+    Hdirs = np.hstack([m.C @ g.V for g in others]) if others else np.zeros((m.C.shape[0], 0))
+    H = complement_projector(Hdirs)
+    Fhat = np.hstack([g.F for g in others]) if others else np.zeros((m.n, 0))
+    CV = m.C @ f.V
+    CVp = left_pinv(CV)
+    Pi = np.eye(m.C.shape[0]) - CV @ CVp
+    sens = float(np.linalg.svd(H @ CV, compute_uv=False).min())
+    return _GenData(f, f.V, CVp, Pi, Fhat, H, sens)
+
+
+def _region_lmi(Lr: np.ndarray, Mr: np.ndarray, P: Any, PA: Any, n: int) -> Any:
+    """``Lr (x) P + Mr (x) PA + Mr' (x) PA'`` (4.66) built block by block (``cp.kron`` of a
+    parametrised argument is not DPP)."""
+    k = Lr.shape[0]
+    rows = []
+    for a in range(k):
+        row = []
+        for b in range(k):
+            blk: Any = np.zeros((n, n))
+            if Lr[a, b] != 0:
+                blk = blk + Lr[a, b] * P
+            if Mr[a, b] != 0:
+                blk = blk + Mr[a, b] * PA
+            if Mr[b, a] != 0:
+                blk = blk + Mr[b, a] * PA.T
+            row.append(blk)
+        rows.append(row)
+    return cp.bmat(rows)
+
+
+class _Problem:
+    """The DPP-parametrised LMI problem of one generator (lambda is a cvxpy Parameter)."""
+
+    def __init__(self, spec: BankSpec, gd: _GenData, sc: bool) -> None:
+        m = spec.model
+        n, p = m.n, m.C.shape[0]
+        self.spec, self.gd, self.sc = spec, gd, sc
+        self.lam = cp.Parameter(value=-1.0)
+        lam = self.lam
+        C, H, V, CVp, Pi = m.C, gd.H, gd.V, gd.CVp, gd.Pi
+        HC = H @ C
+        cons: list[Any] = []
+        verts = vertices(m.rho_min, m.rho_max)
+        if spec.kind == "uncertain":
+            P1 = cp.Variable((n, n), symmetric=True)
+            P2 = cp.Variable((n, n), symmetric=True)
+            K = cp.Variable((n, p))
+            g = cp.Variable(nonneg=True)
+            self.P1, self.P2, self.K, self.g = P1, P2, K, g
+            A0 = m.A0
+            if sc:
+                PAcl = P2 @ (A0 - A0 @ V @ CVp @ C) + lam * (P2 @ (V @ CVp @ C)) \
+                    - K @ (Pi @ C)
+            else:
+                PAcl = P2 @ A0 - K @ C
+            mf = gd.Fhat.shape[1]
+            for v in verts:
+                Av = m.A(v)
+                Z = np.zeros
+                M = cp.bmat([
+                    [Av.T @ P1 + P1 @ Av, (Av - A0).T @ P2, P1 @ gd.Fhat, Z((n, p))],
+                    [P2 @ (Av - A0), PAcl + PAcl.T, P2 @ gd.Fhat, HC.T],
+                    [gd.Fhat.T @ P1, gd.Fhat.T @ P2, -g * np.eye(mf), Z((mf, p))],
+                    [Z((p, n)), HC, Z((p, mf)), -g * np.eye(p)]])
+                k = M.shape[0]
+                cons.append(0.5 * (M + M.T) << -EPS * np.eye(k))
+                for Lr, Mr in spec.region:
+                    RM = _region_lmi(Lr, Mr, P2, PAcl, n)
+                    cons.append(0.5 * (RM + RM.T) << -EPS * np.eye(RM.shape[0]))
+            cons += [P1 >> EPS * np.eye(n), P2 >> EPS * np.eye(n)]
+            self.prob = cp.Problem(cp.Minimize(g), cons)
+            return
+        d = m.d if spec.kind == "lpv" else 0
+        P = cp.Variable((n, n), symmetric=True)
+        Ks = [cp.Variable((n, p)) for _ in range(d + 1)]
+        groups = {"nuisance": gd.Fhat.shape[1], "disturbance": spec.Dw.shape[1],
+                  "noise": spec.Dn.shape[1]}
+        gv = {k: cp.Variable(nonneg=True) for k, c in groups.items() if c > 0}
+        self.P, self.Ks, self.gv = P, Ks, gv
+        W = np.hstack([gd.Fhat, spec.Dw, np.zeros((n, spec.Dn.shape[1]))])
+        Wout = np.hstack([np.zeros((p, gd.Fhat.shape[1])), spec.Ew, spec.Dn])
+        HW = H @ Wout
+        diag_parts = [cp.multiply(gv[k], np.ones(c)) for k, c in groups.items() if c > 0]
+        if diag_parts:
+            Gam = cp.diag(cp.hstack(diag_parts))
+        ncol = W.shape[1]
+        for v in verts:
+            Av = m.A(v)
+            Kv = Ks[0] + sum(float(v[j]) * Ks[j + 1] for j in range(d)) if d else Ks[0]
+            if sc:
+                PAcl = P @ (Av - Av @ V @ CVp @ C) + lam * (P @ (V @ CVp @ C)) - Kv @ (Pi @ C)
+                PL = P @ (Av @ V @ CVp) - lam * (P @ (V @ CVp)) + Kv @ Pi
+            else:
+                PAcl = P @ Av - Kv @ C
+                PL = Kv
+            top = PAcl + PAcl.T + HC.T @ HC
+            if ncol:
+                PB = P @ W - PL @ Wout if np.any(Wout) else P @ W
+                off = PB + HC.T @ HW
+                M = cp.bmat([[top, off], [off.T, HW.T @ HW - Gam]])
+            else:
+                M = top
+            cons.append(0.5 * (M + M.T) << -EPS * np.eye(M.shape[0]))
+            for Lr, Mr in spec.region:
+                RM = _region_lmi(Lr, Mr, P, PAcl, n)
+                cons.append(0.5 * (RM + RM.T) << -EPS * np.eye(RM.shape[0]))
+        cons.append(P >> EPS * np.eye(n))
+        w = spec.weights
+        wk = {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
+        obj = sum(wk[k] * gv[k] for k in gv) if gv else cp.Constant(0.0)
+        self.prob = cp.Problem(cp.Minimize(obj), cons)
+
+    def solve_at(self, lam: float) -> tuple[str, float]:
+        """Solve for one lambda (ignored by the pure design); return (status, seconds)."""
+        self.lam.value = float(lam)
+        return solve(self.prob, "", raise_on_failure=False)
+
+    def gamma2(self) -> dict[str, float]:
+        """Squared attenuation bounds at the last solution."""
+        if self.spec.kind == "uncertain":
+            return {"nuisance": float(self.g.value) ** 2}
+        return {k: float(v.value) for k, v in self.gv.items()}
+
+    def cost(self) -> float:
+        """``a g + b g_w + c g_n`` (squared bounds) at the last solution."""
+        w = self.spec.weights
+        wk = {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
+        return sum(wk[k] * v for k, v in self.gamma2().items())
+
+    def generator(self, lam: float) -> Generator:
+        """The generator (L, P, bounds) of the last solution at ``lam``."""
+        m, gd = self.spec.model, self.gd
+        n, p = m.n, m.C.shape[0]
+        if self.spec.kind == "uncertain":
+            P2 = np.asarray(self.P2.value)
+            Lbar = np.linalg.solve(P2, np.asarray(self.K.value))
+            if self.sc:
+                L0 = (m.A0 - lam * np.eye(n)) @ gd.V @ gd.CVp + Lbar @ gd.Pi
+            else:
+                L0 = Lbar
+            P = np.block([[np.asarray(self.P1.value), np.zeros((n, n))], [np.zeros((n, n)), P2]])
+            L_rho = np.zeros((0, n, p))
+        else:
+            P = np.asarray(self.P.value)
+            Lb = [np.linalg.solve(P, np.asarray(K.value)) for K in self.Ks]
+            if self.sc:
+                L0 = (m.A0 - lam * np.eye(n)) @ gd.V @ gd.CVp + Lb[0] @ gd.Pi
+                L_rho = np.array([m.A_rho[j] @ gd.V @ gd.CVp + Lb[j + 1] @ gd.Pi
+                                  for j in range(len(Lb) - 1)]).reshape(-1, n, p)
+            else:
+                L0 = Lb[0]
+                L_rho = np.array(Lb[1:]).reshape(-1, n, p)
+        P = 0.5 * (P + P.T)
+        return Generator(gd.fault.name, self.spec.kind, lam if self.sc else float("nan"),
+                         gd.V, gd.Fhat, self.spec.Dw, self.spec.Ew, self.spec.Dn, gd.H, L0,
+                         L_rho, P, self.gamma2(), tuple(self.spec.region))
+
+
+def _detectable_at(spec: BankSpec, gd: _GenData, lam: float) -> bool:
+    """A-4.3.5 / A-5.2.5 / A-6.5: (Abar, Cbar) detectable (at every vertex for lpv)."""
+    m = spec.model
+    Cb = gd.Pi @ m.C
+    verts = vertices(m.rho_min, m.rho_max) if spec.kind == "lpv" else [None]
+    for v in verts:
+        A = m.A(v) if spec.kind == "lpv" else m.A0
+        Ab = A - (A - lam * np.eye(m.n)) @ gd.V @ gd.CVp @ m.C
+        if not is_detectable(Ab, Cb):
+            return False
+    return True
+
+
+def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
+    """Grid over lambda, pick the smallest mu, re-solve and verify one generator."""
+    gd = _gen_data(spec, i)
+    name = gd.fault.name
+    t0 = time.perf_counter()
+    prob = _Problem(spec, gd, sc=True)
+    build_s = time.perf_counter() - t0
+    grid = np.array([spec.fixed_lambda]) if spec.fixed_lambda is not None else spec.grid
+    mus, stats, solve_s = [], [], 0.0
+    n_det = 0
+    for lam in grid:
+        if not _detectable_at(spec, gd, lam):
+            mus.append(float("nan"))
+            stats.append("not_detectable")
+            continue
+        n_det += 1
+        st, dt = prob.solve_at(lam)
+        solve_s += dt
+        stats.append(st)
+        mus.append(lam ** 2 * prob.cost() / gd.sens ** 2 if st == cp.OPTIMAL else float("nan"))
+    tag = {"lti": "A-4.3.5", "uncertain": "A-5.2.5", "lpv": "A-6.5"}[spec.kind]
+    if n_det == 0:
+        raise DesignError(f"{spec.origin}: hinf_sc: generator {name!r}: assumption {tag} "
+                          f"fails: (Abar, Cbar) is not detectable for any lambda of the grid")
+    mu_arr = np.asarray(mus)
+    if not np.any(np.isfinite(mu_arr)):
+        eq = {"lti": "(4.47)", "uncertain": "(5.50)", "lpv": "(6.40)"}[spec.kind]
+        raise DesignError(f"{spec.origin}: hinf_sc: generator {name!r}: LMI {eq} infeasible "
+                          f"at every lambda of the grid (solver statuses: "
+                          f"{sorted(set(stats))})")
+    best = int(np.nanargmin(mu_arr))
+    lam = float(grid[best])
+    st, dt = prob.solve_at(lam)
+    if st != cp.OPTIMAL:
+        raise DesignError(f"hinf_sc: generator {name!r}: re-solve at lambda = {lam} returned "
+                          f"{st!r}")
+    gen = prob.generator(lam)
+    try:
+        cert = check_generator(spec.model, gen)
+    except GainFileError as exc:
+        raise DesignError(f"hinf_sc: generator {name!r}: the solver's answer at lambda = "
+                          f"{lam} does not verify: {exc}") from None
+    out: dict[str, Any] = {
+        "gen": gen, "cert": cert, "lambda": lam, "mu": float(mu_arr[best]),
+        "gamma2": gen.gamma2, "k": gd.fault.k, "sensitivity": gd.sens,
+        "mu_grid": {"lambda": grid.tolist(), "mu": mu_arr.tolist(), "status": stats},
+        "solve_s": solve_s + dt, "build_s": build_s,
+    }
+    if spec.compare_pure:
+        pp = _Problem(spec, gd, sc=False)
+        st, _ = pp.solve_at(0.0)
+        if st != cp.OPTIMAL:
+            raise DesignError(f"hinf_sc: generator {name!r}: pure attenuation design (4.24) "
+                              f"returned {st!r}")
+        pg = pp.generator(float("nan"))
+        try:
+            pcert = check_generator(spec.model, pg)
+        except GainFileError as exc:
+            raise DesignError(f"hinf_sc: generator {name!r}: the pure attenuation design "
+                              f"(4.24) does not verify: {exc}") from None
+        out["pure"] = {"gen": pg, "cert": pcert, "gamma2": pg.gamma2}
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# bank
+
+
+def _gen_to_plain(g: Generator) -> dict[str, Any]:
+    return {"fault": g.fault, "lambda": None if not np.isfinite(g.lam) else g.lam,
+            "V": g.V, "Fhat": g.Fhat, "Dw": g.Dw, "Ew": g.Ew, "Dn": g.Dn, "H": g.H,
+            "L0": g.L0, "L_rho": g.L_rho, "P": g.P, "gamma2": dict(g.gamma2),
+            "region": [{"L": Lr, "M": Mr} for Lr, Mr in g.region]}
+
+
+def dc_gains(model: AffineModel, gen: Generator, faults: Sequence[FaultDir],
+             rho: np.ndarray | None = None) -> dict[str, float]:
+    """Zero-frequency gains ``S_{f_j r_i}(0) = ||G(0)||^2`` (4.76) for every fault j."""
+    from fd_monitor.core.residual_bank import generator_ss
+
+    out = {}
+    for f in faults:
+        if f.kind == "sensor_bias":
+            Bin, Din = np.zeros((model.n, 1)), f.E
+        else:
+            Bin, Din = f.F[:, :1], np.zeros((model.C.shape[0], 1))
+        A, B, C, D = generator_ss(model, gen, Bin, Din, rho)
+        G0 = C @ np.linalg.solve(-A, B) + D
+        out[f.name] = float(np.sum(G0 ** 2))
+    return out
+
+
+def design(system: System, section: Mapping[str, Any], origin: str = "<dict>",
+           sha: str = "") -> dict[str, Any]:
+    """Design the bank: ``system`` + design-file section -> gain-file contents.
+
+    Returns
+    -------
+    dict
+        ``parameters``, ``results``, ``certificate``, ``solver``, ``summary`` (per generator:
+        fault, lambda, mu, gamma^2, zero-frequency gains), ``spec``.
+    """
+    spec = parse_spec(system, section, origin, sha)
+    check_assumptions(spec)
+    t0 = time.perf_counter()
+    outs = [design_generator(spec, i) for i in range(len(spec.faults))]
+    wall = time.perf_counter() - t0
+    gens = [o["gen"] for o in outs]
+    results: dict[str, Any] = {
+        "kind": spec.kind,
+        "sample_time": system.sample_time,
+        "model": {"A0": spec.model.A0, "A_rho": spec.model.A_rho, "B0": spec.model.B0,
+                  "B_rho": spec.model.B_rho, "C": spec.model.C,
+                  "rho_names": list(spec.model.rho_names), "rho_min": spec.model.rho_min,
+                  "rho_max": spec.model.rho_max, "scheduling": spec.model.scheduling},
+        "generators": [dict(_gen_to_plain(g), k=o["k"], mu=o["mu"],
+                            sensitivity=o["sensitivity"], mu_grid=o["mu_grid"])
+                       for g, o in zip(gens, outs)],
+    }
+    if spec.compare_pure:
+        results["pure"] = [_gen_to_plain(o["pure"]["gen"]) for o in outs]
+    summary = []
+    for o in outs:
+        g = o["gen"]
+        row = {"fault": g.fault, "lambda": o["lambda"], "mu": o["mu"],
+               "gamma2": dict(g.gamma2), "k": o["k"]}
+        rho0 = None if spec.kind == "lti" else 0.5 * (spec.model.rho_min + spec.model.rho_max)
+        row["dc_gain"] = dc_gains(spec.model, g, spec.faults, rho0)
+        if "pure" in o:
+            row["pure_gamma2"] = dict(o["pure"]["gamma2"])
+            row["pure_dc_gain"] = dc_gains(spec.model, o["pure"]["gen"], spec.faults, rho0)
+        summary.append(row)
+    thr = _thresholds(system, spec, results)
+    if thr is not None:
+        results["thresholds"] = thr[0]
+        results["threshold_method"] = thr[1]
+    parameters = {"kind": spec.kind, "faults": spec.generators, "weights": spec.weights,
+                  "lambda_grid": spec.grid, "lambda": spec.fixed_lambda,
+                  "region": spec.region_spec, "noise": bool(spec.Dn.shape[1]),
+                  "compare_pure": spec.compare_pure, "design_file": spec.origin,
+                  "design_file_sha256": spec.sha256, "thresholds": dict(spec.thresholds),
+                  "lmi_margin": EPS}
+    certificate = {o["gen"].fault: o["cert"] for o in outs}
+    solver = {"name": "CLARABEL", "status": "optimal", "time_s": wall,
+              "solves": int(sum(len(o["mu_grid"]["lambda"]) + 1 for o in outs))}
+    return {"parameters": parameters, "results": results, "certificate": certificate,
+            "solver": solver, "summary": summary, "spec": spec}
+
+
+def _thresholds(system: System, spec: BankSpec, results: dict[str, Any]
+                ) -> tuple[list[float], dict[str, Any]] | None:
+    th = dict(spec.thresholds)
+    method = th.get("method", "none")
+    ctx = Ctx(spec.origin, "hinf_sc.thresholds")
+    margin = ctx.number("margin", th.get("margin", 1.0), positive=True)
+    if method == "none":
+        return None
+    if method == "bound":
+        lv = ctx.mapping("levels", th.get("levels") or {}, {"nuisance", "disturbance", "noise"})
+        levels = {k: ctx.number(f"levels.{k}", v, nonneg=True) for k, v in lv.items()}
+        J = bound_thresholds(results, levels, margin)
+        return J.tolist(), {"method": "bound", "levels": levels, "margin": margin}
+    from fd_monitor.core.simulator import simulate_batch
+    from fd_monitor.errors import ScenarioError
+    from fd_monitor.scenario import load_scenario
+
+    sc_name = th.get("scenario")
+    if not isinstance(sc_name, str):
+        ctx.fail("scenario", "a fault-free scenario name or path", sc_name)
+    try:
+        sc = load_scenario(sc_name, system)
+    except ScenarioError as exc:
+        raise DesignError(f"{spec.origin}: hinf_sc.thresholds.scenario: {exc}") from None
+    runs = int(ctx.number("runs", th.get("runs", 5), positive=True))
+    settle = int(ctx.number("settle", th.get("settle", 0.0), nonneg=True) /
+                 system.sample_time)
+    tr = simulate_batch(sc, list(range(sc.seed, sc.seed + runs)))
+    norms = []
+    for r in range(runs):
+        bank = ResidualBank(system, results)
+        bank.reset(tr.x[r, 0])
+        norms.append(bank.run(tr.u[r], tr.y[r]))
+    J = monte_carlo_thresholds(np.asarray(norms), settle, margin)
+    return J.tolist(), {"method": "monte_carlo", "scenario": sc.name, "runs": runs,
+                        "settle_s": settle * system.sample_time, "margin": margin}
+
+
+# --------------------------------------------------------------------------------------
+# command line
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``design hinf_sc`` (SYSTEM, -o and --json are added by the dispatcher)."""
+    parser.add_argument("--design-file", metavar="PATH", default=None,
+                        help="design file (default: <plant file stem>.design.yaml beside it)")
+    parser.add_argument("--lambda", dest="lam", type=float, default=None, metavar="LAMBDA",
+                        help="use this eigenvalue (< 0) instead of choosing it on the grid")
+    parser.add_argument("--grid", nargs=3, type=float, default=None,
+                        metavar=("START", "STOP", "NUM"),
+                        help="lambda grid (default from the design file, else -10 -0.1 50)")
+    parser.add_argument("--compare-pure", action="store_true",
+                        help="also design the pure attenuation generators (4.24)")
+    parser.add_argument("--plot", metavar="DIR", default=None,
+                        help="write singular-value and mu(lambda) plots into DIR")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Design, write the gain file, print the summary."""
+    from fd_monitor.commands._common import print_json, print_table
+
+    system = load_system(args.system)
+    section, origin, sha = load_design_section(system, "hinf_sc", args.design_file)
+    section = dict(section)
+    if args.lam is not None:
+        if args.lam >= 0:
+            raise DesignError(f"--lambda: expected a number < 0, got {args.lam}")
+        section["lambda"] = args.lam
+    if args.grid is not None:
+        section["lambda_grid"] = {"start": args.grid[0], "stop": args.grid[1],
+                                  "num": int(args.grid[2])}
+    if args.compare_pure:
+        section["compare_pure"] = True
+    out = design(system, section, origin, sha)
+    path = Path(args.output) if args.output else default_output(system, "hinf_sc")
+    save_gains(path, "hinf_sc", system, out["parameters"], out["results"], out["certificate"],
+               out["solver"])
+    plots: list[str] = []
+    if args.plot:
+        from fd_monitor.report_hinf import plot_bank
+
+        plots = [str(p) for p in plot_bank(system, out["results"], args.plot)]
+    doc = {"method": "hinf_sc", "system": system.name, "kind": out["results"]["kind"],
+           "gain_file": str(path), "solver_time_s": out["solver"]["time_s"],
+           "generators": out["summary"], "thresholds": out["results"].get("thresholds"),
+           "plots": plots}
+    if args.json:
+        print_json(doc)
+    else:
+        rows = [(s["fault"], s["lambda"], s["mu"],
+                 ", ".join(f"{k}={v:.3g}" for k, v in s["gamma2"].items())) for s in
+                out["summary"]]
+        print_table(rows, header=["fault", "lambda", "mu", "gamma^2"],
+                    title=f"hinf_sc bank for {system.name} ({out['results']['kind']}) -> {path}")
+    return 0

@@ -1,0 +1,115 @@
+"""Singular-value plots of residual generators (matplotlib, Agg backend).
+
+``design hinf_sc ... --plot DIR`` and ``design hminus_switched ... --plot DIR`` call these:
+fault -> residual and nuisance -> residual maps (thesis Fig. 4.4, 5.1-5.4, 7.4-7.6;
+Farhat & Koenig Fig. 3) and mu(lambda) (thesis Fig. 4.2-4.3, 7.1-7.3, 7.8).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from fd_monitor.core.freq import sigma_db
+from fd_monitor.core.generalized_observer import residual_ss
+from fd_monitor.core.residual_bank import generator_ss, parse_bank
+from fd_monitor.system import System
+
+__all__ = ["plot_bank", "plot_switched"]
+
+OMEGA = np.logspace(-3, 3, 400)
+
+
+def _fault_inputs(system: System, results: Mapping[str, Any]) -> dict[str, tuple[np.ndarray,
+                                                                                np.ndarray]]:
+    """Per generator fault: (B_in (n,1), D_in (p,1)): the first column of its direction."""
+    out = {}
+    _kind, model, gens = parse_bank(results)
+    for g in gens:
+        out[g.fault] = (g.V[:, :1], np.zeros((model.C.shape[0], 1)))
+    for f in system.faults:
+        if f.kind == "sensor_bias" and f.name in out:
+            E = np.zeros((model.C.shape[0], 1))
+            E[f.index, 0] = 1.0
+            out[f.name] = (np.zeros((model.n, 1)), E)
+    return out
+
+
+def plot_bank(system: System, results: Mapping[str, Any], outdir: str | Path) -> list[Path]:
+    """One figure per generator (sigma of every fault -> r_i) and one of mu(lambda)."""
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    kind, model, gens = parse_bank(results)
+    ins = _fault_inputs(system, results)
+    rhos = [None] if kind == "lti" else [model.rho_min, 0.5 * (model.rho_min + model.rho_max),
+                                          model.rho_max]
+    files = []
+    for g in gens:
+        fig, ax = plt.subplots(figsize=(6.4, 4.2))
+        for rho in rhos:
+            tag = "" if rho is None else f", rho={np.round(rho, 3).tolist()}"
+            for name, (Bi, Di) in ins.items():
+                A, B, C, D = generator_ss(model, g, Bi, Di, rho)
+                s = sigma_db(A, B, C, D, OMEGA)[:, 0]
+                ls = "-" if name == g.fault else "--"
+                ax.semilogx(OMEGA, s, ls, label=f"{name} -> r_{g.fault}{tag}")
+        ax.set_title(f"{system.name}: residual generator for {g.fault} (lambda = {g.lam:g})")
+        ax.set_xlabel("frequency omega (rad/s)")
+        ax.set_ylabel("singular value (dB)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        p = out / f"{system.name}_sigma_{g.fault}.png"
+        fig.tight_layout()
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        files.append(p)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for g in results["generators"]:
+        mg = g.get("mu_grid") or {}
+        lam = np.asarray(mg.get("lambda", []), dtype=float)
+        mu = np.asarray(mg.get("mu", []), dtype=float)
+        if lam.size > 1:
+            ax.semilogy(lam, mu, "o-", ms=3, label=f"mu_{g['fault']}")
+    ax.set_title(f"{system.name}: performance ratio mu(lambda) (4.35)")
+    ax.set_xlabel("lambda (1/s)")
+    ax.set_ylabel("mu (dimensionless)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    p = out / f"{system.name}_mu.png"
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    files.append(p)
+    return files
+
+
+def plot_switched(system: System, results: Mapping[str, Any], outdir: str | Path
+                  ) -> list[Path]:
+    """sigma_min of T_rf per mode and design (Farhat & Koenig Fig. 3)."""
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    dt = float(results["sample_time"])
+    w = np.logspace(-3, np.log10(np.pi / dt), 300)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for name, obs in results["observers"].items():
+        for i in range(len(obs["modes"])):
+            A, B, C, D = residual_ss(obs, i)
+            ax.semilogx(w, sigma_db(A, B, C, D, w, dt)[:, -1],
+                        label=f"{name}, {system.modes[i].name}")
+    ax.set_title(f"{system.name}: fault -> residual sensitivity T_rf")
+    ax.set_xlabel("frequency omega (rad/s)")
+    ax.set_ylabel("minimum singular value (dB)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    p = out / f"{system.name}_trf.png"
+    fig.tight_layout()
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return [p]
