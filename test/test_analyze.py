@@ -83,9 +83,13 @@ def test_gain_file_of_another_plant_version_is_refused(bias_bag, tmp_path):
     with pytest.raises(GainFileError, match="designed for"):
         analyze_bag(str(bias_bag), str(p))
     doc["system"]["sha256"] = load_system("three_tank").sha256
-    doc["method"] = "qb"
+    doc["method"] = "qb"  # a QB design cannot exist for this nonlinear plant
     p.write_text(yaml.safe_dump(doc))
-    with pytest.raises(GainFileError, match="thresholds"):
+    with pytest.raises(GainFileError, match="certificate does not hold: .*nonlinear"):
+        analyze_bag(str(bias_bag), str(p))
+    doc["method"] = "hinf_sc"
+    p.write_text(yaml.safe_dump(doc))
+    with pytest.raises(GainFileError, match="analyze runs 'thresholds'"):
         analyze_bag(str(bias_bag), str(p))
 
 
@@ -95,7 +99,7 @@ def test_analyze_arrays_reports_bad_sample():
     tr = simulate(load_scenario("three_tank_nominal"), 1, 30)
     y = tr.y[0].copy()
     y[17, 1] = np.nan
-    with pytest.raises(MessageError, match=r"bag sample 17.*non-finite"):
+    with pytest.raises(MessageError, match=r"sample 17.*non-finite"):
         analyze_arrays(sys_, g, tr.k, tr.u[0], y)
     doc = analyze_arrays(sys_, g, tr.k, tr.u[0], tr.y[0], tr.mode[0])
     assert doc["alarms"] == [] and doc["isolated"] == [] and doc["mode_agreement"] == 1.0

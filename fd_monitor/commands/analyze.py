@@ -20,15 +20,24 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
-from fd_monitor.errors import BagError, GainFileError, MessageError
+from fd_monitor.errors import BagError, GainFileError
+from fd_monitor.offline import (
+    BagRun,
+    InputReport,
+    run_bag,
+    run_thresholds,
+    summarize_run,
+    truth_at,
+)
 from fd_monitor.system import System
 
-__all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag"]
+__all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag", "analyze_run"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -63,127 +72,150 @@ def _transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
     return out
 
 
+def _first_labels(bag: str, topic: str) -> tuple[str, ...] | None:
+    """Channel labels of the first message of ``topic`` (None when it has none)."""
+    from fd_monitor.bags import read_messages
+
+    for _topic, _t, msg in read_messages(bag, [topic]):
+        dims = msg.layout.dim
+        return tuple(dims[0].label.split(",")) if dims and dims[0].label else None
+    return None
+
+
+def analyze_run(run: BagRun) -> dict[str, Any]:
+    """The ``analyze`` summary of an offline run (:func:`fd_monitor.offline.run_bag`).
+
+    Returns
+    -------
+    dict
+        ``samples``, ``alarms`` (one entry per alarm episode and channel: ``channel``,
+        ``first_sample``, ``time``, ``last_sample``, ``samples``), ``detection`` (first alarm:
+        ``{sample, time}``, or None), ``transitions_estimated``, ``transitions_true`` (or
+        None), ``mode_agreement`` (or None), ``isolated``, ``bias_estimate``,
+        ``input_errors`` (every rejected or suspicious input message: ``{kind, topic, sample,
+        message}``) and ``restarts`` (samples where the monitor restarted after a hole).
+    """
+    system = run.system
+    k = run.k
+    dt = float(system.sample_time)
+    alarms = []
+    for i, name in enumerate(run.channels):
+        for a, b in _episodes(run.alarm[:, i]):
+            alarms.append({"channel": name, "first_sample": int(k[a]),
+                           "time": float(k[a] * dt), "last_sample": int(k[b]),
+                           "samples": int(b - a + 1)})
+    alarms.sort(key=lambda e: (e["first_sample"], e["channel"]))
+    names = system.mode_names
+    true_mode = None
+    if run.truth is not None and "mode" in run.truth.labels:
+        tm = truth_at(run.truth, k, ["mode"])[:, 0]
+        true_mode = None if np.isnan(tm).any() else tm.astype(int)
+    summary = summarize_run(run)
+    return {
+        "samples": int(k.size),
+        "alarms": alarms,
+        "detection": None if not alarms else {"sample": alarms[0]["first_sample"],
+                                              "time": alarms[0]["time"]},
+        "transitions_estimated": _transitions(k, run.mode_hat, names, dt),
+        "transitions_true": None if true_mode is None else _transitions(k, true_mode, names,
+                                                                        dt),
+        "mode_agreement": None if true_mode is None else float(np.mean(true_mode
+                                                                       == run.mode_hat)),
+        "isolated": summary["isolated"],
+        "bias_estimate": summary["bias_estimate"],
+        "input_errors": list(run.inputs.errors),
+        "restarts": list(run.inputs.restarts),
+    }
+
+
 def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: np.ndarray,
                    true_mode: np.ndarray | None = None, agei: bool = True) -> dict[str, Any]:
-    """Run the :class:`Monitor` over arrays and summarise.
+    """Run the :class:`~fd_monitor.core.monitor.Monitor` over arrays and summarise.
 
     Parameters
     ----------
     system : System
     gains : GainFile or DiagnosisGains
     k : numpy.ndarray
-        (K,) consecutive sample indices.
+        (K,) sample indices (a hole restarts the monitor, as in a bag).
     u : numpy.ndarray
         (K, nu) inputs.
     y : numpy.ndarray
         (K, ny) measurements.
     true_mode : numpy.ndarray, optional
-        (K,) true mode indices (from ``/plant/truth``).
+        (K,) true mode indices.
     agei : bool
 
     Returns
     -------
     dict
-        ``alarms``, ``detection``, ``transitions_estimated``, ``transitions_true`` (or None),
-        ``isolated``, ``bias_estimate``, ``samples``, ``mode_agreement`` (or None).
+        As :func:`analyze_run`.
 
     Raises
     ------
     MessageError
         An invalid sample (its index is named); nothing after it is processed.
     """
-    from fd_monitor.core.monitor import Monitor
+    from fd_monitor.bags import TopicArrays
 
-    mon = Monitor(system, gains, agei=agei)
-    K = int(np.asarray(k).size)
-    dt = system.sample_time
-    alarm = np.zeros((K, system.ny), dtype=bool)
-    mode = np.zeros(K, dtype=int)
-    last = None
-    for j in range(K):
-        try:
-            last = mon.step(int(k[j]), u[j], y[j])
-        except MessageError as exc:
-            raise MessageError(f"bag sample {j}: {exc}") from None
-        alarm[j] = last.detector.alarm
-        mode[j] = last.mode
-    alarms = []
-    for i, name in enumerate(system.outputs):
-        for a, b in _episodes(alarm[:, i]):
-            alarms.append({"channel": name, "first_sample": int(k[a]),
-                           "time": float(k[a] * dt), "last_sample": int(k[b]),
-                           "samples": int(b - a + 1)})
-    alarms.sort(key=lambda e: (e["first_sample"], e["channel"]))
-    names = system.mode_names
-    sigma = last.estimator.sigma_hat if last is not None else np.zeros(system.ny)
-    iso = last.estimator.isolated if last is not None else np.zeros(system.ny, bool)
-    kd = int(last.estimator.k_detect) if last is not None else -1
-    doc: dict[str, Any] = {
-        "samples": K,
-        "alarms": alarms,
-        "detection": None if kd < 0 else {"sample": kd, "time": kd * dt},
-        "transitions_estimated": _transitions(k, mode, names, dt),
-        "transitions_true": None if true_mode is None else _transitions(k, true_mode, names,
-                                                                        dt),
-        "mode_agreement": None if true_mode is None else float(np.mean(true_mode == mode)),
-        "isolated": [n for n, f in zip(system.outputs, iso) if f],
-        "bias_estimate": {n: float(v) for n, v in zip(system.outputs, sigma)},
-    }
-    return doc
+    ks = [int(v) for v in np.asarray(k).reshape(-1)]
+    us = dict(zip(ks, np.asarray(u, dtype=float).reshape(len(ks), -1)))
+    ys = dict(zip(ks, np.asarray(y, dtype=float).reshape(len(ks), -1)))
+    rep = InputReport()
+    fields = run_thresholds(system, gains, ks, us, ys, rep, agei=agei)
+    truth = None
+    if true_mode is not None:
+        truth = TopicArrays("/plant/truth", ("mode",), np.asarray(ks),
+                            np.asarray(true_mode, float).reshape(-1, 1), np.zeros(len(ks)))
+    run = BagRun(bag="<arrays>", gains=str(getattr(gains, "path", "<gains>")), system=system,
+                 truth=truth, inputs=rep, **fields)
+    return analyze_run(run)
 
 
 def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
                 agei: bool = True) -> dict[str, Any]:
-    """Read a bag and run :func:`analyze_arrays`; checks the bag matches the gain file's plant.
+    """Run the gain file's monitor over a bag (:func:`fd_monitor.offline.run_bag`) and
+    summarise (:func:`analyze_run`).
+
+    Bad input messages (NaN/Inf, wrong length, duplicates, out-of-order stamps, holes) are
+    reported in ``input_errors`` and ``restarts``, never fatal.
 
     Raises
     ------
     BagError
-        Missing bag or topic, channels that do not match the plant, non-consecutive stamps.
+        Missing bag or topic, channels that do not match the plant.
     GainFileError
-        Gain file missing, not ``thresholds``, for another plant, or its certificate fails.
+        Gain file missing, for another plant, or its certificate fails.
     """
-    from fd_monitor.bags import bag_topics, read_bag
+    from fd_monitor.bags import bag_topics
     from fd_monitor.gains import load_gains
     from fd_monitor.system import load_system
 
     raw = load_gains(gains_source, verify=False)
-    if raw.method != "thresholds":
-        raise GainFileError(f"{raw.path}: method {raw.method!r}: analyze needs a "
-                            f"'thresholds' gain file (python -m fd_monitor design thresholds "
-                            f"{raw.system_name})")
+    if raw.method not in ("thresholds", "qb"):
+        raise GainFileError(f"{raw.path}: method {raw.method!r}: analyze runs 'thresholds' "
+                            f"(sensor-bias chain) and 'qb' gain files")
     system = load_system(system_source or raw.system_name)
     gains = load_gains(gains_source, system)   # plant SHA-256 and certificate
+    if not Path(bag).exists():
+        raise BagError(f"{bag}: no such bag")
     present = bag_topics(bag)
-    for t in ("/plant/u", "/plant/y"):
+    needed = ["/plant/y"] + (["/plant/u"] if system.nu else [])
+    for t in needed:
         if t not in present:
             raise BagError(f"{bag}: topic {t} missing (topics: "
                            f"{', '.join(sorted(present)) or 'none'})")
-    want = ["/plant/u", "/plant/y"] + (["/plant/truth"] if "/plant/truth" in present else [])
-    arr = read_bag(bag, want)
-    U, Y = arr["/plant/u"], arr["/plant/y"]
-    for ta, names, what in ((U, system.inputs, "inputs"), (Y, system.outputs, "outputs")):
-        if tuple(ta.labels) != tuple(names):
-            raise BagError(f"{bag}: {ta.topic} has channels {list(ta.labels)} but plant "
-                           f"{system.name} (gain file {gains.path}) has {what} {list(names)}: "
-                           f"wrong gain file for this bag?")
-    ks = np.intersect1d(U.stamps, Y.stamps)
-    if ks.size == 0:
-        raise BagError(f"{bag}: /plant/u and /plant/y share no sample stamp")
-    if np.any(np.diff(ks) != 1):
-        gap = int(ks[np.nonzero(np.diff(ks) != 1)[0][0]])
-        raise BagError(f"{bag}: samples are not consecutive after stamp {gap} (a message of "
-                       f"/plant/u or /plant/y is missing)")
-    iu = np.searchsorted(U.stamps, ks)
-    iy = np.searchsorted(Y.stamps, ks)
-    true_mode = None
-    if "/plant/truth" in arr:
-        T = arr["/plant/truth"]
-        if "mode" in T.labels and np.all(np.isin(ks, T.stamps)):
-            true_mode = T.column("mode")[np.searchsorted(T.stamps, ks)].astype(int)
-    doc = analyze_arrays(system, gains, ks, U.values[iu], Y.values[iy], true_mode, agei)
+    # A bag of another plant would have every message rejected: say so at once instead.
+    for t, names, what in (("/plant/u", system.inputs, "inputs"),
+                           ("/plant/y", system.outputs, "outputs")):
+        labels = _first_labels(bag, t) if t in present else None
+        if labels and tuple(labels) != tuple(names):
+            raise BagError(f"{bag}: {t} has channels {list(labels)} but plant {system.name} "
+                           f"(gain file {gains.path}) has {what} {list(names)}: wrong gain "
+                           f"file for this bag?")
+    run = run_bag(bag, gains, system=system, agei=agei)
     return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
-            "agei": agei, **doc}
+            "method": gains.method, "agei": agei, **analyze_run(run)}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -193,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         print_json(doc)
         return 0
     det = doc["detection"]
-    print(f"analyze {doc['bag']} with {doc['gains']} (plant {doc['plant']}, "
+    print(f"analyze {doc['bag']} with {doc['gains']} ({doc['method']}, plant {doc['plant']}, "
           f"{doc['samples']} samples, AGEI {'on' if doc['agei'] else 'off'})")
     first = "none" if det is None else f"sample {det['sample']} (t = {det['time']:.1f} s)"
     print(f"first detection: {first}")
@@ -218,6 +250,13 @@ def run(args: argparse.Namespace) -> int:
     if doc["mode_agreement"] is not None:
         print(f"mode estimate agrees with truth on {100 * doc['mode_agreement']:.2f} % "
               f"of samples")
+    if doc["input_errors"]:
+        print()
+        print_table([(e["kind"], e["topic"], e["sample"], e["message"])
+                     for e in doc["input_errors"]],
+                    header=("input error", "topic", "sample", "message"),
+                    title="bad input (left out; the monitor restarted after each hole at "
+                          f"samples {doc['restarts'] or 'none'})")
     print()
     print_table([(n, f"{v:+.6f}", "yes" if n in doc["isolated"] else "no")
                  for n, v in doc["bias_estimate"].items()],

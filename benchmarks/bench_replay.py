@@ -1,0 +1,187 @@
+"""Replay throughput into the live monitor (no lost sample) against raw rclpy, one run.
+
+Run: .venv/bin/python benchmarks/bench_replay.py [--bag bags/three_tank_bias_h1]
+
+1. **Live monitor**: ``python -m fd_monitor run monitor`` (the four chain nodes in one
+   process) and ``record /fd/alarm`` are started, then ``replay --rate 0`` publishes the bag's
+   ``/plant/u`` and ``/plant/y`` flat out (reliable, acknowledgement-paced, lossless). The
+   rate is (N - 1) / (receive time of the last /fd/alarm - of the first), from the recorder's
+   timestamps; every stamp 0..N-1 must be there (no lost sample).
+2. **Raw rclpy**: this script publishes the same CDR bytes (``/plant/u`` and ``/plant/y`` of
+   the bag, 2 N messages) as fast as ``publish()`` returns, reliable QoS with a history that
+   holds them all, to a second process that only counts them; its rate is (N - 1) / (last
+   arrival - first arrival) in samples (u, y pairs) per second, every message received.
+
+Both use the same DDS (Fast DDS, loopback, the project's config/fastdds.xml) and run in one
+invocation, so the ratio compares like with like on this machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _env() -> dict[str, str]:
+    sys.path.insert(0, str(REPO))
+    from fd_monitor.nodes.common import use_dds_profile
+
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 200)))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="fd_bench_roslog_"))
+    use_dds_profile()
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def _fd(args: list[str], env: dict[str, str], out: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "fd_monitor", *args], cwd=REPO, env=env,
+                            stdout=out.open("w"), stderr=subprocess.STDOUT)
+
+
+def _stop(p: subprocess.Popen) -> None:
+    if p.poll() is None:
+        p.terminate()
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(10)
+
+
+def live_monitor(bag: Path, env: dict[str, str], tmp: Path) -> dict[str, float]:
+    """Replay into the monitor process; samples/s from the recorder's receive stamps."""
+    import numpy as np
+
+    from fd_monitor.bags import read_bag
+
+    n = len(read_bag(bag, ["/plant/y"])["/plant/y"])
+    mon = _fd(["run", "monitor"], env, tmp / "monitor.log")
+    rec = _fd(["record", "/fd/alarm", "-o", str(tmp / "rec"), "--until", f"/fd/alarm={n}"],
+              env, tmp / "record.log")
+    try:
+        t0 = time.perf_counter()
+        rep = subprocess.run([sys.executable, "-m", "fd_monitor", "replay", str(bag),
+                              "--topics", "/plant/u", "/plant/y", "--rate", "0",
+                              "--wait-subscribers", "2"], cwd=REPO, env=env,
+                             capture_output=True, text=True, timeout=600)
+        if rep.returncode != 0:
+            raise SystemExit(f"replay failed: {rep.stderr}")
+        rec.wait(600)
+        wall = time.perf_counter() - t0
+    finally:
+        _stop(rec)
+        _stop(mon)
+    a = read_bag(tmp / "rec", ["/fd/alarm"])["/fd/alarm"]
+    lost = n - len(np.unique(a.stamps))
+    span = (a.receive_ns[-1] - a.receive_ns[0]) / 1e9
+    return {"samples": n, "lost": lost, "rate": (len(a) - 1) / span, "wall_s": wall}
+
+
+def raw_subscriber(n_msgs: int) -> None:
+    """Child process: count n_msgs raw messages on /bench/u and /bench/y, print timing."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+
+    rclpy.init()
+    node = Node("bench_raw_sub")
+    qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.VOLATILE)
+    times: list[float] = []
+    for t in ("/bench/u", "/bench/y"):
+        node.create_subscription(Float64MultiArray, t, lambda m: times.append(time.monotonic()),
+                                 qos, raw=True)
+    print("ready", flush=True)
+    deadline = time.monotonic() + 600
+    while len(times) < n_msgs and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    print(json.dumps({"received": len(times), "first": times[0] if times else 0.0,
+                      "last": times[-1] if times else 0.0}), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def raw_rclpy(bag: Path, env: dict[str, str]) -> dict[str, float]:
+    """Publish the bag's u, y CDR bytes flat out to a counting process."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+
+    from fd_monitor.bags import read_raw
+
+    msgs = [(t, raw) for t, _m, _ts, raw in read_raw(bag, ["/plant/u", "/plant/y"])]
+    n_msgs = len(msgs)
+    sub = subprocess.Popen([sys.executable, __file__, "--raw-sub", str(n_msgs)], cwd=REPO,
+                           env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert sub.stdout is not None
+        if sub.stdout.readline().strip() != "ready":
+            raise SystemExit("raw subscriber did not start")
+        rclpy.init()
+        node = Node("bench_raw_pub")
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=n_msgs + 10,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+        pubs = {t: node.create_publisher(Float64MultiArray, t.replace("/plant", "/bench"), qos)
+                for t in ("/plant/u", "/plant/y")}
+        deadline = time.monotonic() + 60
+        while any(p.get_subscription_count() < 1 for p in pubs.values()):
+            if time.monotonic() > deadline:
+                raise SystemExit("raw subscriber not matched")
+            rclpy.spin_once(node, timeout_sec=0.05)
+        for t, raw in msgs:
+            pubs[t].publish(raw)
+        for p in pubs.values():
+            p.wait_for_all_acked(rclpy.duration.Duration(seconds=120))
+        out, _ = sub.communicate(timeout=600)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    finally:
+        _stop(sub)
+    doc = json.loads(out.strip().splitlines()[-1])
+    n = n_msgs // 2
+    span = doc["last"] - doc["first"]
+    return {"samples": n, "lost": n_msgs - doc["received"],
+            "rate": (doc["received"] / 2 - 1) / span}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bag", default=str(REPO / "bags" / "three_tank_bias_h1"))
+    ap.add_argument("--raw-sub", type=int, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.raw_sub is not None:
+        raw_subscriber(args.raw_sub)
+        return
+    env = _env()
+    bag = Path(args.bag)
+    with tempfile.TemporaryDirectory() as d:
+        live = live_monitor(bag, env, Path(d))
+    raw = raw_rclpy(bag, env)
+    print(f"bag {bag} ({live['samples']} samples of u and y)")
+    print(f"{'path':<46} {'samples/s':>10} {'lost':>5}")
+    print(f"{'replay -> monitor (4 nodes) -> /fd/alarm':<46} {live['rate']:>10.0f} "
+          f"{live['lost']:>5}")
+    print(f"{'raw rclpy publish(bytes) -> subscriber':<46} {raw['rate']:>10.0f} "
+          f"{raw['lost']:>5}")
+    print(f"ratio live / raw: {live['rate'] / raw['rate']:.3f}  (live wall time incl. start "
+          f"and discovery: {live['wall_s']:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,72 @@
+"""``python -m fd_monitor report BAG [--gains GAINS] -o DIR``: figures and a summary of a bag.
+
+Runs the gain file's monitor over the bag (``thresholds``: the diagnosis chain of ``analyze``;
+``qb``: the QB observer and detector) and writes into DIR ``residuals.png`` (residuals against
+the threshold in force, alarms shaded, fault onset marked), ``modes.png`` (true and estimated
+mode), ``bias.png`` (bias estimate against the true bias), ``qb_bound.png`` (QB gain files:
+the error ellipsoid bound against the estimation error) and ``summary.md`` (summary table,
+the check of the bag's ``expected.yaml`` when it has one, the figures). Without ``--gains``
+the gain file named by the bag's ``expected.yaml`` is used. Campaign reports are written by
+``python -m fd_monitor evaluate ... --report DIR``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from fd_monitor.commands._common import add_json_flag, emit
+
+__all__ = ["add_arguments", "run", "main"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """BAG, --gains, -o, --transient, --json."""
+    parser.add_argument("bag", metavar="BAG", help="rosbag2 bag folder with /plant/u, /plant/y "
+                                                  "(and /plant/truth for the true values)")
+    parser.add_argument("--gains", default=None, metavar="GAINS",
+                        help="gain file (path or shipped name); default: the one named by "
+                             "BAG/expected.yaml")
+    parser.add_argument("-o", "--output", required=True, metavar="DIR",
+                        help="folder for the PNG figures and summary.md (created)")
+    parser.add_argument("--transient", type=float, default=None, metavar="S",
+                        help="ignore alarms before this time, s (default: expected.yaml's, "
+                             "else 0)")
+    add_json_flag(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the report; print where it is and the expectation check."""
+    from fd_monitor.errors import FdMonitorError
+    from fd_monitor.report import bag_report
+
+    if args.transient is not None and args.transient < 0:
+        raise FdMonitorError(f"--transient {args.transient}: expected >= 0")
+    res = bag_report(args.bag, args.output, args.gains, transient=args.transient)
+    s = res["summary"]
+    fails = res["expected_failures"]
+    doc = {"bag": args.bag, "summary_md": res["summary_md"],
+           "figures": res["figures"],
+           "alarms": s["alarms"], "isolated": s["isolated"],
+           "bias_estimate": s["bias_estimate"],
+           "expected": None if fails is None else ("ok" if not fails else fails)}
+    if args.json:
+        emit(doc, True)
+    else:
+        emit({"report": res["summary_md"],
+              "figures": ", ".join(res["figures"].values()),
+              "alarms": ", ".join(f"{a['channel']}@{a['first_sample']}" for a in s["alarms"])
+              or "none",
+              "isolated": ", ".join(s["isolated"]) or "none",
+              "expected.yaml": "-" if fails is None else ("all hold" if not fails
+                                                         else "; ".join(fails))},
+             False, title=f"report of {args.bag}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The ``report`` console script / ``ros2 run fd_monitor report``."""
+    from fd_monitor.cli import main as cli_main
+
+    return cli_main(["report", *(sys.argv[1:] if argv is None else argv)])

@@ -1,0 +1,228 @@
+"""Monte Carlo campaigns: false-alarm rate, detection rate and detection delay.
+
+A campaign simulates ``runs`` seeded runs of each scenario (vectorised, in chunks of runs so
+memory stays bounded), replays them through the detection method of a gain file, and reduces
+the alarms to metrics. The method's batch runner is looked up by the gain file's ``method`` in
+:data:`RUNNERS`; every runner has the signature
+``run_batch(system, gains, traj, **options) -> fd_monitor.core.batch.BatchResult``.
+
+Metrics, per scenario, variant (runner options) and threshold scale rho:
+
+* ``false_alarm_rate`` -- fraction of runs with any alarm (selected channels) at a time
+  ``t >= transient`` and before the first fault onset (the whole run if fault free);
+* ``detection_rate`` -- fraction of runs with an alarm at some ``t >= onset`` (faulty
+  scenarios only; the onset is the earliest fault event of the scenario);
+* ``delay_mean_s``, ``delay_median_s``, ``delay_max_s`` -- first alarm at or after the onset,
+  minus the onset, over the detected runs, s.
+
+Threshold sweeps (``rhos``) need a runner whose alarms are ``residual > rho * threshold``
+(it sets ``extra["threshold_scalable"]``); the runner is then called once and every rho is
+evaluated from the same signals.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+import numpy as np
+
+from fd_monitor.core.batch import BatchResult
+from fd_monitor.core.simulator import simulate_batch
+from fd_monitor.errors import FdMonitorError, GainFileError
+from fd_monitor.gains import GainFile
+from fd_monitor.scenario import Scenario
+
+__all__ = ["RUNNERS", "CampaignRow", "ProgressBar", "get_runner", "run_campaign"]
+
+#: gain-file method -> "module:function" of its batch runner.
+RUNNERS: dict[str, str] = {
+    "qb": "fd_monitor.core.qb:run_batch",
+    "thresholds": "fd_monitor.core.monitor:run_batch",
+}
+
+
+def get_runner(method: str) -> Callable[..., BatchResult]:
+    """The batch runner of ``method``; raise GainFileError naming the known methods."""
+    if method not in RUNNERS:
+        raise GainFileError(f"method {method!r}: no batch runner for evaluation; known: "
+                            f"{sorted(RUNNERS)}")
+    mod, fn = RUNNERS[method].split(":")
+    try:
+        return getattr(importlib.import_module(mod), fn)  # type: ignore[no-any-return]
+    except (ImportError, AttributeError) as exc:
+        raise GainFileError(f"method {method!r}: batch runner {RUNNERS[method]} is not "
+                            f"available ({exc})") from None
+
+
+class ProgressBar:
+    """A plain-text progress bar on a stream (stderr by default); silent when disabled."""
+
+    def __init__(self, total: int, label: str = "", stream: TextIO | None = None,
+                 enabled: bool = True, width: int = 30) -> None:
+        self.total, self.label, self.width = max(total, 1), label, width
+        self.stream = sys.stderr if stream is None else stream
+        self.enabled = enabled
+        self.done = 0
+
+    def update(self, n: int = 1, note: str = "") -> None:
+        """Advance by ``n`` units and redraw."""
+        self.done = min(self.done + n, self.total)
+        if not self.enabled:
+            return
+        fill = round(self.width * self.done / self.total)
+        self.stream.write(f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] "
+                          f"{self.done}/{self.total} {note}".ljust(self.width + 40))
+        if self.done >= self.total:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+@dataclass
+class CampaignRow:
+    """Metrics of one (scenario, variant, rho) cell.
+
+    Attributes
+    ----------
+    scenario, variant : str
+    rho : float or None
+        Threshold scale (None: the runner's own thresholds).
+    runs : int
+    false_alarm_rate : float
+        Fraction in [0, 1].
+    detection_rate : float or None
+        Fraction in [0, 1]; None for a fault-free scenario.
+    delay_mean_s, delay_median_s, delay_max_s : float or None
+        Over detected runs, s.
+    onset_s : float or None
+    """
+
+    scenario: str
+    variant: str
+    rho: float | None
+    runs: int
+    false_alarm_rate: float
+    detection_rate: float | None = None
+    delay_mean_s: float | None = None
+    delay_median_s: float | None = None
+    delay_max_s: float | None = None
+    onset_s: float | None = None
+    delays: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain mapping (no per-run arrays) for JSON."""
+        return {k: v for k, v in self.__dict__.items() if k != "delays"}
+
+
+def _onset(scenario: Scenario) -> float | None:
+    return min((ev.time for ev in scenario.faults), default=None)
+
+
+def _select(result: BatchResult, channels: Sequence[str] | None) -> np.ndarray:
+    if not channels:
+        return np.arange(len(result.channels))
+    missing = [c for c in channels if c not in result.channels]
+    if missing:
+        raise FdMonitorError(f"--channels: {missing} not among the method's alarm channels "
+                             f"{list(result.channels)}")
+    return np.array([result.channels.index(c) for c in channels])
+
+
+def _first_true(a: np.ndarray) -> np.ndarray:
+    """Index of the first True along axis 1 of an (N, K) array, -1 where there is none."""
+    idx = np.argmax(a, axis=1)
+    return np.where(a.any(axis=1), idx, -1)
+
+
+def run_campaign(gains: GainFile, scenarios: Sequence[Scenario], runs: int, *,
+                 seed0: int = 0, chunk: int = 250, rhos: Sequence[float] | None = None,
+                 transient: float = 0.0, channels: Sequence[str] | None = None,
+                 variants: Mapping[str, Mapping[str, Any]] | None = None,
+                 progress: bool = True, stream: TextIO | None = None) -> list[CampaignRow]:
+    """Simulate and evaluate a Monte Carlo campaign.
+
+    Parameters
+    ----------
+    gains : GainFile
+        Loaded (and verified) gain file for the scenarios' plant.
+    scenarios : sequence of Scenario
+        All for the gain file's plant.
+    runs : int
+        Runs per scenario; run i uses seed ``seed0 + i`` (the same seeds in every scenario).
+    chunk : int
+        Runs simulated at once (memory ~ chunk * samples * channels * 8 bytes per array).
+    rhos : sequence of float, optional
+        Threshold scales to sweep (runners with scalable thresholds).
+    transient : float
+        Alarms before this time (s) are ignored.
+    channels : sequence of str, optional
+        Alarm channels that count (default: all).
+    variants : mapping, optional
+        Label -> runner keyword options; default ``{method: {}}``.
+    progress : bool
+        Draw a progress bar on ``stream`` (stderr).
+
+    Returns
+    -------
+    list of CampaignRow
+    """
+    if runs < 1:
+        raise FdMonitorError(f"--runs: expected >= 1, got {runs}")
+    runner = get_runner(gains.method)
+    variants = dict(variants or {gains.method: {}})
+    rho_list: list[float | None] = list(rhos) if rhos else [None]
+    for sc in scenarios:
+        if sc.system.sha256 != gains.system_sha256:
+            raise GainFileError(f"{gains.path}: designed for {gains.system_name}, scenario "
+                                f"{sc.name} is for {sc.system.name}")
+    n_chunks = -(-runs // chunk)
+    bar = ProgressBar(n_chunks * len(scenarios) * len(variants), "evaluate", stream, progress)
+    rows: list[CampaignRow] = []
+    for sc in scenarios:
+        dt = sc.system.sample_time
+        onset = _onset(sc)
+        k_tr = round(transient / dt)
+        k_on = sc.n_samples if onset is None else round(onset / dt)
+        # per variant, per rho: lists of per-run false-alarm flags and first-alarm indices
+        fa: dict[tuple[str, int], list[np.ndarray]] = {}
+        first: dict[tuple[str, int], list[np.ndarray]] = {}
+        for c in range(n_chunks):
+            seeds = list(range(seed0 + c * chunk, seed0 + min((c + 1) * chunk, runs)))
+            traj = simulate_batch(sc, seeds)
+            for label, opts in variants.items():
+                res = runner(sc.system, gains, traj, **dict(opts))
+                sel = _select(res, channels)
+                if rhos:
+                    if not (res.extra.get("threshold_scalable") and res.residual is not None
+                            and res.threshold is not None):
+                        raise FdMonitorError(f"--rho: method {gains.method!r} has no scalable "
+                                             f"thresholds; evaluate it without --rho")
+                    thr = np.broadcast_to(res.threshold, res.residual.shape)[..., sel]
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        ratio = (res.residual[..., sel] / thr).max(axis=2)  # (N, K)
+                for j, rho in enumerate(rho_list):
+                    alarm = (ratio > rho) if rho is not None else res.alarm[..., sel].any(axis=2)
+                    fa.setdefault((label, j), []).append(alarm[:, k_tr:k_on].any(axis=1))
+                    if onset is not None:
+                        f = _first_true(alarm[:, k_on:])
+                        first.setdefault((label, j), []).append(f)
+                bar.update(1, f"{sc.name} {label}")
+        for label in variants:
+            for j, rho in enumerate(rho_list):
+                row = CampaignRow(sc.name, label, rho, runs,
+                                  float(np.concatenate(fa[(label, j)]).mean()), onset_s=onset)
+                if onset is not None:
+                    f = np.concatenate(first[(label, j)])
+                    det = f >= 0
+                    row.detection_rate = float(det.mean())
+                    if det.any():
+                        d = f[det] * dt
+                        row.delays = d
+                        row.delay_mean_s = float(d.mean())
+                        row.delay_median_s = float(np.median(d))
+                        row.delay_max_s = float(d.max())
+                rows.append(row)
+    return rows

@@ -1,0 +1,79 @@
+"""``agei``: autonomous guard event identification (Heracleous et al., Sec. 3.3) as a node.
+
+Joins, per sample k: ``/fd/state_estimate`` (q^_k), ``/fd/residual`` (r_k, w_k) and
+``/fd/threshold`` (the nominal threshold at k). Publishes, stamped k + 1 (the sample they are
+used at): ``/fd/guard_event`` (``trigger``: guard index or -1, ``phase``, ``row``) for the
+observer and ``/fd/threshold_override`` (per output; NaN = none) for the detector.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from fd_monitor.core.agei import Agei
+from fd_monitor.core.thresholds import as_gains
+from fd_monitor.nodes.common import OK, Param, run_node
+from fd_monitor.nodes.detector import state_labels
+from fd_monitor.nodes.fd_node import FdNode, Input
+
+__all__ = ["AgeiNode", "main"]
+
+PARAMS = (
+    Param("enabled", True, "false: the ablation without AGEI (never triggers, no override)"),
+)
+
+
+class AgeiNode(FdNode):
+    """AGEI node.
+
+    Parameters
+    ----------
+    agei : Agei, optional
+        Default: built from the gain file.
+    system, gains, qos, **kwargs
+        See :class:`~fd_monitor.nodes.fd_node.FdNode`.
+    """
+
+    def __init__(self, agei: Agei | None = None, system=None, gains=None, qos=None,
+                 node_name: str = "agei", **kwargs: Any) -> None:
+        super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+        s = self.system
+        self.agei = (agei if agei is not None
+                     else Agei(s, as_gains(s, self.gain_file), enabled=self.params.enabled))
+        self.pub_guard = self.publisher("/fd/guard_event")
+        self.pub_override = self.publisher("/fd/threshold_override")
+        self.diag.add("tracker", self.params.stale_timeout)
+        o = s.outputs
+        self.start_inputs([
+            Input("est", "/fd/state_estimate", state_labels(s)),
+            Input("residual", "/fd/residual", (*(f"r:{n}" for n in o), *(f"w:{n}" for n in o))),
+            Input("threshold", "/fd/threshold",
+                  (*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o))),
+        ])
+
+    def process(self, k: int, inputs: dict[str, Any]) -> None:
+        """q^_k, w_k, r_k, nominal_k -> trigger and override for k + 1."""
+        ny = self.system.ny
+        mode = int(inputs["est"][0])
+        r, w = inputs["residual"][:ny], inputs["residual"][ny:]
+        out = self.agei.step(k, mode, w, r, inputs["threshold"][ny:])
+        pay = out.payloads(self.system)
+        for pub, topic in ((self.pub_guard, "/fd/guard_event"),
+                           (self.pub_override, "/fd/threshold_override")):
+            labels, values = pay[topic]
+            self.publish_array(pub, labels, k + 1, values)
+        self.diag.update("tracker", OK, f"phase {out.phase}", {
+            "sample": k, "trigger": out.trigger, "phase": out.phase, "row": out.row,
+            **self.gain_values()})
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Run the AGEI node."""
+    return run_node(AgeiNode, args, prog="agei")
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

@@ -1,0 +1,204 @@
+"""Nodes behind ``record`` (topics -> MCAP bag) and ``replay`` (bag -> topics).
+
+Both move serialized CDR bytes (``raw=True`` subscriptions, ``publish(bytes)``), so a
+recorded or replayed message is bit-identical to the published one.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+
+from fd_monitor.bags import DIAGNOSTIC_ARRAY, FLOAT64_MULTI_ARRAY, BagWriter, read_raw
+from fd_monitor.errors import BagError
+from fd_monitor.nodes.common import (
+    DEFAULT_DEPTH,
+    AckPacer,
+    data_pub_qos,
+    data_sub_qos,
+    diagnostics_qos,
+    pub_events,
+    sub_events,
+)
+
+__all__ = ["KNOWN_TYPES", "RecorderNode", "ReplayNode", "message_class"]
+
+#: Default types of the fd_monitor topics.
+KNOWN_TYPES: dict[str, str] = {
+    **{t: FLOAT64_MULTI_ARRAY for t in (
+        "/plant/u", "/plant/y", "/plant/truth", "/fd/state_estimate", "/fd/residual",
+        "/fd/threshold", "/fd/alarm", "/fd/guard_event", "/fd/threshold_override",
+        "/fd/bias_estimate")},
+    "/diagnostics": DIAGNOSTIC_ARRAY,
+}
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of ``pkg/msg/Name`` (std_msgs and diagnostic_msgs)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_msgs.msg import Float64MultiArray
+
+    classes = {FLOAT64_MULTI_ARRAY: Float64MultiArray, DIAGNOSTIC_ARRAY: DiagnosticArray}
+    if msgtype not in classes:
+        raise BagError(f"message type {msgtype}: not supported (supported: "
+                       f"{', '.join(classes)})")
+    return classes[msgtype]
+
+
+def _sub_qos(msgtype: str) -> QoSProfile:
+    if msgtype == DIAGNOSTIC_ARRAY:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+    return data_sub_qos()
+
+
+class RecorderNode(Node):
+    """Subscribe to topics and write every message to an MCAP bag.
+
+    Parameters
+    ----------
+    writer : BagWriter
+    topics : mapping of str to str
+        topic -> message type.
+    until : mapping of str to int, optional
+        Stop when every named topic has at least that many messages.
+    max_messages : int, optional
+        Stop after that many messages in total.
+    duration : float, optional
+        Stop after that many seconds.
+    """
+
+    def __init__(self, writer: BagWriter, topics: Mapping[str, str],
+                 until: Mapping[str, int] | None = None, max_messages: int | None = None,
+                 duration: float | None = None, node_name: str = "record") -> None:
+        super().__init__(node_name)
+        self.writer = writer
+        self.until = dict(until or {})
+        self.max_messages = max_messages
+        self.total = 0
+        self.done = Future()
+        self.exit_code = 0
+        for topic, msgtype in topics.items():
+            writer.add_topic(topic, msgtype)
+            self.create_subscription(message_class(msgtype), topic, self._callback(topic),
+                                     _sub_qos(msgtype), raw=True, **sub_events())
+        if duration is not None:
+            self.create_timer(float(duration), self._stop)
+
+    def _callback(self, topic: str):  # type: ignore[no-untyped-def]
+        def cb(raw: bytes) -> None:
+            if self.done.done():
+                return
+            self.writer.write_raw(topic, time.time_ns(), raw)
+            self.total += 1
+            if self._finished():
+                self._stop()
+        return cb
+
+    def _finished(self) -> bool:
+        if self.max_messages is not None and self.total >= self.max_messages:
+            return True
+        return bool(self.until) and all(self.writer.counts.get(t, 0) >= n
+                                        for t, n in self.until.items())
+
+    def _stop(self) -> None:
+        if not self.done.done():
+            self.done.set_result(True)
+
+
+class ReplayNode(Node):
+    """Publish a bag's messages on their topics, paced or as fast as possible without loss.
+
+    Parameters
+    ----------
+    bag : str or pathlib.Path
+    topics : sequence of str, optional
+        Topics to replay (default: every Float64MultiArray topic of the bag).
+    rate : float
+        Speed factor on the bag timestamps; 0 = flat out, paced by acknowledgements.
+    remap : mapping of str to str, optional
+        Bag topic -> published topic.
+    wait_subscribers : int
+        Wait until every topic has at least this many matched subscriptions.
+    wait_timeout : float
+        s to wait for them (0 = forever), then end with exit code 1.
+    depth, ack_window : int
+        Publisher history depth and samples between waits for acknowledgements.
+    """
+
+    def __init__(self, bag: str | Path, topics: Sequence[str] | None = None,
+                 rate: float = 1.0, remap: Mapping[str, str] | None = None,
+                 wait_subscribers: int = 0, wait_timeout: float = 30.0,
+                 depth: int = DEFAULT_DEPTH, ack_window: int = 100,
+                 node_name: str = "replay") -> None:
+        super().__init__(node_name)
+        from fd_monitor.bags import bag_topics
+
+        available = bag_topics(bag)
+        if topics is None:
+            topics = [t for t, (ty, _) in available.items() if ty == FLOAT64_MULTI_ARRAY]
+        missing = [t for t in topics if t not in available]
+        if missing:
+            raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
+                           f"{', '.join(sorted(available))})")
+        remap = dict(remap or {})
+        self.pubs = {}
+        for t in topics:
+            msgtype = available[t][0]
+            qos = diagnostics_qos() if msgtype == DIAGNOSTIC_ARRAY else data_pub_qos(depth)
+            self.pubs[t] = self.create_publisher(message_class(msgtype), remap.get(t, t), qos,
+                                               **pub_events())
+        self.expected = {t: available[t][1] for t in topics}
+        self._iter: Iterator[tuple[str, str, int, bytes]] = read_raw(bag, list(topics))
+        self._pending: tuple[str, str, int, bytes] | None = next(self._iter, None)
+        self.rate = float(rate)
+        self.wait_subscribers = int(wait_subscribers)
+        self.wait_timeout = float(wait_timeout)
+        self._pacer = AckPacer(list(self.pubs.values()), min(ack_window, depth - 1))
+        self.published = 0
+        self.done = Future()
+        self.exit_code = 0
+        self._started = time.monotonic()
+        self._t0: float | None = None
+        self._bag_t0 = self._pending[2] if self._pending else 0
+        self._timer = self.create_timer(0.001, self._on_tick)
+
+    def _on_tick(self) -> None:
+        if self.done.done():
+            return
+        now = time.monotonic()
+        if self._t0 is None:
+            if any(p.get_subscription_count() < self.wait_subscribers
+                   for p in self.pubs.values()):
+                if self.wait_timeout > 0 and now - self._started > self.wait_timeout:
+                    self.get_logger().error(f"timed out after {self.wait_timeout:g} s waiting "
+                                            f"for {self.wait_subscribers} subscribers")
+                    self._finish(1)
+                return
+            self._t0 = now
+        burst = 0
+        while self._pending is not None and burst < self._pacer.window:
+            topic, _, t_ns, raw = self._pending
+            if self.rate > 0 and (t_ns - self._bag_t0) * 1e-9 / self.rate > now - self._t0:
+                return
+            self.pubs[topic].publish(raw)
+            self.published += 1
+            burst += 1
+            self._pacer.published()
+            self._pending = next(self._iter, None)
+        if self._pending is None:
+            if not self._pacer.flush():
+                self.get_logger().warning("not every message was acknowledged in time")
+            self._finish(0)
+
+    def _finish(self, code: int) -> None:
+        self.exit_code = code
+        self._timer.cancel()
+        self.done.set_result(code)

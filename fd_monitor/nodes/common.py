@@ -1,0 +1,377 @@
+"""Helpers shared by the fd_monitor nodes: QoS, parameters, diagnostics, flow control, main.
+
+QoS and the lossless data path
+------------------------------
+Data topics (``/plant/*``, ``/fd/*``) are RELIABLE. Publishers keep the last
+``qos_depth`` samples with TRANSIENT_LOCAL durability (a subscriber that matches a little
+late still gets the first samples); subscribers are KEEP_ALL, so a sample acknowledged at
+the DDS level sits in the reader's queue until the Python callback takes it, however slow
+the callback is. Sources that can run flat out (``plant_sim`` with ``rate_factor: 0.0``,
+``replay``) wait until the expected subscribers are matched, then pace by acknowledgements:
+after every ``ack_window`` (< ``qos_depth``) samples they block in
+``Publisher.wait_for_all_acked`` so no unacknowledged sample is ever overwritten in the
+writer's history. Together: no sample is lost, whatever the rate.
+
+Acknowledgements travel on Fast DDS heartbeats, whose default period (3 s) would make each
+wait last about a second; :func:`use_dds_profile` points Fast DDS at ``config/fastdds.xml``
+(2 ms heartbeats) unless the user chose a profile file.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from fd_monitor.errors import FdMonitorError
+
+__all__ = [
+    "OK", "WARN", "ERROR", "STALE", "LEVEL_NAMES",
+    "AckPacer",
+    "Diagnostics",
+    "Param",
+    "data_pub_qos",
+    "pub_events",
+    "sub_events",
+    "data_sub_qos",
+    "declare_parameters",
+    "diagnostics_qos",
+    "run_node",
+    "use_dds_profile",
+]
+
+OK: bytes = DiagnosticStatus.OK
+WARN: bytes = DiagnosticStatus.WARN
+ERROR: bytes = DiagnosticStatus.ERROR
+STALE: bytes = DiagnosticStatus.STALE
+LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
+
+DEFAULT_DEPTH = 1000
+
+
+def pub_events() -> dict[str, Any]:
+    """``create_publisher`` keywords without rclpy's default QoS-event handlers.
+
+    Each handler is one more entity in every wait set the executor builds, and rebuilding
+    wait sets is most of a Python node's per-message cost.
+    """
+    return {"event_callbacks": PublisherEventCallbacks(use_default_callbacks=False)}
+
+
+def sub_events() -> dict[str, Any]:
+    """``create_subscription`` keywords without the default QoS-event handlers."""
+    return {"event_callbacks": SubscriptionEventCallbacks(use_default_callbacks=False)}
+
+
+def data_pub_qos(depth: int = DEFAULT_DEPTH) -> QoSProfile:
+    """Publisher QoS of the data path: reliable, transient local, keep last ``depth``."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(depth),
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def data_sub_qos() -> QoSProfile:
+    """Subscriber QoS of the data path: reliable, transient local, keep all (no drops)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def diagnostics_qos() -> QoSProfile:
+    """``/diagnostics`` QoS: reliable, volatile, keep last 100 (like diagnostic_updater)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+# -- parameters ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Param:
+    """One node parameter: name, default (fixes the type), description, range.
+
+    Attributes
+    ----------
+    name : str
+    default : bool, int, float, str or list
+    description : str
+    read_only : bool
+        Read at start only (changing it later would have no effect).
+    low, high : float, optional
+        Inclusive range of a numeric parameter.
+    """
+
+    name: str
+    default: Any
+    description: str
+    read_only: bool = True
+    low: float | None = None
+    high: float | None = None
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The ParameterDescriptor declared with the parameter."""
+        d = ParameterDescriptor(name=self.name, description=self.description,
+                                read_only=self.read_only)
+        if self.low is not None and self.high is not None:
+            if isinstance(self.default, bool):
+                pass
+            elif isinstance(self.default, int):
+                d.integer_range = [IntegerRange(from_value=int(self.low),
+                                                to_value=int(self.high), step=0)]
+            elif isinstance(self.default, float):
+                d.floating_point_range = [FloatingPointRange(from_value=float(self.low),
+                                                             to_value=float(self.high),
+                                                             step=0.0)]
+        return d
+
+
+def declare_parameters(node: Node, params: Iterable[Param]) -> SimpleNamespace:
+    """Declare every parameter with its descriptor; return their values as attributes.
+
+    Raises
+    ------
+    FdMonitorError
+        One line naming the node and the parameter when an override has the wrong type or
+        is out of range (e.g. ``rate_factor:=1`` for a double: write ``1.0``).
+    """
+    out = SimpleNamespace()
+    for p in params:
+        try:
+            node.declare_parameter(p.name, p.default, p.descriptor())
+        except rclpy.exceptions.ParameterException as exc:
+            raise FdMonitorError(f"node {node.get_name()}: parameter {p.name}: {exc} "
+                                 f"(expected {type(p.default).__name__}, default "
+                                 f"{p.default!r})") from None
+        setattr(out, p.name, node.get_parameter(p.name).value)
+    return out
+
+
+# -- diagnostics -----------------------------------------------------------------------------
+
+@dataclass
+class _Channel:
+    level: bytes
+    message: str
+    values: dict[str, Any]
+    last_input: float | None
+    stale_timeout: float | None
+
+
+class Diagnostics:
+    """Per-channel DiagnosticStatus on ``/diagnostics``, shaped like diagnostic_updater.
+
+    Each channel has a level, a message and key/value strings. The array is published every
+    ``period`` s and at once when a channel's level changes. A channel with a stale timeout
+    turns STALE when :meth:`update`/:meth:`touch` has not been called for that long (checked
+    on a timer against ``clock``, never inferred from silence elsewhere).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    hardware_id : str
+        Usually the plant's name.
+    period : float
+        s between periodic publications.
+    clock : callable, optional
+        Monotonic seconds; default ``time.monotonic``.
+    """
+
+    def __init__(self, node: Node, hardware_id: str, period: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._node = node
+        self._hardware_id = hardware_id
+        self._clock = clock
+        self._channels: dict[str, _Channel] = {}
+        self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", diagnostics_qos(),
+                                         **pub_events())
+        self._last_publish = -float("inf")
+        self.period = float(period)
+        #: Called after every publication (e.g. to start a new list of reasons).
+        self.on_publish: list[Callable[[], None]] = []
+        # Check staleness more often than we publish, so STALE shows up within ~period/4.
+        node.create_timer(min(self.period, 0.25), self._on_timer)
+
+    def add(self, channel: str, stale_timeout: float | None = None,
+            message: str = "no input yet") -> None:
+        """Add a channel; with ``stale_timeout`` it starts STALE until its first input."""
+        level = STALE if stale_timeout is not None else OK
+        self._channels[channel] = _Channel(level, message, {}, None, stale_timeout)
+
+    def update(self, channel: str, level: bytes, message: str,
+               values: dict[str, Any] | None = None) -> None:
+        """Set a channel's status (fresh input); publish at once on a level change."""
+        ch = self._channels[channel]
+        changed = ch.level != level
+        ch.level, ch.message = level, message
+        if values is not None:
+            ch.values = dict(values)  # formatted when published (keeps callbacks cheap)
+        ch.last_input = self._clock()
+        if changed:
+            self.publish()
+
+    def touch(self, channel: str) -> None:
+        """Mark fresh input on a channel without changing its status."""
+        self._channels[channel].last_input = self._clock()
+
+    def level(self, channel: str) -> bytes:
+        """The current level of a channel."""
+        return self._channels[channel].level
+
+    def _on_timer(self) -> None:
+        now = self._clock()
+        changed = False
+        for ch in self._channels.values():
+            if ch.stale_timeout is None or ch.level == STALE:
+                continue
+            if ch.last_input is not None and now - ch.last_input > ch.stale_timeout:
+                ch.level = STALE
+                ch.message = f"no input for more than {ch.stale_timeout:g} s"
+                changed = True
+        if changed or now - self._last_publish >= self.period:
+            self.publish()
+
+    def publish(self) -> None:
+        """Publish every channel's status now."""
+        arr = DiagnosticArray()
+        arr.header.stamp = self._node.get_clock().now().to_msg()
+        for name, ch in self._channels.items():
+            st = DiagnosticStatus()
+            st.level = ch.level
+            st.name = f"{self._node.get_name()}: {name}"
+            st.message = ch.message
+            st.hardware_id = self._hardware_id
+            st.values = [KeyValue(key=str(k), value=_text(v)) for k, v in ch.values.items()]
+            arr.status.append(st)
+        self._pub.publish(arr)
+        self._last_publish = self._clock()
+        for cb in self.on_publish:
+            cb()
+
+
+def _text(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_text(e) for e in v) + "]"
+    if hasattr(v, "tolist"):
+        return _text(v.tolist())
+    return str(v)
+
+
+# -- flow control ----------------------------------------------------------------------------
+
+class AckPacer:
+    """Block every ``window`` publications until every matched reader acknowledged.
+
+    Parameters
+    ----------
+    publishers : sequence of rclpy.publisher.Publisher
+    window : int
+        Publications between waits; must be below the publishers' history depth so no
+        unacknowledged sample can be overwritten.
+    timeout : float
+        s to wait for acknowledgements before giving up (a reader that vanished).
+    """
+
+    def __init__(self, publishers: Sequence[Any], window: int, timeout: float = 10.0) -> None:
+        self.publishers = list(publishers)
+        self.window = max(1, int(window))
+        self.timeout = Duration(seconds=float(timeout))
+        self._count = 0
+
+    def published(self) -> bool:
+        """Count one publication round; wait at the end of a window. False on timeout."""
+        self._count += 1
+        if self._count % self.window:
+            return True
+        return self.flush()
+
+    def flush(self) -> bool:
+        """Wait until every publisher's samples are acknowledged. False on timeout."""
+        return all(p.wait_for_all_acked(self.timeout) for p in self.publishers)
+
+
+def wait_for_subscribers(publishers: Sequence[tuple[Any, int]]) -> bool:
+    """True when every ``(publisher, n)`` has at least ``n`` matched subscriptions."""
+    return all(p.get_subscription_count() >= n for p, n in publishers)
+
+
+# -- DDS profile -----------------------------------------------------------------------------
+
+_PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+
+
+def use_dds_profile() -> str | None:
+    """Point Fast DDS at fd_monitor's ``config/fastdds.xml`` before rclpy starts.
+
+    Does nothing when the user set a profile file already, or when the XML is not found.
+    Child processes inherit it. Returns the profile in force, if any.
+    """
+    for var in _PROFILE_VARS:
+        if os.environ.get(var):
+            return os.environ[var]
+    from fd_monitor.paths import config_dirs
+
+    for d in config_dirs():
+        xml = d / "fastdds.xml"
+        if xml.is_file():
+            for var in _PROFILE_VARS:
+                os.environ[var] = str(xml)
+            return str(xml)
+    return None
+
+
+# -- main ------------------------------------------------------------------------------------
+
+def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] | None = None,
+             prog: str = "fd_monitor") -> int:
+    """Init rclpy, build the node(s), spin until done or shut down; return an exit status.
+
+    A node may expose ``done`` (an ``rclpy.task.Future``) to end the spin, and
+    ``exit_code``. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
+    parameter) print one line ``<prog>: error: ...`` and return 2. SIGINT/SIGTERM end
+    cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
+    ``rclpy.try_shutdown()``, as the ROS 2 demos do.
+    """
+    use_dds_profile()
+    rclpy.init(args=None if args is None else list(args))
+    nodes: list[Node] = []
+    try:
+        made = factory()
+        nodes = list(made) if isinstance(made, Sequence) else [made]
+        executor = SingleThreadedExecutor()
+        for n in nodes:
+            executor.add_node(n)
+        done = getattr(nodes[0], "done", None)
+        if done is not None:
+            executor.spin_until_future_complete(done)
+        else:
+            executor.spin()
+        return int(getattr(nodes[0], "exit_code", 0))
+    except FdMonitorError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    except Exception:
+        # SIGINT/SIGTERM shut the context down while a callback was publishing.
+        if not rclpy.ok():
+            return 0
+        raise
+    finally:
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()

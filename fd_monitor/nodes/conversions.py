@@ -1,0 +1,231 @@
+"""Conversions between fd_monitor's self-describing Float64MultiArray messages and arrays.
+
+Message convention (DESIGN.md, "Topics")::
+
+    layout.dim[0].label  = "h1,h2,h3"      # channel names, comma-separated
+    layout.dim[0].size   = 3               # number of values
+    layout.dim[0].stride = 3
+    layout.data_offset   = 1               # the stamp is the padding element in front
+    data = [k, v_0, v_1, v_2]              # k: sample index (an integer stored as float)
+
+A plain Float64MultiArray from a user's driver (``data_offset = 0``, possibly no ``dim``) is
+accepted where a stamp is not required: :func:`decode` returns ``stamp=None`` and the node
+stamps it on arrival with a per-topic :class:`ArrivalStamper`.
+
+Pure functions over duck-typed messages: the same code decodes rclpy messages and the
+dataclasses ``rosbags`` deserialises, so this module imports no ROS package at import time
+(``fd_monitor.bags`` uses it offline). :func:`to_msg` imports ``std_msgs`` when called.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.errors import MessageError
+
+__all__ = [
+    "STAMP_OFFSET",
+    "MAX_STAMP",
+    "ArrivalStamper",
+    "Decoded",
+    "decode",
+    "encode_data",
+    "join_labels",
+    "split_labels",
+    "to_msg",
+    "truth_labels",
+]
+
+#: ``layout.data_offset`` of a stamped message: one padding element, the stamp.
+STAMP_OFFSET = 1
+#: Largest stamp a float64 holds exactly.
+MAX_STAMP = 2**53
+
+
+def join_labels(labels: Sequence[str]) -> str:
+    """``("h1", "h2")`` -> ``"h1,h2"``; a label may not contain a comma."""
+    for lab in labels:
+        if "," in lab:
+            raise MessageError(f"channel name {lab!r} contains a comma")
+    return ",".join(labels)
+
+
+def split_labels(text: str) -> tuple[str, ...]:
+    """``"h1,h2"`` -> ``("h1", "h2")``; ``""`` -> ``()``."""
+    return tuple(s.strip() for s in text.split(",")) if text.strip() else ()
+
+
+def truth_labels(system: Any) -> tuple[str, ...]:
+    """Channel names of ``/plant/truth``: ``mode``, ``x.<state>``..., ``f.<fault>``...
+
+    Parameters
+    ----------
+    system : fd_monitor.system.System
+    """
+    return ("mode", *(f"x.{s}" for s in system.states),
+            *(f"f.{f.name}" for f in system.faults))
+
+
+def encode_data(stamp: int, values: Any) -> list[float]:
+    """The ``data`` field of a stamped message: ``[stamp, *values]``.
+
+    Parameters
+    ----------
+    stamp : int
+        Sample index k, ``0 <= k < 2**53``.
+    values : array_like
+        (m,) finite values.
+    """
+    k = int(stamp)
+    if not 0 <= k < MAX_STAMP:
+        raise MessageError(f"stamp {stamp!r} out of range [0, 2**53)")
+    v = np.asarray(values, dtype=float).reshape(-1)
+    return [float(k), *v.tolist()]
+
+
+def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None) -> Any:
+    """Build a stamped, labelled Float64MultiArray.
+
+    Parameters
+    ----------
+    labels : sequence of str
+        (m,) channel names.
+    stamp : int
+        Sample index k.
+    values : array_like
+        (m,) values.
+    msg_type : type, optional
+        The message class and its layout classes' owner; default ``std_msgs.msg`` (rclpy).
+        ``fd_monitor.bags`` passes the ``rosbags`` classes.
+    """
+    data = encode_data(stamp, values)
+    if len(data) - 1 != len(labels):
+        raise MessageError(f"{len(labels)} labels for {len(data) - 1} values")
+    if msg_type is None:
+        from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+        msg = Float64MultiArray()
+        dim = MultiArrayDimension()
+        dim.label = join_labels(labels)
+        dim.size = len(labels)
+        dim.stride = len(labels)
+        msg.layout.dim = [dim]
+        msg.layout.data_offset = STAMP_OFFSET
+        msg.data = data
+        return msg
+    return msg_type(labels, data)
+
+
+@dataclass(frozen=True)
+class Decoded:
+    """A decoded message.
+
+    Attributes
+    ----------
+    stamp : int or None
+        In-band sample index, None for a plain (unstamped) message.
+    labels : tuple of str
+        Channel names (the expected ones when the message carries none).
+    values : numpy.ndarray
+        (m,) finite float values.
+    """
+
+    stamp: int | None
+    labels: tuple[str, ...]
+    values: np.ndarray
+
+
+def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
+           size: int | None = None, require_stamp: bool = False,
+           allow_nan: bool = False) -> Decoded:
+    """Validate and decode a Float64MultiArray.
+
+    Parameters
+    ----------
+    msg : Float64MultiArray
+        An rclpy message or a rosbags dataclass (duck-typed: ``layout.dim``,
+        ``layout.data_offset``, ``data``).
+    topic : str
+        For error messages.
+    labels : sequence of str, optional
+        Expected channel names; a message with other labels is refused (a message without
+        labels is accepted and given these).
+    size : int, optional
+        Expected number of values (default ``len(labels)`` when labels are given).
+    require_stamp : bool
+        Refuse an unstamped message (``data_offset = 0``).
+    allow_nan : bool
+        Accept NaN values (``/fd/threshold_override``: NaN = no override); Inf is refused.
+
+    Raises
+    ------
+    MessageError
+        One line naming the topic, the stamp when known, and what is wrong.
+    """
+    data = np.asarray(msg.data, dtype=float).reshape(-1)
+    offset = int(msg.layout.data_offset)
+    where = topic
+    if offset not in (0, STAMP_OFFSET):
+        raise MessageError(f"{where}: layout.data_offset {offset}: expected 0 (no stamp) or "
+                           f"{STAMP_OFFSET} (stamp in data[0])")
+    stamp: int | None = None
+    if offset == STAMP_OFFSET:
+        if data.size < 1:
+            raise MessageError(f"{where}: data_offset 1 but data is empty (no stamp)")
+        s = float(data[0])
+        if not math.isfinite(s) or s < 0 or s != math.floor(s) or s >= MAX_STAMP:
+            raise MessageError(f"{where}: stamp data[0] = {s!r}: expected an integer >= 0")
+        stamp = int(s)
+        where = f"{topic} stamp {stamp}"
+    elif require_stamp:
+        raise MessageError(f"{where}: missing stamp (layout.data_offset 0; fd_monitor topics "
+                           f"carry the sample index in data[0] with data_offset 1)")
+    values = data[offset:]
+    dims = list(msg.layout.dim)
+    got_labels: tuple[str, ...] = ()
+    if dims:
+        got_labels = split_labels(str(dims[0].label))
+        if int(dims[0].size) != values.size:
+            raise MessageError(f"{where}: layout.dim[0].size {int(dims[0].size)} but "
+                               f"{values.size} values")
+        if got_labels and len(got_labels) != values.size:
+            raise MessageError(f"{where}: {len(got_labels)} labels for {values.size} values")
+    expected = tuple(labels) if labels is not None else None
+    n = size if size is not None else (len(expected) if expected is not None else None)
+    if n is not None and values.size != n:
+        names = f" ({','.join(expected)})" if expected else ""
+        raise MessageError(f"{where}: wrong length: {values.size} values, expected {n}{names}")
+    if expected is not None and got_labels and got_labels != expected:
+        raise MessageError(f"{where}: channels {','.join(got_labels)}: expected "
+                           f"{','.join(expected)}")
+    bad = np.isinf(values) if allow_nan else ~np.isfinite(values)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        names = got_labels or expected or ()
+        name = names[i] if i < len(names) else f"#{i}"
+        raise MessageError(f"{where}: value {name} is {float(values[i])!r}: expected finite "
+                           f"numbers")
+    return Decoded(stamp, got_labels or (expected or ()), values.copy())
+
+
+class ArrivalStamper:
+    """Per-topic counter stamping plain messages on arrival (0, 1, 2, ...).
+
+    A node keeps one per input topic, so the k-th plain message of each topic gets stamp k.
+    """
+
+    def __init__(self) -> None:
+        self.next = 0
+
+    def stamp(self, decoded: Decoded) -> Decoded:
+        """Return ``decoded`` with its stamp, or the next counter value if it has none."""
+        if decoded.stamp is not None:
+            return decoded
+        out = Decoded(self.next, decoded.labels, decoded.values)
+        self.next += 1
+        return out

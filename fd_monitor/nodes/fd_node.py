@@ -1,0 +1,228 @@
+"""Base of the diagnosis-chain nodes: parameters, plant and gains, joined inputs, diagnostics.
+
+Each chain node (observer, detector, agei, bias_estimator) declares its inputs (topic,
+expected labels, required or feedback with its initial value) and implements
+``process(k, inputs)`` — message -> ``np.asarray`` -> core step -> message -> publish. This
+base decodes and validates every message (:func:`~fd_monitor.nodes.conversions.decode`),
+joins inputs on the stamp (:class:`~fd_monitor.nodes.join.StampJoin`), and reports on
+``/diagnostics``: an ``input`` channel (OK; WARN with the reason of the last bad message;
+STALE when no input came for ``stale_timeout`` s) plus the node's own channels. A bad message
+is logged, reported, and dropped before it reaches the join: it never changes core state.
+
+Feedback messages (``/fd/bias_estimate``, ``/fd/guard_event``, ``/fd/threshold_override``) are
+stamped with the sample they are *for* (k + 1 when decided at k), so every join is on equal
+stamps.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from fd_monitor.errors import FdMonitorError, MessageError
+from fd_monitor.gains import GainFile, load_gains
+from fd_monitor.nodes.common import (
+    DEFAULT_DEPTH,
+    OK,
+    WARN,
+    Diagnostics,
+    Param,
+    data_pub_qos,
+    data_sub_qos,
+    declare_parameters,
+    pub_events,
+    sub_events,
+)
+from fd_monitor.nodes.conversions import ArrivalStamper, decode, to_msg
+from fd_monitor.nodes.join import StampJoin
+from fd_monitor.system import System, load_system
+
+__all__ = ["COMMON_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
+
+#: Gain-file methods the chain nodes can run (one runtime per method).
+RUNTIMES = ("thresholds",)
+
+COMMON_PARAMS = (
+    Param("system", "three_tank", "plant file, or the name of a shipped plant"),
+    Param("gains", "three_tank_thresholds", "gain file (path or name in config/gains/); "
+          "loaded and its certificate re-verified at start"),
+    Param("stale_timeout", 2.0, "s without input before the input channel turns STALE",
+          low=0.01, high=1.0e6),
+    Param("diagnostics_period", 1.0, "s between /diagnostics publications", low=0.01,
+          high=3600.0),
+    Param("qos_depth", DEFAULT_DEPTH, "history depth of the publishers", low=10,
+          high=1000000),
+    Param("max_pending", 100000, "samples buffered while waiting for inputs", low=10,
+          high=10000000),
+)
+
+
+@dataclass(frozen=True)
+class Input:
+    """One joined input of a node.
+
+    Attributes
+    ----------
+    name : str
+        Key in ``process``'s inputs.
+    topic : str
+    labels : tuple of str, optional
+        Expected channel names (None: accept any, check ``size`` only).
+    size : int, optional
+    initial : object
+        For feedback inputs: the value at the node's first sample; ``None`` = required.
+    plain_ok : bool
+        Accept unstamped messages (a user's driver), stamped on arrival.
+    allow_nan : bool
+        NaN is a value (``/fd/threshold_override``: no override).
+    stamp_offset : int
+        Joined at ``stamp + stamp_offset``: -1 for a feedback message (stamped k + 1) that
+        is needed at the sample it was decided at (k).
+    """
+
+    name: str
+    topic: str
+    labels: tuple[str, ...] | None = None
+    size: int | None = None
+    initial: Any = None
+    plain_ok: bool = False
+    allow_nan: bool = False
+    stamp_offset: int = 0
+
+
+def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainFile]:
+    """Load the plant and its gain file (certificate re-verified); one-line errors."""
+    system = load_system(system_src)
+    return system, load_gains(gains_src, system)
+
+
+class FdNode(Node):
+    """A chain node: subclasses set ``inputs`` and implement :meth:`process`.
+
+    Parameters
+    ----------
+    node_name : str
+    params : sequence of Param
+        The node's own parameters (the common ones are added).
+    system, gains : optional
+        Injected plant and gain file (tests, composition); default from the parameters.
+    qos : rclpy.qos.QoSProfile, optional
+        Publisher QoS.
+    **kwargs
+        Passed to :class:`rclpy.node.Node`.
+    """
+
+    inputs: Sequence[Input] = ()
+
+    def __init__(self, node_name: str, params: Sequence[Param] = (),
+                 system: System | None = None, gains: GainFile | None = None, qos=None,
+                 **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.params = declare_parameters(self, (*COMMON_PARAMS, *params))
+        if system is None or gains is None:
+            system, gains = load_plant_and_gains(self.params.system, self.params.gains)
+        self.system, self.gain_file = system, gains
+        if gains.method not in RUNTIMES:
+            raise FdMonitorError(f"node {node_name}: {gains.path}: method {gains.method!r}: "
+                                 f"these nodes run {', '.join(RUNTIMES)} gain files (design "
+                                 f"one with `python -m fd_monitor design thresholds "
+                                 f"{system.name}`)")
+        self._qos = qos if qos is not None else data_pub_qos(self.params.qos_depth)
+        self.diag = Diagnostics(self, system.name, self.params.diagnostics_period)
+        self.diag.add("input", self.params.stale_timeout, "no input yet")
+        self.bad_messages = 0
+        self.processed = 0
+        # Reasons of the bad messages since the last /diagnostics publication: each one is
+        # published (a burst in one status), and WARN holds for one period after the last.
+        self._reasons: list[str] = []
+        self._last_bad = -float("inf")
+        self.diag.on_publish.append(self._reasons.clear)
+
+    # -- set-up helpers for subclasses --------------------------------------------------------
+
+    def publisher(self, topic: str) -> Any:
+        """A data-path publisher of Float64MultiArray."""
+        return self.create_publisher(Float64MultiArray, topic, self._qos, **pub_events())
+
+    def start_inputs(self, inputs: Sequence[Input]) -> None:
+        """Subscribe to every input and set up the stamp join."""
+        self.inputs = tuple(inputs)
+        self.join = StampJoin([i.name for i in inputs if i.initial is None],
+                              {i.name: i.initial for i in inputs if i.initial is not None},
+                              self.params.max_pending)
+        for inp in inputs:
+            self.create_subscription(Float64MultiArray, inp.topic, self._callback(inp),
+                                     data_sub_qos(), **sub_events())
+
+    def _callback(self, inp: Input) -> Callable[[Any], None]:
+        stamper = ArrivalStamper()
+
+        def cb(msg: Any) -> None:
+            try:
+                d = stamper.stamp(decode(msg, inp.topic, labels=inp.labels, size=inp.size,
+                                         require_stamp=not inp.plain_ok,
+                                         allow_nan=inp.allow_nan))
+            except MessageError as exc:
+                self.bad_input(str(exc))
+                return
+            stamp = int(d.stamp or 0) + inp.stamp_offset
+            if stamp >= 0:
+                self.on_input(inp.name, stamp, d.values)
+        return cb
+
+    def bad_input(self, reason: str) -> None:
+        """Log a rejected message and report it on /diagnostics (WARN); keep running."""
+        self.bad_messages += 1
+        self._last_bad = time.monotonic()
+        self.get_logger().warning(reason)
+        if len(self._reasons) < 10:
+            self._reasons.append(reason)
+        self.diag.update("input", WARN, "; ".join(self._reasons),
+                         {"bad_messages": self.bad_messages, "processed": self.processed,
+                          "last_bad_message": reason})
+
+    def on_input(self, name: str, stamp: int, values: np.ndarray) -> None:
+        """Join one decoded input; process every sample that became complete."""
+        note = self.join.put(name, stamp, values)
+        if note is not None:
+            self.bad_input(note)
+            return
+        for k, inputs in self.join.ready():
+            self.process(k, inputs)
+            self.processed += 1
+        level = self.diag.level("input")
+        if level == WARN and time.monotonic() - self._last_bad < self.diag.period:
+            self.diag.touch("input")
+        elif level != OK or self.processed % 50 == 0:
+            if self._reasons:
+                self.diag.publish()  # the reasons not published yet go out before OK
+            self.diag.update("input", OK, "receiving", {
+                "bad_messages": self.bad_messages, "processed": self.processed,
+                "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for()})
+        else:
+            self.diag.touch("input")
+
+    def process(self, k: int, inputs: dict[str, Any]) -> None:  # pragma: no cover
+        """Process sample k (subclasses)."""
+        raise NotImplementedError
+
+    def publish_array(self, pub: Any, labels: Sequence[str], stamp: int, values: Any) -> None:
+        """Publish one stamped, labelled message."""
+        pub.publish(to_msg(labels, stamp, values))
+
+    def gain_values(self) -> dict[str, str]:
+        """Gain-file id and certificate status, for /diagnostics."""
+        return {"gain_file": self.gain_file.id,
+                "certificate": self.gain_file.certificate_status}
+
+
+def require(condition: bool, message: str) -> None:
+    """Raise a start-up FdMonitorError unless ``condition``."""
+    if not condition:
+        raise FdMonitorError(message)

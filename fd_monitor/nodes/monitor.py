@@ -1,0 +1,31 @@
+"""``monitor``: the four chain nodes (observer, detector, agei, bias_estimator) on one
+executor in one process, each with its own name, parameters and diagnostics."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from fd_monitor.nodes.agei import AgeiNode
+from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
+from fd_monitor.nodes.common import run_node
+from fd_monitor.nodes.detector import DetectorNode
+from fd_monitor.nodes.observer import ObserverNode
+
+__all__ = ["make_nodes", "main"]
+
+
+def make_nodes(**kwargs) -> list:
+    """The four chain nodes (kwargs go to every node, e.g. ``context``)."""
+    return [ObserverNode(**kwargs), DetectorNode(**kwargs), AgeiNode(**kwargs),
+            BiasEstimatorNode(**kwargs)]
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Run the four nodes in one process."""
+    return run_node(make_nodes, args, prog="monitor")
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

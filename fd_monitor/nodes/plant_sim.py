@@ -1,0 +1,203 @@
+"""``plant_sim``: the core plant simulator as a ROS 2 node.
+
+Publishes, for every sample k of a scenario (:class:`fd_monitor.core.simulator.PlantSimulator`,
+a batch of one run), stamped and labelled Float64MultiArray messages (see
+:mod:`fd_monitor.nodes.conversions`):
+
+- ``/plant/u`` — the commanded inputs u_k (labels: the plant's inputs);
+- ``/plant/y`` — the measurements y_k, sensor faults included (labels: the outputs);
+- ``/plant/truth`` — ``mode`` (index), ``x.<state>`` (true state), ``f.<fault>`` (fault
+  signals): for evaluation only.
+
+Pacing: ``rate_factor`` times the sample rate (1.0 = real time, 100.0 = a hundred times
+faster), or ``0.0`` = as fast as the subscribers keep up without loss (wait for
+``min_subscribers_*`` matched subscriptions, then pace by acknowledgements every
+``ack_window`` samples; see :mod:`fd_monitor.nodes.common`). The node ends after the
+scenario's samples (or ``duration``), once every sample is acknowledged, unless
+``keep_going`` is true.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+from rclpy.node import Node
+from rclpy.task import Future
+from std_msgs.msg import Float64MultiArray
+
+from fd_monitor.core.simulator import PlantSimulator, Sample
+from fd_monitor.errors import FdMonitorError
+from fd_monitor.nodes.common import (
+    DEFAULT_DEPTH,
+    ERROR,
+    OK,
+    AckPacer,
+    Diagnostics,
+    Param,
+    data_pub_qos,
+    declare_parameters,
+    pub_events,
+    run_node,
+    wait_for_subscribers,
+)
+from fd_monitor.nodes.conversions import to_msg, truth_labels
+from fd_monitor.scenario import load_scenario
+
+__all__ = ["PARAMS", "PlantSimNode", "main"]
+
+PARAMS = (
+    Param("scenario", "three_tank_bias_h1", "scenario: a shipped name or a YAML path"),
+    Param("seed", -1, "random seed of the run; -1 = the scenario's seed", low=-1,
+          high=2**31 - 1),
+    Param("rate_factor", 1.0, "pace = sample rate x rate_factor; 0.0 = as fast as the "
+          "subscribers keep up without loss", low=0.0, high=1.0e6),
+    Param("duration", 0.0, "s of plant time to simulate; 0.0 = the scenario's duration",
+          low=0.0, high=1.0e9),
+    Param("keep_going", False, "keep simulating after the scenario's end (until shut down)"),
+    Param("publish_truth", True, "publish /plant/truth (true mode, state, fault signals)"),
+    Param("min_subscribers_u", 0, "wait for this many subscriptions on /plant/u before "
+          "the first sample", low=0, high=1000),
+    Param("min_subscribers_y", 0, "wait for this many subscriptions on /plant/y", low=0,
+          high=1000),
+    Param("min_subscribers_truth", 0, "wait for this many subscriptions on /plant/truth",
+          low=0, high=1000),
+    Param("subscriber_timeout", 30.0, "s to wait for the subscribers, then exit with an "
+          "error; 0.0 = wait forever", low=0.0, high=1.0e6),
+    Param("qos_depth", DEFAULT_DEPTH, "history depth of the publishers", low=10,
+          high=1000000),
+    Param("ack_window", 100, "samples between waits for acknowledgements (< qos_depth)",
+          low=1, high=1000000),
+    Param("diagnostics_period", 1.0, "s between /diagnostics publications", low=0.01,
+          high=3600.0),
+)
+
+_TICK = 0.001  # s: timer period of the publishing loop (bursts catch up on late ticks)
+
+
+class PlantSimNode(Node):
+    """Publish a simulated plant's u, y and truth, sample by sample.
+
+    Parameters
+    ----------
+    simulator : PlantSimulator, optional
+        A batch-of-one simulator; default: built from the ``scenario`` and ``seed``
+        parameters.
+    qos : rclpy.qos.QoSProfile, optional
+        Publisher QoS; default :func:`~fd_monitor.nodes.common.data_pub_qos`.
+    node_name : str
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (e.g. ``parameter_overrides``, ``context``).
+    """
+
+    def __init__(self, simulator: PlantSimulator | None = None, qos=None,
+                 node_name: str = "plant_sim", **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        p = self.params = declare_parameters(self, PARAMS)
+        if simulator is None:
+            scenario = load_scenario(p.scenario)
+            simulator = PlantSimulator(scenario, [scenario.seed if p.seed < 0 else p.seed])
+        if simulator.N != 1:
+            raise FdMonitorError(f"plant_sim: expected a simulator of one run, got {simulator.N}")
+        if p.ack_window >= p.qos_depth:
+            raise FdMonitorError(f"node {node_name}: parameter ack_window ({p.ack_window}) "
+                                 f"must be below qos_depth ({p.qos_depth})")
+        self.sim = simulator
+        sc = simulator.scenario
+        sys_ = sc.system
+        self.labels_u, self.labels_y = sys_.inputs, sys_.outputs
+        self.labels_truth = truth_labels(sys_)
+        duration = p.duration if p.duration > 0 else sc.duration
+        #: samples of a run (k = 0 .. n_samples-1), unless keep_going.
+        self.n_samples = max(1, round(duration / sys_.sample_time))
+        self.dt = sys_.sample_time
+        qos = qos if qos is not None else data_pub_qos(p.qos_depth)
+        self.pub_u = self.create_publisher(Float64MultiArray, "/plant/u", qos, **pub_events())
+        self.pub_y = self.create_publisher(Float64MultiArray, "/plant/y", qos, **pub_events())
+        self.pub_truth = (self.create_publisher(Float64MultiArray, "/plant/truth", qos,
+                                                **pub_events())
+                          if p.publish_truth else None)
+        pubs = [self.pub_u, self.pub_y] + ([self.pub_truth] if self.pub_truth else [])
+        self._pacer = AckPacer(pubs, p.ack_window)
+        self._wanted = [(self.pub_u, p.min_subscribers_u), (self.pub_y, p.min_subscribers_y)]
+        if self.pub_truth is not None:
+            self._wanted.append((self.pub_truth, p.min_subscribers_truth))
+        self.done = Future()
+        self.exit_code = 0
+        self.published = 0
+        self._t0: float | None = None
+        self._wait_start = time.monotonic()
+        self.diag = Diagnostics(self, sys_.name, p.diagnostics_period)
+        self.diag.add("simulation")
+        self.diag.update("simulation", OK, "waiting for subscribers",
+                         {"scenario": sc.name, "samples": self.n_samples})
+        self._timer = self.create_timer(_TICK, self._on_tick)
+        self.get_logger().info(
+            f"scenario {sc.name} ({sys_.name}), seed {simulator.seeds[0]}, "
+            f"{self.n_samples} samples of {self.dt:g} s, rate_factor {p.rate_factor:g}")
+
+    # One tick: wait for subscribers, then publish every sample that is due.
+    def _on_tick(self) -> None:
+        if self.done.done():
+            return
+        now = time.monotonic()
+        if self._t0 is None:
+            if not wait_for_subscribers(self._wanted):
+                timeout = self.params.subscriber_timeout
+                if timeout > 0 and now - self._wait_start > timeout:
+                    counts = ", ".join(f"{pub.topic_name}: {pub.get_subscription_count()}/{n}"
+                                       for pub, n in self._wanted)
+                    self._finish(1, f"timed out after {self.params.subscriber_timeout:g} s "
+                                    f"waiting for subscribers ({counts})")
+                return
+            self._t0 = now
+            self.diag.update("simulation", OK, "running")
+        end = None if self.params.keep_going else self.n_samples
+        rate = self.params.rate_factor
+        if rate > 0:
+            due = math.floor((now - self._t0) * rate / self.dt) + 1
+        else:
+            due = self.published + self._pacer.window
+        if end is not None:
+            due = min(due, end)
+        # Bounded bursts keep the executor responsive (shutdown, diagnostics).
+        due = min(due, self.published + self._pacer.window)
+        while self.published < due:
+            self._publish(self.sim.step())
+        if end is not None and self.published >= end:
+            if not self._pacer.flush():
+                self.get_logger().warning("not every sample was acknowledged in time")
+            self._finish(0, f"published {self.published} samples")
+
+    def _publish(self, s: Sample) -> None:
+        k = s.k
+        self.pub_u.publish(to_msg(self.labels_u, k, s.u[0]))
+        self.pub_y.publish(to_msg(self.labels_y, k, s.y[0]))
+        if self.pub_truth is not None:
+            self.pub_truth.publish(to_msg(self.labels_truth, k,
+                                          [float(s.mode[0]), *s.x[0], *s.faults[0]]))
+        self.published += 1
+        self.diag.touch("simulation")
+        if not self._pacer.published():
+            self.get_logger().warning(f"sample {k}: subscribers slow to acknowledge")
+
+    def _finish(self, code: int, message: str) -> None:
+        self.exit_code = code
+        log = self.get_logger().info if code == 0 else self.get_logger().error
+        log(message)
+        self.diag.update("simulation", OK if code == 0 else ERROR, message,
+                         {"published": self.published})
+        self._timer.cancel()
+        self.done.set_result(code)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Run ``plant_sim`` until the scenario ends (or SIGINT/SIGTERM)."""
+    return run_node(PlantSimNode, args, prog="plant_sim")
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())

@@ -1,0 +1,436 @@
+"""Offline runs of a monitor over a bag: tolerant input reading, per-sample arrays, summaries.
+
+One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag reports
+(:mod:`fd_monitor.report`) and the regression suite (:mod:`fd_monitor.library`):
+
+1. :func:`read_inputs` reads ``/plant/u`` and ``/plant/y`` message by message, as the nodes
+   receive them: a message that does not decode (NaN/Inf, wrong length, bad layout) is
+   reported and left out, duplicates are reported (the first is kept), out-of-order stamps
+   are reported and used in stamp order, holes in the stamps are reported as ``missing``.
+2. :func:`run_bag` runs the gain file's monitor over the valid samples — the diagnosis
+   chain (:class:`~fd_monitor.core.monitor.Monitor`) for ``thresholds`` gain files, the QB
+   observer and detector (:mod:`fd_monitor.core.qb`) for ``qb`` ones — and restarts it after
+   a hole (the state estimate is re-initialised from the next measurement and the filters
+   start again, so no stale estimate is carried across missing data). Nothing is lost: every
+   valid sample is processed and every rejected one is reported.
+3. :func:`summarize_run` (regression expectations) and
+   :func:`fd_monitor.commands.analyze.analyze_run` (the ``analyze`` summary) read the
+   resulting :class:`BagRun`.
+
+Nothing here imports rclpy (the message decoding is the nodes' pure conversion function).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.errors import BagError, FdMonitorError, MessageError
+
+__all__ = ["BagRun", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs", "run_bag",
+           "run_thresholds", "summarize_run", "truth_at"]
+
+#: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml).
+INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
+                     "missing")
+
+
+@dataclass
+class InputReport:
+    """What was wrong with a bag's input messages.
+
+    Attributes
+    ----------
+    errors : list of dict
+        ``{kind, topic, sample, message}`` per rejected or suspicious message; ``kind`` one of
+        :data:`INPUT_ERROR_KINDS`. ``sample`` is the stamp (None when unreadable).
+    restarts : list of int
+        Samples at which the monitor restarted after a hole in the stamps.
+    """
+
+    errors: list[dict[str, Any]] = field(default_factory=list)
+    restarts: list[int] = field(default_factory=list)
+
+    def by_kind(self) -> dict[str, list[Any]]:
+        """kind -> sorted stamps (``missing``: ``[first, last]`` runs; -1: no stamp)."""
+        out: dict[str, list[Any]] = {}
+        for e in self.errors:
+            s = e["sample"]
+            out.setdefault(e["kind"], []).append(-1 if s is None else
+                                                 list(s) if isinstance(s, tuple) else s)
+        return {k: sorted(v) for k, v in out.items()}
+
+
+def _classify(exc: MessageError) -> str:
+    text = str(exc)
+    if "expected finite" in text or "non-finite" in text:
+        return "non_finite"
+    if "wrong length" in text or "labels for" in text or "size" in text:
+        return "wrong_length"
+    return "malformed"
+
+
+def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
+                                                       dict[int, np.ndarray], InputReport]:
+    """Read ``/plant/u`` and ``/plant/y`` message by message, keeping the valid ones.
+
+    A message that does not decode (NaN/Inf, wrong length, bad layout) is rejected; a second
+    message with a stamp already seen is a duplicate (the first is kept); a stamp lower than
+    one already seen on its topic is reported as out of order and used (offline the samples
+    are processed in stamp order). Stamps between the first and the last with no usable
+    ``(u, y)`` pair are reported as missing.
+
+    Returns
+    -------
+    (dict, dict, InputReport)
+        stamp -> u (nu,), stamp -> y (ny,), the report.
+    """
+    from fd_monitor.bags import read_messages
+    from fd_monitor.nodes.conversions import decode
+
+    rep = InputReport()
+    streams: dict[str, dict[int, np.ndarray]] = {"/plant/u": {}, "/plant/y": {}}
+    labels = {"/plant/u": tuple(system.inputs), "/plant/y": tuple(system.outputs)}
+    top: dict[str, int] = {}
+    topics = ["/plant/y"] + (["/plant/u"] if system.nu else [])
+    try:
+        from fd_monitor.bags import bag_topics
+
+        present = bag_topics(bag)
+    except BagError:
+        raise
+    missing = [t for t in topics if t not in present]
+    if missing:
+        raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
+                       f"{', '.join(sorted(present)) or 'none'})")
+    for topic, _t, msg in read_messages(bag, topics):
+        raw_stamp: int | None = None
+        try:
+            if int(msg.layout.data_offset) == 1 and len(msg.data):
+                s = float(msg.data[0])
+                raw_stamp = int(s) if math.isfinite(s) and s >= 0 else None
+        except (TypeError, ValueError):
+            raw_stamp = None
+        try:
+            d = decode(msg, topic, labels=labels[topic], require_stamp=True)
+        except MessageError as exc:
+            rep.errors.append({"kind": _classify(exc), "topic": topic, "sample": raw_stamp,
+                               "message": str(exc)})
+            continue
+        k = int(d.stamp or 0)
+        seen = streams[topic]
+        if k in seen:
+            rep.errors.append({"kind": "duplicate", "topic": topic, "sample": k,
+                               "message": f"{topic} stamp {k}: duplicate (first kept)"})
+            continue
+        if topic in top and k < top[topic]:
+            rep.errors.append({"kind": "out_of_order", "topic": topic, "sample": k,
+                               "message": f"{topic} stamp {k} after stamp {top[topic]}"})
+        top[topic] = max(top.get(topic, k), k)
+        seen[k] = d.values
+    us, ys = streams["/plant/u"], streams["/plant/y"]
+    if not system.nu:
+        us = {k: np.zeros(0) for k in ys}
+    ks = sorted(set(us) & set(ys))
+    rejected = {e["sample"] for e in rep.errors}
+    if ks:
+        have = set(ks)
+        hole = [k for k in range(ks[0], ks[-1] + 1) if k not in have and k not in rejected]
+        for a, b in _ranges(hole):
+            rep.errors.append({"kind": "missing", "topic": "/plant/u,/plant/y",
+                               "sample": [a, b], "message": f"no message for stamps {a}..{b} "
+                               f"({b - a + 1} samples)"})
+    return us, ys, rep
+
+
+def _ranges(ks: Sequence[int]) -> list[tuple[int, int]]:
+    """Sorted stamps -> inclusive runs ``(first, last)`` of consecutive stamps."""
+    out: list[tuple[int, int]] = []
+    for k in ks:
+        if out and k == out[-1][1] + 1:
+            out[-1] = (out[-1][0], k)
+        else:
+            out.append((k, k))
+    return out
+
+
+@dataclass
+class BagRun:
+    """Per-sample outputs of the monitor over one bag (what the report plots).
+
+    Attributes
+    ----------
+    bag : str
+    method : str
+        Gain-file method (``thresholds`` or ``qb``).
+    gains : str
+        Gain file path.
+    system : System
+    k : numpy.ndarray
+        (K,) processed sample stamps.
+    channels : tuple of str
+        Alarm channels.
+    units : tuple of str
+        Unit of each channel's signal.
+    signal, threshold : numpy.ndarray
+        (K, m) the compared signal (residual) and the threshold in force.
+    alarm : numpy.ndarray
+        (K, m) bool
+    mode_hat : numpy.ndarray
+        (K,) estimated mode.
+    estimate : dict
+        name -> (K,) estimated bias (``thresholds``: sigma^ per output; ``qb``: the fault-model
+        states).
+    isolated : numpy.ndarray or None
+        (K, ny) bool isolation flags (``thresholds``).
+    truth : TopicArrays or None
+        ``/plant/truth`` of the bag.
+    inputs : InputReport
+    transient : float
+        s
+    qb : dict
+        QB only: ``V`` (K,) e' P e with the true state (NaN without truth), ``error`` (K, n),
+        ``component_bound`` (n,).
+    """
+
+    bag: str
+    method: str
+    gains: str
+    system: Any
+    k: np.ndarray
+    channels: tuple[str, ...]
+    units: tuple[str, ...]
+    signal: np.ndarray
+    threshold: np.ndarray
+    alarm: np.ndarray
+    mode_hat: np.ndarray
+    estimate: dict[str, np.ndarray]
+    isolated: np.ndarray | None
+    truth: Any
+    inputs: InputReport
+    transient: float = 0.0
+    qb: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def t(self) -> np.ndarray:
+        """(K,) times, s."""
+        return self.k * float(self.system.sample_time)
+
+
+def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, Any]:
+    """The gain file and its plant (the plant file named by the gain file)."""
+    from fd_monitor.gains import load_gains
+    from fd_monitor.system import load_system
+
+    raw = load_gains(gains_source, None, verify=False)
+    system = load_system(raw.system_name)
+    return system, load_gains(gains_source, system)
+
+
+def _units(system: Any) -> str:
+    return "m" if system.name == "three_tank" else "-"
+
+
+def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
+            system: Any = None, agei: bool = True) -> BagRun:
+    """Run the monitor of a gain file over a bag's ``/plant/u`` and ``/plant/y``.
+
+    ``thresholds`` gain files run :class:`fd_monitor.core.monitor.Monitor` (restarted with
+    :meth:`~fd_monitor.core.monitor.Monitor.reset` after a hole in the stamps); ``qb`` gain
+    files run :class:`fd_monitor.core.qb.QBObserver` and :class:`~fd_monitor.core.qb.QBDetector`
+    (a new observer after a hole).
+
+    Parameters
+    ----------
+    bag : str or pathlib.Path
+        Bag folder.
+    gains : str, pathlib.Path or GainFile
+        Gain file (name, path, or loaded; its plant is loaded by name when ``system`` is None).
+    transient : float
+        s, recorded for the summary (alarms before it are not counted).
+    system : System, optional
+    agei : bool
+        ``thresholds`` only: run with the AGEI module (False: the ablation).
+
+    Raises
+    ------
+    BagError
+        Missing bag or topic.
+    GainFileError
+        Unknown or invalid gain file.
+    """
+    from fd_monitor.bags import read_bag
+    from fd_monitor.gains import GainFile, load_gains
+
+    if not Path(bag).exists():
+        raise BagError(f"{bag}: no such bag")
+    if isinstance(gains, GainFile):
+        gf = gains
+        if system is None:
+            from fd_monitor.system import load_system
+
+            system = load_system(gf.system_name)
+    elif system is None:
+        system, gf = _load_system_for(bag, gains)
+    else:
+        gf = load_gains(gains, system)
+    us, ys, rep = read_inputs(bag, system)
+    truth = None
+    try:
+        truth = read_bag(bag, ["/plant/truth"])["/plant/truth"]
+    except BagError:
+        truth = None
+    ks = sorted(set(us) & set(ys))
+    if not ks:
+        raise BagError(f"{bag}: no valid (u, y) sample on /plant/u and /plant/y")
+    if gf.method == "thresholds":
+        out = run_thresholds(system, gf, ks, us, ys, rep, agei=agei)
+    elif gf.method == "qb":
+        out = _run_qb(system, gf, ks, us, ys, rep, truth)
+    else:
+        raise FdMonitorError(f"{gf.path}: method {gf.method!r}: the bag report runs "
+                             f"'thresholds' and 'qb' gain files")
+    return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
+                  transient=float(transient), **out)
+
+
+def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
+                   rep: InputReport, agei: bool = True) -> dict[str, Any]:
+    """The diagnosis chain over samples ``ks`` (``us[k]``, ``ys[k]``); restarts after a hole.
+
+    Returns the per-sample fields of a :class:`BagRun`. An invalid sample raises
+    :class:`~fd_monitor.errors.MessageError` naming its stamp (:func:`read_inputs` has already
+    left such samples out of a bag).
+    """
+    from fd_monitor.core.monitor import Monitor
+
+    mon = Monitor(system, gf, agei=agei)
+    K, ny = len(ks), system.ny
+    sig, thr = np.zeros((K, ny)), np.zeros((K, ny))
+    alarm, iso = np.zeros((K, ny), bool), np.zeros((K, ny), bool)
+    sh = np.zeros((K, ny))
+    mode = np.zeros(K, int)
+    prev: int | None = None
+    for j, k in enumerate(ks):
+        if prev is not None and k != prev + 1:
+            mon.reset()
+            rep.restarts.append(k)
+        o = mon.step(k, us[k], ys[k])
+        sig[j], thr[j], alarm[j] = o.detector.residual, o.detector.threshold, o.detector.alarm
+        sh[j], iso[j], mode[j] = o.estimator.sigma_hat, o.estimator.isolated, o.mode
+        prev = k
+    unit = _units(system)
+    return {"method": "thresholds", "k": np.asarray(ks), "channels": tuple(system.outputs),
+            "units": (unit,) * ny, "signal": sig, "threshold": thr, "alarm": alarm,
+            "mode_hat": mode, "estimate": {o: sh[:, i] for i, o in enumerate(system.outputs)},
+            "isolated": iso}
+
+
+def _run_qb(system: Any, gf: Any, ks: list[int], us: dict, ys: dict, rep: InputReport,
+            truth: Any) -> dict[str, Any]:
+    from fd_monitor.core.qb import QBDetector, QBObserver
+
+    det = QBDetector(system, gf)
+    K = len(ks)
+    m = len(det.channels)
+    sig, thr = np.zeros((K, m)), np.zeros((K, m))
+    X = np.zeros((K, system.n))
+    mode = np.zeros(K, int)
+    obs: QBObserver | None = None
+    prev: int | None = None
+    for j, k in enumerate(ks):
+        if obs is None or (prev is not None and k != prev + 1):
+            if obs is not None:
+                rep.restarts.append(k)
+            obs = QBObserver(system, gf)
+        q, xh = obs.step(k, us[k], ys[k])
+        r = obs.residual(q, xh, ys[k])
+        sig[j] = det.signals(xh, r)
+        thr[j] = det.rho * det.bounds(q)
+        X[j], mode[j] = xh, q
+        prev = k
+    P = np.asarray(gf.results["P"], dtype=float)
+    qb: dict[str, Any] = {"component_bound": np.asarray(gf.results["component_bound"], float),
+                          "rho_max": float(gf.results["rho_max"]), "x_hat": X}
+    if truth is not None:
+        x_true = truth_at(truth, ks, [f"x.{s}" for s in system.states])
+        e = x_true - X
+        qb["error"] = e
+        qb["V"] = np.einsum("ki,ij,kj->k", e, P, e)
+    names = [system.states[i] for i in det.fault_idx]
+    est = {n: X[:, system.states.index(n)] for n in names}
+    units = tuple(["-"] * m)
+    return {"method": "qb", "k": np.asarray(ks), "channels": tuple(det.channels),
+            "units": units, "signal": sig, "threshold": thr, "alarm": sig > thr,
+            "mode_hat": mode, "estimate": est, "isolated": None, "qb": qb}
+
+
+def truth_at(truth: Any, ks: Sequence[int], labels: Sequence[str]) -> np.ndarray:
+    """(len(ks), len(labels)) truth values at the given stamps (NaN where absent)."""
+    idx = {int(s): i for i, s in enumerate(truth.stamps)}
+    out = np.full((len(ks), len(labels)), np.nan)
+    cols = [truth.labels.index(lab) for lab in labels]
+    for j, k in enumerate(ks):
+        i = idx.get(int(k))
+        if i is not None:
+            out[j] = truth.values[i, cols]
+    return out
+
+
+def collapse(seq: Sequence[Any]) -> list[Any]:
+    out: list[Any] = []
+    for s in seq:
+        if not out or out[-1] != s:
+            out.append(s)
+    return out
+
+
+def _segments(ks: Sequence[int], modes: Sequence[str]) -> list[list[Any]]:
+    """``[[mode, first_sample, samples], ...]``: runs of one mode."""
+    out: list[list[Any]] = []
+    for k, m in zip(ks, modes):
+        if out and out[-1][0] == m:
+            out[-1][2] += 1
+        else:
+            out.append([m, int(k), 1])
+    return out
+
+
+def summarize_run(run: BagRun) -> dict[str, Any]:
+    """The analyze-style summary of a :class:`BagRun`.
+
+    Returns
+    -------
+    dict
+        ``alarms`` (list of ``{channel, first_sample, time}`` after the transient),
+        ``isolated`` (channel names flagged at the last sample), ``bias_estimate``
+        (``{name: final value}``), ``modes`` (estimated mode names, repeats collapsed),
+        ``input_errors`` (kind -> stamps), ``restarts``, ``samples``.
+    """
+    sys_ = run.system
+    dt = float(sys_.sample_time)
+    k_tr = round(run.transient / dt)
+    alarms = []
+    for i, c in enumerate(run.channels):
+        hits = np.flatnonzero(run.alarm[:, i] & (run.k >= k_tr))
+        if hits.size:
+            k = int(run.k[hits[0]])
+            alarms.append({"channel": c, "first_sample": k, "time": round(k * dt, 9)})
+    isolated: list[str] = []
+    if run.isolated is not None and len(run.k):
+        isolated = [c for c, f in zip(sys_.outputs, run.isolated[-1]) if f]
+    elif run.method == "qb":
+        isolated = [a["channel"] for a in alarms if a["channel"] in run.estimate]
+    names = sys_.mode_names
+    return {"bag": run.bag, "gains": run.gains, "method": run.method,
+            "samples": len(run.k), "alarms": alarms, "isolated": isolated,
+            "bias_estimate": {n: float(v[-1]) for n, v in run.estimate.items()},
+            "modes": collapse([names[int(q)] for q in run.mode_hat]),
+            "mode_segments": _segments(run.k, [names[int(q)] for q in run.mode_hat]),
+            "input_errors": run.inputs.by_kind(), "restarts": list(run.inputs.restarts),
+            "transient_s": run.transient}

@@ -1,0 +1,161 @@
+"""Helpers for tests that talk over real DDS: processes, in-process nodes, bounded waits.
+
+Never sleep as a synchroniser: :func:`spin_until` spins an executor until a condition holds
+or a deadline passes; :class:`Proc` always terminates (then kills) its process, even when the
+test fails. The DDS isolation (ROS_DOMAIN_ID, localhost discovery) comes from conftest.py and
+is inherited by every child process.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def fd_env() -> dict[str, str]:
+    """The environment for child processes (conftest's DDS isolation, the DDS profile)."""
+    from fd_monitor.nodes.common import use_dds_profile
+
+    use_dds_profile()
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+class Proc:
+    """A child process (``python -m fd_monitor ...``) that is always cleaned up.
+
+    Output goes to a temporary file (a full pipe would block the child); read it with
+    :meth:`output`.
+    """
+
+    def __init__(self, args: Sequence[str], env: dict[str, str] | None = None) -> None:
+        self.args = [sys.executable, "-m", "fd_monitor", *args]
+        self._out = tempfile.TemporaryFile(mode="w+")
+        self.p = subprocess.Popen(self.args, cwd=REPO, env=env or fd_env(), stdout=self._out,
+                                  stderr=subprocess.STDOUT, text=True)
+
+    def wait(self, timeout: float) -> int:
+        """Wait for the exit status (raises subprocess.TimeoutExpired)."""
+        return self.p.wait(timeout)
+
+    def signal(self, sig: int = signal.SIGINT) -> None:
+        """Send a signal (SIGINT by default)."""
+        if self.p.poll() is None:
+            self.p.send_signal(sig)
+
+    def output(self) -> str:
+        """Everything the process printed so far (stdout and stderr)."""
+        self._out.flush()
+        self._out.seek(0)
+        return self._out.read()
+
+    def stop(self, timeout: float = 10.0) -> int | None:
+        """Terminate, wait, kill on timeout; return the exit status."""
+        if self.p.poll() is None:
+            self.p.terminate()
+            try:
+                self.p.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.p.kill()
+                self.p.wait(timeout)
+        return self.p.returncode
+
+    def __enter__(self) -> Proc:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+        self._out.close()
+
+
+def run_cli(args: Sequence[str], timeout: float = 120.0) -> subprocess.CompletedProcess:
+    """Run ``python -m fd_monitor ARGS`` to completion and capture its output."""
+    return subprocess.run([sys.executable, "-m", "fd_monitor", *args], cwd=REPO, env=fd_env(),
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@contextmanager
+def ros_context() -> Iterator[Any]:
+    """An initialised rclpy Context of its own, shut down at the end."""
+    from fd_monitor.nodes.common import use_dds_profile
+
+    use_dds_profile()
+    import rclpy
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def spin_until(executor: Any, cond: Callable[[], bool], timeout: float,
+               procs: Sequence[Proc] = ()) -> bool:
+    """Spin ``executor`` until ``cond()`` holds (True) or ``timeout`` s pass (False).
+
+    Stops early (False) when one of ``procs`` exited with a non-zero status.
+    """
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        executor.spin_once(timeout_sec=0.05)
+        for p in procs:
+            if p.p.poll() not in (None, 0):
+                return cond()
+    return cond()
+
+
+class Collector:
+    """A node recording decoded fd_monitor messages and /diagnostics, per topic.
+
+    Parameters
+    ----------
+    context : rclpy.Context
+    topics : sequence of str
+        Float64MultiArray topics.
+    diagnostics : bool
+        Also subscribe to /diagnostics.
+    """
+
+    def __init__(self, context: Any, topics: Sequence[str], diagnostics: bool = False,
+                 name: str = "collector") -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.node import Node
+        from std_msgs.msg import Float64MultiArray
+
+        from fd_monitor.nodes.common import data_sub_qos, diagnostics_qos
+
+        self.node = Node(name, context=context)
+        self.msgs: dict[str, list[Any]] = {t: [] for t in topics}
+        self.diagnostics: list[Any] = []
+        for t in topics:
+            self.node.create_subscription(Float64MultiArray, t,
+                                          lambda m, t=t: self.msgs[t].append(m),
+                                          data_sub_qos())
+        if diagnostics:
+            self.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                          self.diagnostics.append, diagnostics_qos())
+
+    def decoded(self, topic: str) -> list[Any]:
+        """Decoded messages of a topic, in arrival order."""
+        from fd_monitor.nodes.conversions import decode
+
+        return [decode(m, topic) for m in self.msgs[topic]]
+
+    def statuses(self, name_part: str = "") -> list[Any]:
+        """Every DiagnosticStatus received whose name contains ``name_part``."""
+        return [s for a in self.diagnostics for s in a.status if name_part in s.name]

@@ -1,0 +1,120 @@
+"""Bags offline (no rclpy): simulate -> MCAP bag -> arrays, write/read round trip, errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fd_monitor.bags import BagWriter, arrays_from, bag_topics, read_bag, read_messages, write_bag
+from fd_monitor.commands.simulate import simulate_to_bag
+from fd_monitor.core.simulator import simulate
+from fd_monitor.errors import BagError
+from fd_monitor.scenario import load_scenario
+
+
+@pytest.fixture(scope="module")
+def sim_bag(tmp_path_factory):
+    """The demo scenario, 30 s (300 samples), written by `simulate`."""
+    path = tmp_path_factory.mktemp("bags") / "sim"
+    simulate_to_bag("three_tank_bias_h1", path, seed=3, duration=30.0)
+    return path
+
+
+def test_simulate_bag_holds_the_simulator_arrays(sim_bag):
+    sc = load_scenario("three_tank_bias_h1")
+    traj = simulate(sc, 3, 300)
+    b = read_bag(sim_bag)
+    assert set(b) == {"/plant/u", "/plant/y", "/plant/truth"}
+    np.testing.assert_array_equal(b["/plant/y"].stamps, np.arange(300))
+    np.testing.assert_array_equal(b["/plant/y"].values, traj.y[0])
+    np.testing.assert_array_equal(b["/plant/u"].values, traj.u[0])
+    assert b["/plant/u"].labels == ("q1", "q2", "v13")
+    truth = b["/plant/truth"]
+    np.testing.assert_array_equal(truth.column("mode"), traj.mode[0])
+    np.testing.assert_array_equal(truth.column("x.h2"), traj.x[0][:, 1])
+    np.testing.assert_array_equal(truth.column("f.bias_h1"), traj.faults[0][:, 0])
+    np.testing.assert_array_equal(b["/plant/y"].receive_ns, np.arange(300) * 100_000_000)
+    assert bag_topics(sim_bag)["/plant/y"] == ("std_msgs/msg/Float64MultiArray", 300)
+
+
+def test_write_read_round_trip_in_timestamp_order(tmp_path):
+    a = arrays_from("/a", ("x", "y"), [0, 1, 2], [[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]],
+                    [0, 10, 20])
+    b = arrays_from("/b", ("z",), [5, 6], [[7.0], [8.0]], [5, 15])
+    write_bag(tmp_path / "bag", [a, b])
+    got = read_bag(tmp_path / "bag")
+    for want in (a, b):
+        g = got[want.topic]
+        assert g.labels == want.labels
+        np.testing.assert_array_equal(g.stamps, want.stamps)
+        np.testing.assert_array_equal(g.values, want.values)
+        np.testing.assert_array_equal(g.receive_ns, want.receive_ns)
+    order = [(t, int(ts)) for t, ts, _ in read_messages(tmp_path / "bag")]
+    assert order == [("/a", 0), ("/b", 5), ("/a", 10), ("/b", 15), ("/a", 20)]
+
+
+def test_unstamped_messages_are_numbered(tmp_path):
+    from fd_monitor.bags import _typestore
+
+    types = _typestore().types
+    with BagWriter(tmp_path / "bag") as w:
+        w.add_topic("/robot/y")
+        for i in range(3):
+            msg = types["std_msgs/msg/Float64MultiArray"](
+                layout=types["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0),
+                data=np.array([float(i), 2.0 * i]))
+            w.write_raw("/robot/y", i, bytes(_typestore().serialize_cdr(
+                msg, "std_msgs/msg/Float64MultiArray")))
+    got = read_bag(tmp_path / "bag")["/robot/y"]
+    np.testing.assert_array_equal(got.stamps, [0, 1, 2])
+    np.testing.assert_array_equal(got.values[:, 1], [0.0, 2.0, 4.0])
+
+
+def test_bag_errors(tmp_path, sim_bag):
+    with pytest.raises(BagError, match="no such bag"):
+        read_bag(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match="not a rosbag2 bag"):
+        read_bag(tmp_path / "empty")
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "metadata.yaml").write_text("hello: [")
+    with pytest.raises(BagError, match="not a readable rosbag2 bag"):
+        bag_topics(tmp_path / "junk")
+    with pytest.raises(BagError, match=r"no topic /fd/alarm in the bag \(topics: /plant/truth"):
+        read_bag(sim_bag, ["/fd/alarm"])
+    with pytest.raises(BagError, match="already exists"):
+        BagWriter(sim_bag)
+    with pytest.raises(BagError, match=r"values of shape \(2, 1\), expected \(2, 2\)"):
+        arrays_from("/a", ("x", "y"), [0, 1], [[1.0], [2.0]], [0, 1])
+
+
+def test_simulate_cli_json_and_errors(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "fd_monitor", "simulate", "three_tank_bias_h1",
+                          "-o", str(tmp_path / "b"), "--duration", "2.0", "--json"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    import json
+
+    doc = json.loads(out.stdout)
+    assert doc["samples"] == 20 and doc["seed"] == 1
+    assert doc["faults"][0]["channel"] == "bias_h1"
+    for args, match in [
+        (["simulate", "no_such_scenario", "-o", str(tmp_path / "c")], "unknown scenario"),
+        (["simulate", "three_tank_bias_h1", "-o", str(tmp_path / "b")], "already exists"),
+        (["simulate", "three_tank_bias_h1", "-o", str(tmp_path / "d"), "--duration", "0.01"],
+         "at least one sample"),
+    ]:
+        r = subprocess.run([sys.executable, "-m", "fd_monitor", *args], capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 2
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and match in lines[0], r.stderr
+
+
+def test_bags_module_does_not_import_rclpy():
+    code = ("import sys, fd_monitor.bags, fd_monitor.commands.simulate; "
+            "sys.exit('rclpy' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], timeout=60).returncode == 0

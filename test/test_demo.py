@@ -1,0 +1,54 @@
+"""The demo end to end: five processes over DDS, a bag, the summary (--json parsed)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+from ros_util import REPO, run_cli
+
+pytestmark = pytest.mark.ros
+
+
+def check(doc, onset):
+    assert doc["fault"] == {"channel": "bias_h1", "output": "h1", "time": onset,
+                            "magnitude": 0.01}
+    assert doc["detected_at"] is not None and doc["detected_at"] >= onset
+    assert doc["alarm_channels"] == ["h1"]
+    assert doc["isolated"] == ["h1"]
+    assert abs(doc["bias_estimate"]["h1"] - 0.01) < 0.002
+    assert doc["true_bias"]["h1"] == 0.01
+    assert doc["lost"] == 0
+    assert set(doc["samples"]) >= {"/plant/y", "/fd/alarm", "/fd/bias_estimate"}
+
+
+def test_demo_json_on_a_short_scenario(tmp_path):
+    """The demo's scenario shortened to 80 s (bias at 40 s) to keep the suite fast."""
+    doc = yaml.safe_load((REPO / "config/scenarios/three_tank_bias_h1.yaml").read_text())
+    doc["duration"], doc["faults"][0]["time"] = 80.0, 40.0
+    sc = tmp_path / "short.yaml"
+    sc.write_text(yaml.safe_dump(doc))
+    r = run_cli(["demo", "--json", "--scenario", str(sc), "--output", str(tmp_path / "out")],
+                timeout=180)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout)
+    check(out, 40.0)
+    assert out["samples"]["/plant/y"] == 800
+    assert (tmp_path / "out" / "bag" / "metadata.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_demo_default_json(tmp_path):
+    r = run_cli(["demo", "--json", "--output", str(tmp_path / "out")], timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    check(json.loads(r.stdout), 200.0)
+
+
+def test_demo_bad_arguments_are_one_line(tmp_path):
+    for args, match in [(["demo", "--scenario", "nope"], "unknown scenario"),
+                        (["demo", "--rate-factor", "-1"], "--rate-factor -1.0")]:
+        r = run_cli(args, timeout=60)
+        assert r.returncode == 2
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and match in lines[0], r.stderr

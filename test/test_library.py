@@ -1,0 +1,126 @@
+"""The bag library: spec, reproducible bags, honest expectations (checked against the truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fd_monitor.bags import read_bag, read_raw
+from fd_monitor.gains import load_gains
+from fd_monitor.library import (
+    LibraryError,
+    check_expected,
+    check_truth,
+    generate_bag,
+    load_expected,
+    load_library,
+)
+from fd_monitor.offline import read_inputs
+from fd_monitor.system import load_system
+
+LIB = load_library()
+
+
+def _system(spec):
+    return load_system(load_gains(spec.gains, verify=False).system_name)
+
+
+def test_library_lists_the_required_bags():
+    names = set(LIB.names)
+    assert {"three_tank_nominal", "three_tank_bias_h1", "three_tank_bias_h2",
+            "three_tank_incipient_h3", "three_tank_valve", "three_tank_bad_input",
+            "pwa_cascade_nominal", "pwa_cascade_b1_step"} <= names
+    kinds = {c.kind for b in LIB.bags for c in b.corruptions}
+    assert kinds == {"nan", "wrong_length", "gap", "duplicate", "out_of_order"}
+
+
+def test_library_is_small():
+    total = sum(f.stat().st_size for b in LIB.bags for f in b.folder.iterdir())
+    assert total < 4_000_000, f"bag library is {total / 1e6:.2f} MB (limit 4 MB)"
+
+
+@pytest.mark.parametrize("name", LIB.names)
+def test_expectations_agree_with_truth(name):
+    """No alarm expected before the onset, the faulty channel isolated, true biases/modes."""
+    spec = LIB[name]
+    assert (spec.folder / "metadata.yaml").is_file()
+    exp = load_expected(spec.expected_file)
+    assert check_truth(spec, exp, _system(spec)) == []
+
+
+def test_bags_regenerate_bit_for_bit(tmp_path):
+    """Same spec (scenario, seed, duration, corruptions) -> the same MCAP bytes."""
+    spec = LIB["three_tank_bad_input"]
+    out = generate_bag(spec, tmp_path / "again")
+    for f in ("metadata.yaml", f"{spec.name}.mcap"):
+        assert (out / f).read_bytes() == (spec.folder / f).read_bytes(), f
+
+
+def test_regenerated_arrays_equal_the_simulator(tmp_path):
+    """A library bag holds exactly what `simulate` writes for its scenario and seed."""
+    from fd_monitor.commands.simulate import simulate_to_bag
+
+    spec = LIB["three_tank_valve"]
+    simulate_to_bag(spec.scenario, tmp_path / "sim", seed=spec.seed, duration=spec.duration)
+    a, b = read_bag(spec.folder), read_bag(tmp_path / "sim")
+    for t in ("/plant/u", "/plant/y", "/plant/truth"):
+        assert a[t].labels == b[t].labels
+        np.testing.assert_array_equal(a[t].stamps, b[t].stamps)
+        np.testing.assert_array_equal(a[t].values, b[t].values)
+
+
+def test_bad_input_bag_holds_its_corruptions():
+    spec = LIB["three_tank_bad_input"]
+    system = _system(spec)
+    n_y = sum(1 for _ in read_raw(spec.folder, ["/plant/y"]))
+    assert n_y == 1500 - 50 + 1       # the gap removes 50 messages, the duplicate adds one
+    us, ys, rep = read_inputs(spec.folder, system)
+    kinds = rep.by_kind()
+    assert kinds["non_finite"] == [300, 301]
+    assert kinds["wrong_length"] == [450]
+    assert kinds["duplicate"] == [900]
+    assert kinds["out_of_order"] == [1100]
+    assert kinds["missing"] == [[700, 749]]
+    assert 1100 in ys and 1101 in ys and 300 not in ys and 700 not in us
+
+
+def test_spec_errors_name_file_and_key(tmp_path):
+    p = tmp_path / "library.yaml"
+    p.write_text("bags:\n  - {name: a, scenario: x, seed: 1, duration: 1.0, gains: g,\n"
+                 "     corruptions: [{kind: scramble, samples: [1]}]}\n")
+    with pytest.raises(LibraryError, match=r"bags\[0\]\.corruptions\[0\]\.kind"):
+        load_library(p)
+    p.write_text("bags:\n  - {name: a, scenario: x, seed: -1, duration: 1.0, gains: g}\n")
+    with pytest.raises(LibraryError, match=r"bags\[0\]\.seed: expected an integer >= 0"):
+        load_library(p)
+    with pytest.raises(LibraryError, match="not found"):
+        load_library(tmp_path / "nope.yaml")
+
+
+def test_check_expected_reports_each_kind_of_failure():
+    exp = {"fault_onset_sample": 100, "alarms": {"h1": {"first_sample": 100, "tolerance": 5}},
+           "no_alarm": ["h2"], "isolated": ["h1"],
+           "bias_estimate": {"h1": {"value": 0.03, "tolerance": 0.003}},
+           "modes": ["a", "b"], "input_errors": {"non_finite": [3]}, "restarts": [4]}
+    good = {"alarms": [{"channel": "h1", "first_sample": 103}], "isolated": ["h1"],
+            "bias_estimate": {"h1": 0.031}, "modes": ["a", "b"],
+            "input_errors": {"non_finite": [3]}, "restarts": [4]}
+    assert check_expected(exp, good) == []
+    bad = {"alarms": [{"channel": "h1", "first_sample": 120},
+                      {"channel": "h2", "first_sample": 50}],
+           "isolated": [], "bias_estimate": {"h1": 0.02}, "modes": ["a"],
+           "input_errors": {"non_finite": [3], "duplicate": [7]}, "restarts": []}
+    fails = check_expected(exp, bad)
+    text = "\n".join(fails)
+    for part in ("before the fault onset", "alarms.h1", "no_alarm: channel h2", "isolated",
+                 "bias_estimate.h1", "modes", "input_errors.duplicate", "restarts"):
+        assert part in text, part
+
+
+def test_mode_min_dwell_drops_chatter_only():
+    from fd_monitor.library import settled_modes
+
+    segs = [["q2", 0, 1], ["q0", 1, 2000], ["q1", 2001, 2], ["q0", 2003, 3],
+            ["q1", 2006, 500]]
+    assert settled_modes(segs, 20) == ["q2", "q0", "q1"]
+    assert settled_modes(segs, 1) == ["q2", "q0", "q1", "q0", "q1"]

@@ -1,0 +1,122 @@
+"""plant_sim over real DDS: labelled, stamped samples; lossless flat out; clean ends."""
+
+from __future__ import annotations
+
+import signal
+
+import numpy as np
+import pytest
+from ros_util import Collector, Proc, ros_context, spin_until
+
+from fd_monitor.core.simulator import simulate
+from fd_monitor.scenario import load_scenario
+
+pytestmark = pytest.mark.ros
+
+TOPICS = ("/plant/u", "/plant/y", "/plant/truth")
+
+
+def test_plant_sim_process_flat_out_delivers_every_sample():
+    """rate_factor 0: all K samples of u, y and truth arrive, equal to the core simulator."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    K = 300
+    with ros_context() as ctx:
+        col = Collector(ctx, TOPICS)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(col.node)
+        args = ["run", "plant_sim", "--ros-args", "-p", "rate_factor:=0.0",
+                "-p", "duration:=30.0", "-p", "seed:=4", "-p", "min_subscribers_u:=1",
+                "-p", "min_subscribers_y:=1", "-p", "min_subscribers_truth:=1",
+                "-p", "ack_window:=20"]
+        with Proc(args) as proc:
+            ok = spin_until(ex, lambda: all(len(col.msgs[t]) >= K for t in TOPICS), 60.0,
+                            [proc])
+            assert ok, (f"got {[len(col.msgs[t]) for t in TOPICS]} of {K}\n"
+                        + proc.output()[-2000:])
+            assert proc.wait(30) == 0, proc.output()
+        ex.shutdown()
+        col.node.destroy_node()
+    traj = simulate(load_scenario("three_tank_bias_h1"), 4, K)
+    y = col.decoded("/plant/y")
+    assert [d.stamp for d in y] == list(range(K))
+    assert y[0].labels == ("h1", "h2", "h3")
+    np.testing.assert_array_equal(np.array([d.values for d in y]), traj.y[0])
+    u = col.decoded("/plant/u")
+    assert u[0].labels == ("q1", "q2", "v13")
+    np.testing.assert_array_equal(np.array([d.values for d in u]), traj.u[0])
+    truth = col.decoded("/plant/truth")
+    assert truth[0].labels[:4] == ("mode", "x.h1", "x.h2", "x.h3")
+    np.testing.assert_array_equal([d.values[0] for d in truth], traj.mode[0])
+
+
+def test_plant_sim_in_process_paced_with_diagnostics():
+    """A PlantSimNode on an executor (composition): paced run ends itself, reports OK."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.core.simulator import PlantSimulator
+    from fd_monitor.nodes.common import OK
+    from fd_monitor.nodes.plant_sim import PlantSimNode
+
+    sc = load_scenario("three_tank_bias_h1")
+    with ros_context() as ctx:
+        col = Collector(ctx, ["/plant/y"], diagnostics=True)
+        node = PlantSimNode(PlantSimulator(sc, [2]), context=ctx, parameter_overrides=[
+            Parameter("rate_factor", value=100.0), Parameter("duration", value=2.0),
+            Parameter("min_subscribers_y", value=1), Parameter("diagnostics_period", value=0.1)])
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(col.node)
+        ex.add_node(node)
+        assert spin_until(ex, lambda: node.done.done(), 30.0)
+        assert spin_until(ex, lambda: len(col.msgs["/plant/y"]) == 20, 10.0)
+        assert spin_until(ex, lambda: any("published 20" in s.message
+                                          for s in col.statuses("plant_sim")), 10.0)
+        assert node.exit_code == 0 and node.published == 20
+        st = col.statuses("plant_sim: simulation")[-1]
+        assert st.level == OK and st.hardware_id == "three_tank"
+        assert [d.stamp for d in col.decoded("/plant/y")] == list(range(20))
+        ex.shutdown()
+        node.destroy_node()
+        col.node.destroy_node()
+
+
+def test_plant_sim_keep_going_stops_cleanly_on_sigterm():
+    from rclpy.executors import SingleThreadedExecutor
+
+    with ros_context() as ctx:
+        col = Collector(ctx, ["/plant/y"])
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(col.node)
+        args = ["run", "plant_sim", "--ros-args", "-p", "rate_factor:=50.0",
+                "-p", "duration:=0.5", "-p", "keep_going:=true", "-p", "min_subscribers_y:=1"]
+        with Proc(args) as proc:
+            # Past the 5 samples of `duration`: it keeps going.
+            assert spin_until(ex, lambda: len(col.msgs["/plant/y"]) > 10, 30.0, [proc]), \
+                proc.output()
+            proc.signal(signal.SIGTERM)
+            assert proc.wait(15) == 0, proc.output()
+            assert "Traceback" not in proc.output()
+        ex.shutdown()
+        col.node.destroy_node()
+
+
+@pytest.mark.parametrize("ros_args, match", [
+    (["-p", "rate_factor:=1"], "parameter rate_factor"),
+    (["-p", "scenario:=no_such_scenario"], "unknown scenario"),
+    (["-p", "ack_window:=2000"], "ack_window (2000) must be below qos_depth"),
+])
+def test_plant_sim_bad_start_is_one_line_exit_2(ros_args, match):
+    with Proc(["run", "plant_sim", "--ros-args", *ros_args]) as proc:
+        assert proc.wait(30) == 2
+        errors = [ln for ln in proc.output().splitlines() if "error" in ln]
+        assert len(errors) == 1 and match in errors[0], proc.output()
+        assert "Traceback" not in proc.output()
+
+
+def test_plant_sim_times_out_waiting_for_subscribers():
+    args = ["run", "plant_sim", "--ros-args", "-p", "min_subscribers_y:=5",
+            "-p", "subscriber_timeout:=0.5"]
+    with Proc(args) as proc:
+        assert proc.wait(30) == 1
+        assert "waiting for subscribers (/plant/u: 0/0, /plant/y: 0/5" in proc.output()
