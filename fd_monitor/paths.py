@@ -72,7 +72,8 @@ def find_config_file(source: str | Path, kind: str, error: type[Exception],
             for cand in (d / kind / f"{p.name}.yaml", d / kind / f"{p.name}.yml"):
                 if cand.is_file():
                     return cand
-        known = sorted({f.stem for d in config_dirs() for f in (d / kind).glob("*.y*ml")})
+        known = sorted({f.stem for d in config_dirs() for f in (d / kind).glob("*.y*ml")
+                        if not f.stem.endswith(".design")})
         raise error(f"{source}: unknown {what} (shipped: {', '.join(known) or 'none'}; "
                     f"or give a path to a YAML file)")
     raise error(f"{p}: file not found")

@@ -77,11 +77,14 @@ def plot_bank(system: System, results: Mapping[str, Any], outdir: str | Path) ->
         mu = np.asarray(mg.get("mu", []), dtype=float)
         if lam.size > 1:
             ax.semilogy(lam, mu, "o-", ms=3, label=f"mu_{g['fault']}")
+        elif lam.size == 1:  # a fixed lambda (no grid): one point per generator
+            ax.semilogy(lam, mu, "s", label=f"mu_{g['fault']} (fixed lambda)")
     ax.set_title(f"{system.name}: performance ratio mu(lambda) (4.35)")
     ax.set_xlabel("lambda (1/s)")
     ax.set_ylabel("mu (dimensionless)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    if ax.get_lines():
+        ax.legend()
     p = out / f"{system.name}_mu.png"
     fig.tight_layout()
     fig.savefig(p, dpi=110)

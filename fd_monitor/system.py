@@ -49,10 +49,23 @@ Schema (``format_version: 1``)::
       - {name: act_u1, kind: actuator, input: u1}           # u_j += f (in the plant only)
       - {name: b1_step, kind: state_jump, state: b1}        # x_j jumps by the change of f
       - {name: leak, kind: process, F: [1.0, 0.0, 0.0]}     # dx (or x_{k+1}) += F f
+      - {name: gust, kind: process, F: {safe: [...], x2_high: [...]},   # F per mode
+         E: [0.0, 1.0]}                                                # optional: y += E f
       - {name: leak1, kind: parameter, parameter: leak_area_1}  # model parameter += f
     initial:
       mode: safe
       state: [0.0, 0.6, 0.0, 0.1]
+    switching: guards                 # optional: guards (default) | arbitrary (any mode
+                                      # sequence, e.g. the switched designs of Farhat & Koenig)
+    lpv:                              # optional: parameter-dependent linear modes
+      parameters:
+        - {name: rho1, min: -1.0, max: 1.0, measured: true}   # measured: false = uncertain
+    # and in a linear mode:  A_rho: [A_1, ..., A_d] (d x n x n), B_rho (d x n x nu)
+    # so that A(rho) = A + sum_j rho_j A_j, B(rho) = B + sum_j rho_j B_j (thesis 5.2, 6.5).
+
+The optional keys ``switching``, ``lpv``, ``A_rho``, ``B_rho`` and a process fault's ``E`` or
+per-mode ``F`` enter the plant's canonical form (its SHA-256) only when they are given, so
+the identity of a plant file without them does not depend on their existence.
 
 Semantics: in mode ``q`` a continuous-time linear mode is ``dx/dt = A x + B u + D w + offset``
 (discretised exactly with zero-order hold on u and w, see :mod:`fd_monitor.core.plant`); a
@@ -86,6 +99,7 @@ __all__ = [
     "Condition",
     "FaultChannel",
     "Guard",
+    "LPVParameter",
     "Mode",
     "System",
     "SUPPORTED_FORMAT_VERSIONS",
@@ -101,10 +115,11 @@ _FAULT_KINDS = ("sensor_bias", "actuator", "state_jump", "process", "parameter")
 _TOP_KEYS = {
     "format_version", "name", "description", "time", "sample_time", "states", "inputs",
     "outputs", "disturbances", "bounds", "shared", "modes", "guards", "faults", "initial",
+    "switching", "lpv",
 }
 _MODE_KEYS = {
     "dynamics", "time", "A", "B", "C", "D", "E", "offset", "uncertainty", "model", "params",
-    "description",
+    "description", "A_rho", "B_rho",
 }
 
 
@@ -183,9 +198,15 @@ class FaultChannel:
     index : int
         Output, input or state index; -1 for ``process`` and ``parameter``.
     F : numpy.ndarray or None
-        (n,) direction of a ``process`` fault.
+        (n,) direction of a ``process`` fault that enters every mode the same way; None for
+        other kinds and for a mode-dependent direction (see ``F_modes``).
     parameter : str or None
         Parameter name of a ``parameter`` fault.
+    F_modes : tuple of numpy.ndarray or None
+        Per mode (in mode order), the (n,) direction of a mode-dependent ``process`` fault
+        (zeros in the modes the file does not list); None otherwise.
+    E : numpy.ndarray or None
+        (ny,) output direction of a ``process`` fault (``y += E f``), when given.
     """
 
     name: str
@@ -193,6 +214,37 @@ class FaultChannel:
     index: int = -1
     F: np.ndarray | None = None
     parameter: str | None = None
+    F_modes: tuple[np.ndarray, ...] | None = None
+    E: np.ndarray | None = None
+
+    def direction(self, mode: int, n: int) -> np.ndarray:
+        """(n,) state direction of a ``process`` fault in mode index ``mode`` (zeros for the
+        other kinds)."""
+        if self.F_modes is not None:
+            return self.F_modes[mode]
+        if self.F is not None:
+            return self.F
+        return np.zeros(n)
+
+
+@dataclass(frozen=True)
+class LPVParameter:
+    """A scheduling (measured) or uncertain (unmeasured) parameter of an LPV plant.
+
+    Attributes
+    ----------
+    name : str
+    min, max : float
+        Bounds of the parameter box (thesis 5.4, 6.4), dimensionless.
+    measured : bool
+        True: available to the residual generators (LPV, ch. 6); False: an uncertainty
+        (ch. 5).
+    """
+
+    name: str
+    min: float
+    max: float
+    measured: bool
 
 
 @dataclass(frozen=True)
@@ -224,6 +276,10 @@ class Mode:
         Name of the nonlinear model.
     params : dict
         Parameters of the nonlinear model.
+    A_rho : numpy.ndarray or None
+        (d, n, n) affine parts of A of an LPV plant (``lpv`` key), when given.
+    B_rho : numpy.ndarray or None
+        (d, n, nu) affine parts of B, when given.
     """
 
     name: str
@@ -238,6 +294,15 @@ class Mode:
     uncertainty: np.ndarray
     model: str | None = None
     params: Mapping[str, float] = field(default_factory=dict)
+    A_rho: np.ndarray | None = None
+    B_rho: np.ndarray | None = None
+
+    def A_of(self, rho: np.ndarray | None) -> np.ndarray:
+        """(n, n) ``A(rho) = A + sum_j rho_j A_j`` of a linear mode (``A`` when no A_rho)."""
+        assert self.A is not None
+        if rho is None or self.A_rho is None:
+            return self.A
+        return self.A + np.tensordot(np.asarray(rho, dtype=float), self.A_rho, axes=1)
 
 
 @dataclass(frozen=True)
@@ -266,6 +331,10 @@ class System:
         The file it was read from (or ``"<dict>"``).
     sha256 : str
         SHA-256 of the canonical form: the plant's identity.
+    switching : str
+        ``guards`` (mode changes by the guards only) or ``arbitrary`` (any mode sequence).
+    lpv : tuple of LPVParameter
+        Parameters of an LPV plant (empty for other plants).
     """
 
     name: str
@@ -285,6 +354,13 @@ class System:
     source: str
     canonical: str
     sha256: str
+    switching: str = "guards"
+    lpv: tuple[LPVParameter, ...] = ()
+
+    @property
+    def n_rho(self) -> int:
+        """Number of LPV parameters d."""
+        return len(self.lpv)
 
     @property
     def n(self) -> int:
@@ -532,6 +608,8 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
 
     shared = _mapping(ctx, "shared", data.get("shared", {}) or {})
     _check_keys(ctx, "shared", shared, {"B", "C", "D", "E", "uncertainty"})
+    lpv = _parse_lpv(ctx, data)
+    d = len(lpv)
 
     if "modes" not in data:
         ctx.fail("modes", "a mapping of mode names to dynamics (missing key)", show_got=False)
@@ -576,6 +654,8 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
         A: np.ndarray | None = None
         model: str | None = None
         params: dict[str, float] = {}
+        A_rho = _stack3(ctx, f"{key}.A_rho", spec, d, (n, n), dyn)
+        B_rho = _stack3(ctx, f"{key}.B_rho", spec, d, (n, nu), dyn)
         if dyn == "linear":
             if "model" in spec or "params" in spec:
                 ctx.fail(f"{key}.model", "no 'model'/'params' in a linear mode (set "
@@ -610,7 +690,8 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                     ctx.fail(f"{key}.params.{p}", "a number (missing parameter)",
                              show_got=False)
                 params[p] = _number(ctx, f"{key}.params.{p}", praw[p])
-        modes.append(Mode(mname, dyn, mtime, A, B, C, D, E, offset, unc, model, params))
+        modes.append(Mode(mname, dyn, mtime, A, B, C, D, E, offset, unc, model, params,
+                          A_rho, B_rho))
     mode_names = [m.name for m in modes]
 
     def mode_ref(key: str, v: Any) -> int:
@@ -677,7 +758,8 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
             ctx.fail(f"{key}.kind", f"one of {list(_FAULT_KINDS)}", kind)
         target_key = {"sensor_bias": "output", "actuator": "input", "state_jump": "state",
                       "process": "F", "parameter": "parameter"}[kind]
-        _check_keys(ctx, key, f, {"name", "kind", target_key})
+        _check_keys(ctx, key, f, {"name", "kind", target_key} | (
+            {"E"} if kind == "process" else set()))
         if target_key not in f:
             ctx.fail(f"{key}.{target_key}", f"the {target_key} of a {kind} fault (missing key)",
                      show_got=False)
@@ -691,7 +773,23 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                 ctx.fail(f"{key}.{target_key}", f"one of {list(pool)}", tgt)
             faults.append(FaultChannel(str(fname), kind, pool.index(tgt)))
         elif kind == "process":
-            faults.append(FaultChannel(str(fname), kind, -1, F=_vector(ctx, f"{key}.F", tgt, n)))
+            Fe = _vector(ctx, f"{key}.E", f["E"], ny) if "E" in f else None
+            if isinstance(tgt, Mapping):
+                per = []
+                for mk in tgt:
+                    if mk not in mode_names:
+                        ctx.fail(f"{key}.F.{mk}", f"one of the modes {mode_names} (a mapping "
+                                 f"mode -> {n}-vector)", mk)
+                for m in modes:
+                    per.append(_vector(ctx, f"{key}.F.{m.name}", tgt[m.name], n)
+                               if m.name in tgt else np.zeros(n))
+                if not tgt:
+                    ctx.fail(f"{key}.F", f"a {n}-vector or a non-empty mapping mode -> "
+                             f"{n}-vector", tgt)
+                faults.append(FaultChannel(str(fname), kind, -1, F_modes=tuple(per), E=Fe))
+            else:
+                faults.append(FaultChannel(str(fname), kind, -1,
+                                           F=_vector(ctx, f"{key}.F", tgt, n), E=Fe))
         else:
             for m in modes:
                 if m.dynamics != "nonlinear" or tgt not in m.params:
@@ -711,24 +809,111 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
     if "state" not in init:
         ctx.fail("initial.state", f"a list of {n} numbers (missing key)", show_got=False)
     x0 = _vector(ctx, "initial.state", init["state"], n)
+    switching = data.get("switching", "guards")
+    if switching not in ("guards", "arbitrary"):
+        ctx.fail("switching", "'guards' (mode changes by the guards) or 'arbitrary' (any mode "
+                 "sequence)", switching)
 
     canonical = _canonical(name, ts, states, inputs, outputs, dists, wbar, vbar, modes,
-                           guards, faults, q0, x0)
+                           guards, faults, q0, x0,
+                           switching if "switching" in data else None,
+                           lpv if "lpv" in data else None)
     digest = hashlib.sha256(canonical.encode()).hexdigest()
     return System(name, description, ts, states, inputs, outputs, dists, tuple(modes),
-                  tuple(guards), tuple(faults), wbar, vbar, q0, x0, origin, canonical, digest)
+                  tuple(guards), tuple(faults), wbar, vbar, q0, x0, origin, canonical, digest,
+                  str(switching), lpv)
+
+
+def _parse_lpv(ctx: _Ctx, data: Mapping[str, Any]) -> tuple[LPVParameter, ...]:
+    """The optional top-level ``lpv: {parameters: [{name, min, max, measured}]}``."""
+    if "lpv" not in data:
+        return ()
+    lp = _mapping(ctx, "lpv", data["lpv"])
+    _check_keys(ctx, "lpv", lp, {"parameters"})
+    raw = lp.get("parameters")
+    if not isinstance(raw, list) or not raw:
+        ctx.fail("lpv.parameters", "a non-empty list of {name, min, max, measured}", raw)
+        raise AssertionError  # unreachable: fail raises
+    out = []
+    for i, pr in enumerate(raw):
+        key = f"lpv.parameters[{i}]"
+        pr = _mapping(ctx, key, pr)
+        _check_keys(ctx, key, pr, {"name", "min", "max", "measured"})
+        for req in ("name", "min", "max", "measured"):
+            if req not in pr:
+                ctx.fail(f"{key}.{req}", "a value (missing key)", show_got=False)
+        nm = pr["name"]
+        if not isinstance(nm, str) or not _NAME_RE.match(nm):
+            ctx.fail(f"{key}.name", "a name of letters, digits and '_'", nm)
+        lo = _number(ctx, f"{key}.min", pr["min"])
+        hi = _number(ctx, f"{key}.max", pr["max"])
+        if hi < lo:
+            ctx.fail(f"{key}.max", f"a number >= min ({lo})", pr["max"])
+        if not isinstance(pr["measured"], bool):
+            ctx.fail(f"{key}.measured", "true (a scheduling parameter) or false (an "
+                     "uncertainty)", pr["measured"])
+        out.append(LPVParameter(str(nm), lo, hi, bool(pr["measured"])))
+    names = [p.name for p in out]
+    if len(set(names)) != len(names):
+        ctx.fail("lpv.parameters", "unique parameter names", names)
+    return tuple(out)
+
+
+def _stack3(ctx: _Ctx, key: str, spec: Mapping[str, Any], d: int, shape: tuple[int, int],
+            dyn: str) -> np.ndarray | None:
+    """A per-mode ``A_rho`` / ``B_rho``: a list of d matrices of ``shape``, or None."""
+    k = key.rsplit(".", 1)[1]
+    if k not in spec:
+        return None
+    if d == 0:
+        ctx.fail(key, "no affine parts without a top-level 'lpv: {parameters: [...]}'",
+                 show_got=False)
+    if dyn != "linear":
+        ctx.fail(key, "affine parts only in a linear mode", show_got=False)
+    v = spec[k]
+    if not isinstance(v, list) or len(v) != d:
+        ctx.fail(key, f"a list of {d} {shape[0]}x{shape[1]} matrices (one per lpv parameter)",
+                 _Got(f"{len(v)} entries") if isinstance(v, list) else v)
+    return np.array([_matrix(ctx, f"{key}[{j}]", m, shape) for j, m in enumerate(v)])
 
 
 def _canonical(name: str, ts: float, states: Sequence[str], inputs: Sequence[str],
                outputs: Sequence[str], dists: Sequence[str], wbar: np.ndarray,
                vbar: np.ndarray, modes: Sequence[Mode], guards: Sequence[Guard],
-               faults: Sequence[FaultChannel], q0: int, x0: np.ndarray) -> str:
-    """Canonical JSON of everything that defines the plant (not its description or layout)."""
+               faults: Sequence[FaultChannel], q0: int, x0: np.ndarray,
+               switching: str | None = None,
+               lpv: Sequence[LPVParameter] | None = None) -> str:
+    """Canonical JSON of everything that defines the plant (not its description or layout).
+
+    The optional keys (``switching``, ``lpv``, a mode's ``A_rho``/``B_rho``, a process
+    fault's ``E``/per-mode ``F``) are included only when given, so older plant files keep
+    their SHA-256.
+    """
 
     def arr(a: np.ndarray | None) -> Any:
         return None if a is None else np.asarray(a, dtype=float).tolist()
 
-    doc = {
+    def mode_doc(m: Mode) -> dict[str, Any]:
+        out = {"name": m.name, "dynamics": m.dynamics, "time": m.time, "A": arr(m.A),
+               "B": arr(m.B), "C": arr(m.C), "D": arr(m.D), "E": arr(m.E),
+               "offset": arr(m.offset), "uncertainty": arr(m.uncertainty), "model": m.model,
+               "params": dict(sorted(m.params.items()))}
+        if m.A_rho is not None:
+            out["A_rho"] = arr(m.A_rho)
+        if m.B_rho is not None:
+            out["B_rho"] = arr(m.B_rho)
+        return out
+
+    def fault_doc(f: FaultChannel) -> dict[str, Any]:
+        out = {"name": f.name, "kind": f.kind, "index": f.index, "F": arr(f.F),
+               "parameter": f.parameter}
+        if f.F_modes is not None:
+            out["F_modes"] = [arr(v) for v in f.F_modes]
+        if f.E is not None:
+            out["E_out"] = arr(f.E)
+        return out
+
+    doc: dict[str, Any] = {
         "format_version": 1,
         "name": name,
         "sample_time": ts,
@@ -738,23 +923,18 @@ def _canonical(name: str, ts: float, states: Sequence[str], inputs: Sequence[str
         "disturbances": list(dists),
         "disturbance_bound": arr(wbar),
         "measurement_noise": arr(vbar),
-        "modes": [
-            {"name": m.name, "dynamics": m.dynamics, "time": m.time, "A": arr(m.A),
-             "B": arr(m.B), "C": arr(m.C), "D": arr(m.D), "E": arr(m.E),
-             "offset": arr(m.offset), "uncertainty": arr(m.uncertainty), "model": m.model,
-             "params": dict(sorted(m.params.items()))}
-            for m in modes
-        ],
+        "modes": [mode_doc(m) for m in modes],
         "guards": [
             {"name": g.name, "from": g.source, "to": g.target, "kind": g.kind,
              "when": [[c.var, c.op, c.value] for c in g.conditions]}
             for g in guards
         ],
-        "faults": [
-            {"name": f.name, "kind": f.kind, "index": f.index, "F": arr(f.F),
-             "parameter": f.parameter}
-            for f in faults
-        ],
+        "faults": [fault_doc(f) for f in faults],
         "initial": {"mode": q0, "state": arr(x0)},
     }
+    if switching is not None:
+        doc["switching"] = switching
+    if lpv is not None:
+        doc["lpv"] = [{"name": p.name, "min": p.min, "max": p.max, "measured": p.measured}
+                      for p in lpv]
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))

@@ -85,7 +85,7 @@ def test_gain_file_of_another_plant_version_is_refused(bias_bag, tmp_path):
     doc["system"]["sha256"] = load_system("three_tank").sha256
     doc["method"] = "qb"  # a QB design cannot exist for this nonlinear plant
     p.write_text(yaml.safe_dump(doc))
-    with pytest.raises(GainFileError, match="certificate does not hold: .*nonlinear"):
+    with pytest.raises(GainFileError, match=r"certificate does not hold: .*nonlinear"):
         analyze_bag(str(bias_bag), str(p))
     doc["method"] = "hinf_sc"
     p.write_text(yaml.safe_dump(doc))

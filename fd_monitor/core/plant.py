@@ -88,10 +88,18 @@ class SampledPlant:
         self.system = system
         self.dt = system.sample_time
         self.process_faults = [f for f in system.faults if f.kind == "process"]
-        F = (np.column_stack([f.F for f in self.process_faults if f.F is not None])
-             if self.process_faults
-             else np.zeros((system.n, 0)))
-        self.modes = tuple(self._discretise(m, F) for m in system.modes)
+        if any(m.A_rho is not None or m.B_rho is not None for m in system.modes):
+            raise ValueError(f"plant {system.name!r} has parameter-dependent modes (A_rho/"
+                             f"B_rho): the sampled plant simulates fixed matrices only; use "
+                             f"fd_monitor.core.residual_bank.simulate_affine_plant")
+
+        def f_of(q: int) -> np.ndarray:
+            # (n, n_process): the process-fault directions in mode q (per-mode F allowed)
+            if not self.process_faults:
+                return np.zeros((system.n, 0))
+            return np.column_stack([f.direction(q, system.n) for f in self.process_faults])
+
+        self.modes = tuple(self._discretise(m, f_of(q)) for q, m in enumerate(system.modes))
         self._models = tuple(get_model(m.model) if m.model else None for m in system.modes)
 
     def _discretise(self, mode: Mode, F: np.ndarray) -> DiscreteMode:

@@ -4,8 +4,8 @@ One sample ``k`` (time ``t_k = k Ts``) of every run, in this order:
 
 1. fault signals ``f_k`` from the scenario (``beta(k - K0)``); a ``state_jump`` fault adds
    the change of its signal to its state;
-2. ``y_k = C_q x_k + E_q w_k + v_k`` plus sensor biases, with ``w_k``, ``v_k`` drawn within
-   their bounds;
+2. ``y_k = C_q x_k + E_q w_k + v_k`` plus sensor biases and process faults' ``E f``, with
+   ``w_k``, ``v_k`` drawn within their bounds;
 3. ``u_k`` from the input profiles (a PI controller reads ``y_k``); actuator faults change the
    applied input only (the published ``u_k`` is the command);
 4. controlled guards on ``u_k``, then ``x_{k+1} = f(q_k, x_k, u_k + f_a) + eta_k`` with
@@ -171,6 +171,10 @@ class PlantSimulator:
         y = self.plant.output(self.q, self.x, w) + v
         for i in self._idx.get("sensor_bias", []):
             y[:, sys_.faults[i].index] += faults[:, i]
+        for i in self._proc_cols:
+            Eo = sys_.faults[i].E
+            if Eo is not None:
+                y += faults[:, i:i + 1] * Eo  # process fault's output part y += E f
 
         u = np.empty((N, sys_.nu))
         for i, src in enumerate(sc.inputs):

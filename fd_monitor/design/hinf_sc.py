@@ -147,7 +147,13 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
     """Validate the ``hinf_sc`` section against the plant; build the model and directions."""
     ctx = Ctx(origin, "hinf_sc")
     ctx.mapping("", section, _SECTION_KEYS)
-    kind = section.get("kind", "lti")
+    plant_lpv = bool(system.lpv) and "parameters" not in section
+    if plant_lpv:
+        # the parameter box and A_rho / B_rho come from the plant file (lpv key)
+        default_kind = "lpv" if all(p.measured for p in system.lpv) else "uncertain"
+    else:
+        default_kind = "lti"
+    kind = section.get("kind", default_kind)
     if kind not in ("lti", "uncertain", "lpv"):
         ctx.fail("kind", "lti, uncertain or lpv", kind)
     n, p, nu = system.n, system.ny, system.nu
@@ -169,7 +175,25 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
     names: tuple[str, ...] = ()
     A_rho = np.zeros((0, n, n))
     B_rho = np.zeros((0, n, nu))
-    if kind in ("uncertain", "lpv"):
+    if kind in ("uncertain", "lpv") and plant_lpv:
+        for k in ("A_rho", "B_rho"):
+            if k in section:
+                ctx.fail(k, f"no {k} in the design file: plant {system.name!r} declares its "
+                         f"lpv parameters, so {k} belongs in its modes", show=False)
+        if kind == "lpv" and not all(p.measured for p in system.lpv):
+            ctx.fail("kind", "uncertain: the plant's lpv parameters "
+                     f"{[p.name for p in system.lpv if not p.measured]} are not measured",
+                     kind)
+        names = tuple(p.name for p in system.lpv)
+        d = len(names)
+        rmin = np.array([p.min for p in system.lpv])
+        rmax = np.array([p.max for p in system.lpv])
+        A_rho = mode.A_rho if mode.A_rho is not None else np.zeros((d, n, n))
+        if mode.B_rho is not None:
+            if kind == "uncertain":
+                ctx.fail("kind", "lpv: the plant has B_rho (5.1 has a constant B)", kind)
+            B_rho = mode.B_rho
+    elif kind in ("uncertain", "lpv"):
         if "parameters" not in section:
             ctx.fail("parameters", "{names, min, max} of the parameter box (missing key)",
                      show=False)
@@ -219,8 +243,11 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
         elif f.kind == "actuator":
             F, E = B0[:, [f.index]], np.zeros((p, 1))
         elif f.kind == "process":
-            assert f.F is not None
-            F, E = f.F[:, None], np.zeros((p, 1))
+            if f.E is not None and np.any(f.E):
+                raise DesignError(f"{origin}: hinf_sc: process fault {f.name!r} has an output "
+                                  f"part E: not supported by (4.47) as implemented (model it "
+                                  f"as a sensor fault)")
+            F, E = f.direction(0, n)[:, None], np.zeros((p, 1))
         elif f.kind == "sensor_bias":
             E = np.zeros((p, 1))
             E[f.index, 0] = 1.0
