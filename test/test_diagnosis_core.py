@@ -136,6 +136,8 @@ def test_shipped_gain_file_is_certified_and_consistent(system, gains):
 
 @pytest.mark.parametrize("edit, match", [
     (lambda d: d["results"]["r_bar"][0].__setitem__(0, 1e-6), "r_bar"),
+    (lambda d: d["results"]["r_bar"][1].__setitem__(2, 1.2 * d["results"]["r_bar"][1][2]),
+     r"r_bar\[closed_wet\] differs from .* r_bar is derived"),
     (lambda d: d["results"]["estimator"].__setitem__("Gamma", [[0.02, 0, 0], [0, -0.01, 0],
                                                                [0, 0, 0.02]]),
      "Gamma is not positive definite"),

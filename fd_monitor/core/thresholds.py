@@ -368,9 +368,13 @@ def check_certificate(system: System, gains: Any) -> None:
             raise GainFileError(f"noise_l1[{system.modes[q].name}] is below the recomputed "
                                 f"l1 bound {nl1.tolist()}")
         rb = g.noise_term + float(g.h_p_bar.sum()) * g.per_sample_bound[q]
-        if np.any(g.r_bar[q] < rb * (1 - 1e-9)):
-            raise GainFileError(f"r_bar[{system.modes[q].name}] is below noise_l1 + "
-                                f"||h_p_bar||_1 (eta_bar + remainder_bar)")
+        # r_bar is derived (the runtime applies the schedule built from its parts): an
+        # edited r_bar would change nothing, so it is refused rather than ignored.
+        if np.any(np.abs(g.r_bar[q] - rb) > 1e-9 * np.abs(rb)):
+            raise GainFileError(f"r_bar[{system.modes[q].name}] differs from noise_l1 + "
+                                f"||h_p_bar||_1 (eta_bar + remainder_bar) = {rb.tolist()}: "
+                                f"r_bar is derived; change noise_l1, eta_bar or remainder_bar "
+                                f"(or redesign) to change the thresholds")
     for j, row in enumerate(g.agei_rows):
         if not 0 <= row.guard < len(system.guards):
             raise GainFileError(f"agei.rows[{j}]: no guard {row.guard}")
