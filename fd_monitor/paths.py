@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["config_dirs", "config_dir", "find_config_file", "repo_root"]
+__all__ = ["config_dirs", "config_dir", "default_gain_path", "find_config_file", "repo_root"]
 
 
 def repo_root() -> Path | None:
@@ -77,3 +77,12 @@ def find_config_file(source: str | Path, kind: str, error: type[Exception],
         raise error(f"{source}: unknown {what} (shipped: {', '.join(known) or 'none'}; "
                     f"or give a path to a YAML file)")
     raise error(f"{p}: file not found")
+
+
+def default_gain_path(plant: str, method: str) -> Path:
+    """Where a designer writes by default: ``config/gains/<plant>_<method>.yaml`` in a source
+    checkout (so the shipped gain files are regenerated in place), else
+    ``./<plant>_<method>.yaml``."""
+    root = repo_root()
+    name = f"{plant}_{method}.yaml"
+    return root / "config" / "gains" / name if root is not None else Path(name)

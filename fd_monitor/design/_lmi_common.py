@@ -28,11 +28,10 @@ import numpy as np
 import yaml
 
 from fd_monitor.errors import DesignError
-from fd_monitor.paths import repo_root
 from fd_monitor.system import System
 
 __all__ = ["Ctx", "load_design_section", "solve", "left_pinv", "complement_projector",
-           "is_observable", "is_detectable", "region_blocks", "default_output", "SOLVER"]
+           "is_observable", "is_detectable", "region_blocks", "SOLVER"]
 
 SOLVER = "CLARABEL"
 
@@ -257,8 +256,3 @@ def region_blocks(ctx: Ctx, key: str, spec: Any) -> list[tuple[np.ndarray, np.nd
     return out
 
 
-def default_output(system: System, method: str) -> Path:
-    """``config/gains/<plant>_<method>.yaml`` in a checkout, else ``./<plant>_<method>.yaml``."""
-    root = repo_root()
-    name = f"{system.name}_{method}.yaml"
-    return (root / "config" / "gains" / name) if root is not None else Path(name)

@@ -66,12 +66,12 @@ from fd_monitor.core.residual_bank import (
 )
 from fd_monitor.errors import DesignError, GainFileError
 from fd_monitor.gains import save_gains
+from fd_monitor.paths import default_gain_path
 from fd_monitor.system import System, load_system
 
 from ._lmi_common import (
     Ctx,
     complement_projector,
-    default_output,
     is_detectable,
     is_observable,
     left_pinv,
@@ -774,7 +774,7 @@ def run(args: argparse.Namespace) -> int:
     if args.compare_pure:
         section["compare_pure"] = True
     out = design(system, section, origin, sha)
-    path = Path(args.output) if args.output else default_output(system, "hinf_sc")
+    path = Path(args.output) if args.output else default_gain_path(system.name, "hinf_sc")
     save_gains(path, "hinf_sc", system, out["parameters"], out["results"], out["certificate"],
                out["solver"])
     plots: list[str] = []

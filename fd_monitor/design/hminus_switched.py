@@ -47,9 +47,10 @@ from fd_monitor.core.generalized_observer import check_certificate, residual_ss
 from fd_monitor.core.plant import zoh
 from fd_monitor.errors import DesignError, GainFileError
 from fd_monitor.gains import save_gains
+from fd_monitor.paths import default_gain_path
 from fd_monitor.system import System, load_system
 
-from ._lmi_common import Ctx, default_output, load_design_section, solve
+from ._lmi_common import Ctx, load_design_section, solve
 
 __all__ = ["add_arguments", "design", "run", "FREQS"]
 
@@ -367,7 +368,7 @@ def run(args: argparse.Namespace) -> int:
     if not sec:
         raise DesignError(f"{origin}: hminus_switched: missing section (E, fault, ...)")
     out = design(system, sec, origin, sha)
-    path = Path(args.output) if args.output else default_output(system, "hminus_switched")
+    path = Path(args.output) if args.output else default_gain_path(system.name, "hminus_switched")
     save_gains(path, "hminus_switched", system, out["parameters"], out["results"],
                out["certificate"], out["solver"])
     plots: list[str] = []

@@ -70,7 +70,7 @@ from fd_monitor.core.qb import (
 )
 from fd_monitor.errors import DesignError
 from fd_monitor.gains import save_gains
-from fd_monitor.paths import repo_root
+from fd_monitor.paths import default_gain_path
 from fd_monitor.system import System, load_system
 
 __all__ = ["QBDesign", "QBProblem", "design_qb", "add_arguments", "run"]
@@ -445,12 +445,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "state_jump targets and states constant in every mode)")
 
 
-def _default_output(system: System) -> Path:
-    repo = repo_root()
-    if repo is not None:
-        return repo / "config" / "gains" / f"{system.name}_qb.yaml"
-    return Path(f"{system.name}_qb.yaml")
-
 
 def run(args: argparse.Namespace) -> int:
     """Design, verify, write the gain file and print a summary."""
@@ -466,7 +460,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         fs = default_fault_states(system)
     d = design_qb(system, args.beta, margin=args.margin)
-    out = Path(args.output) if args.output else _default_output(system)
+    out = Path(args.output) if args.output else default_gain_path(system.name, "qb")
     params = {"beta": "search" if args.beta is None else args.beta, "margin": args.margin,
               "search": "grid + bounded Brent in log(beta), max lambda_min(P)",
               "tie_break": ("minimum |(P L_i)_i|_F, lambda_min(P) >= (1 - 1e-4) lambda*, "

@@ -88,7 +88,7 @@ from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.core.thresholds import DEFAULT_DELTA, estimator_error_matrix, noise_l1_bound
 from fd_monitor.errors import DesignError
 from fd_monitor.gains import save_gains
-from fd_monitor.paths import config_dirs, repo_root
+from fd_monitor.paths import config_dirs, default_gain_path
 from fd_monitor.scenario import Scenario, load_scenario
 from fd_monitor.system import System, load_system
 
@@ -483,12 +483,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="projection radius M_sigma (default 100 v_bar)")
 
 
-def _default_output(system: System) -> Path:
-    repo = repo_root()
-    if repo is not None:
-        return repo / "config" / "gains" / f"{system.name}_thresholds.yaml"
-    return Path(f"{system.name}_thresholds.yaml")
-
 
 def run(args: argparse.Namespace) -> int:
     """Design, write the gain file, re-load it (certificate check) and print a summary."""
@@ -502,7 +496,7 @@ def run(args: argparse.Namespace) -> int:
                           pole=args.pole, max_window=args.max_window, delta=args.delta,
                           gamma=args.gamma, lam=args.lam, alpha=args.alpha, init=args.init,
                           M_sigma=args.m_sigma)
-    out = Path(args.output) if args.output else _default_output(system)
+    out = Path(args.output) if args.output else default_gain_path(system.name, "thresholds")
     save_gains(out, "thresholds", system, d["parameters"], d["results"], d["certificate"],
                d["solver"])
     load_gains(out, system)  # re-verifies the certificate
