@@ -121,8 +121,8 @@ def _three_tank_rhs(x: np.ndarray, u: np.ndarray, p: Params) -> np.ndarray:
 
 
 def _three_tank_step(x: np.ndarray, u: np.ndarray, p: Params, dt: float) -> np.ndarray:
-    # Plant-file parameters are floats; per-run arrays (parameter faults) take the batch path.
-    if x.size == 3 and all(type(v) is float for v in p.values()):
+    # One run: floats, or the observer's per-run parameter arrays of size 1.
+    if x.size == 3 and all(type(v) is float or v.size == 1 for v in p.values()):  # type: ignore[union-attr]
         return _three_tank_step_scalar(x, u, p, dt)
     return rk4(_three_tank_rhs, x, u, p, dt, int(p["substeps"]))
 
@@ -140,7 +140,7 @@ def _three_tank_step_scalar(x: np.ndarray, u: np.ndarray, p: Params, dt: float) 
     order as the vectorised path (sqrt is correctly rounded in both), so the results are
     bit-identical to it — a test checks.
     """
-    f: Mapping[str, float] = p  # type: ignore[assignment]  # floats: checked by the caller
+    f = {k: v if type(v) is float else v.item() for k, v in p.items()}  # type: ignore[union-attr]
     pipe, byp, upper, h_up = f["pipe_area"], f["bypass_area"], f["upper_area"], f["h_upper"]
     out, a, g = f["outflow_area"], f["tank_area"], f["g"]
     la1, la2, la3 = f["leak_area_1"], f["leak_area_2"], f["leak_area_3"]
