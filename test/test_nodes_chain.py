@@ -78,7 +78,7 @@ def test_bad_messages_are_reported_and_change_nothing():
         assert spin_until(ex, lambda: len(col.msgs["/fd/bias_estimate"]) >= K, 30.0), \
             {t: len(v) for t, v in col.msgs.items()}
 
-        est = [d for d in col.decoded("/fd/state_estimate") if d.values.size == 7]
+        est = [d for d in col.decoded("/fd/state_estimate") if d.values.size == 8]
         np.testing.assert_array_equal([d.values[1:4] for d in est],
                                       [o.observer.x_hat for o in want])
         res = col.decoded("/fd/residual")
@@ -129,8 +129,10 @@ def test_bad_messages_are_reported_and_change_nothing():
     ("detector", ["-p", "gains:=pwa_cascade_qb"], "designed for another plant"),
     ("observer", ["-p", "gains:=/nonexistent/g.yaml"], "file not found"),
     ("agei", ["-p", "stale_timeout:=1"], "parameter stale_timeout"),
-    ("observer", ["-p", "system:=pwa_cascade", "-p", "gains:=pwa_cascade_qb"],
-     "method 'qb': these nodes run thresholds gain files"),
+    ("agei", ["-p", "system:=pwa_cascade", "-p", "gains:=pwa_cascade_qb"],
+     "method 'qb': agei runs thresholds gain files only"),
+    ("bias_estimator", ["-p", "system:=pwa_cascade", "-p", "gains:=pwa_cascade_qb"],
+     "method 'qb': bias_estimator runs thresholds gain files only"),
 ])
 def test_bad_start_is_one_line_and_nonzero(node, ros_args, match):
     with Proc(["run", node, "--ros-args", *ros_args]) as proc:

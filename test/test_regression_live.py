@@ -3,10 +3,15 @@
 The live subset of ``bags/library.yaml`` (``live: true``) is replayed flat out (lossless) into
 the ``monitor`` process (the four chain nodes on one executor) and into the five-process
 pipeline (observer, detector, agei, bias_estimator and replay), the outputs are recorded, and
-the same ``expected.yaml`` is checked on what the nodes published.
+the same ``expected.yaml`` is checked on what the nodes published: alarms, modes, bias
+estimates, restarts (the ``restart`` channel of ``/fd/state_estimate``) and the input errors
+the observer reported in its log. The residuals must also equal the offline runner's
+(:func:`fd_monitor.offline.run_bag`) sample for sample: bad input is handled the same way.
 """
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import pytest
@@ -14,12 +19,14 @@ from ros_util import Proc, run_cli
 
 from fd_monitor.bags import read_bag
 from fd_monitor.library import check_expected, load_expected, load_library
+from fd_monitor.offline import _ranges, run_bag
 
 pytestmark = pytest.mark.ros
 
 LIB = load_library()
 LIVE = [b.name for b in LIB.bags if b.live]
-TOPICS = ["/fd/alarm", "/fd/state_estimate", "/fd/bias_estimate"]
+TOPICS = ["/fd/alarm", "/fd/state_estimate", "/fd/bias_estimate", "/fd/residual"]
+BAD = "three_tank_bad_input"
 
 
 def live_summary(rec, system_outputs, mode_names):
@@ -36,20 +43,51 @@ def live_summary(rec, system_outputs, mode_names):
         name = mode_names[int(q)]
         if not modes or modes[-1] != name:
             modes.append(name)
-    return {"alarms": alarms, "modes": modes, "samples": len(al),
+    restarts = [int(k) for k in st.stamps[1:][st.column("restart")[1:] > 0.5]]
+    return {"alarms": alarms, "modes": modes, "samples": len(al), "restarts": restarts,
             "isolated": [c for c in system_outputs if be.column(f"iso:{c}")[-1] > 0.5],
             "bias_estimate": {c: float(be.column(c)[-1]) for c in system_outputs}}
 
 
-@pytest.mark.parametrize(("name", "layout"), [(LIVE[0], "monitor"),
-                                              (LIVE[-1], "five_processes")])
+def logged_input_errors(log: str) -> dict[str, list]:
+    """kind -> stamps, from the observer's log lines (the kinds of ``read_inputs``)."""
+    out: dict[str, list] = {}
+    rejected: set[int] = set()
+    holes: list[int] = []
+    for line in log.splitlines():
+        if "[observer]" not in line:
+            continue
+        if m := re.search(r"/plant/[uy] stamp (\d+): (value \S+ is (nan|inf)|wrong length)",
+                          line):
+            kind = "non_finite" if m.group(3) else "wrong_length"
+            out.setdefault(kind, []).append(int(m.group(1)))
+            rejected.add(int(m.group(1)))
+        elif m := re.search(r"/plant/[uy] stamp (\d+): duplicate", line):
+            out.setdefault("duplicate", []).append(int(m.group(1)))
+        elif m := re.search(r"/plant/[uy] stamp (\d+) after stamp \d+: out of order", line):
+            out.setdefault("out_of_order", []).append(int(m.group(1)))
+        elif m := re.search(r"hole: no valid sample for stamps? (\d+)(?:\.\.(\d+))?", line):
+            a = int(m.group(1))
+            holes += range(a, int(m.group(2) or a) + 1)
+    missing = [list(r) for r in _ranges(sorted(set(holes) - rejected))]
+    if missing:
+        out["missing"] = missing
+    return {k: sorted(v) for k, v in out.items()}
+
+
+CASES = [(LIVE[0], "monitor"), (BAD, "monitor"), (BAD, "five_processes")]
+
+
+@pytest.mark.parametrize(("name", "layout"), CASES)
 def test_live_nodes_match_expected(tmp_path, name, layout):
     from fd_monitor.system import load_system
 
     spec = LIB[name]
+    assert spec.live
     assert spec.gains == "three_tank_thresholds"   # the nodes' default gain file
     system = load_system("three_tank")
-    n = len(read_bag(spec.folder, ["/plant/y"])["/plant/y"])
+    offline = run_bag(spec.folder, spec.gains, system=system)
+    n = len(offline.k)                             # valid samples
     nodes = ["monitor"] if layout == "monitor" else ["observer", "detector", "agei",
                                                      "bias_estimator"]
     procs = [Proc(["run", x]) for x in nodes]
@@ -67,5 +105,9 @@ def test_live_nodes_match_expected(tmp_path, name, layout):
     for p in procs:
         assert "Traceback" not in p.output(), p.output()
     s = live_summary(tmp_path / "rec", system.outputs, system.mode_names)
-    assert s["samples"] == n                       # no sample lost
+    s["input_errors"] = logged_input_errors("".join(p.output() for p in procs))
+    assert s["samples"] == n                       # no valid sample lost
     assert check_expected(load_expected(spec.expected_file), s) == []
+    res = read_bag(tmp_path / "rec", ["/fd/residual"])["/fd/residual"]
+    np.testing.assert_array_equal(res.stamps, offline.k)
+    np.testing.assert_array_equal(res.values[:, :system.ny], offline.signal)

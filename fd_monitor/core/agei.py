@@ -66,7 +66,8 @@ class AgeiOutput:
         row with affected residuals): q^ may differ from q, so the bias estimator must not
         learn at this sample (batch: (N,)).
 
-    Topics: ``/fd/guard_event`` = ``[trigger, phase, row]``; ``/fd/threshold_override`` =
+    Topics: ``/fd/guard_event`` = ``[trigger, phase, row, mode_uncertain]``;
+    ``/fd/threshold_override`` =
     override (output names; NaN = none). See :meth:`payloads`.
     """
 
@@ -80,12 +81,11 @@ class AgeiOutput:
     def payloads(self, system: System) -> dict[str, tuple[tuple[str, ...], np.ndarray]]:
         """``{topic: (labels, values)}`` (single stream)."""
         return {
-            "/fd/guard_event": (("trigger", "phase", "row"),
+            "/fd/guard_event": (("trigger", "phase", "row", "mode_uncertain"),
                                 np.array([float(np.asarray(self.trigger)),
                                           float(np.asarray(self.phase)),
-                                          float(np.asarray(self.row))])),
-            # mode_uncertain is phase > 0 and row's affected set non-empty: derivable from
-            # /fd/guard_event and the gain file
+                                          float(np.asarray(self.row)),
+                                          float(np.asarray(self.mode_uncertain))])),
             "/fd/threshold_override": (tuple(system.outputs), np.asarray(self.override)),
         }
 

@@ -28,7 +28,8 @@ topic                       from                   data (after data[0] = k)
 /fd/residual                DetectorOutput         r (``r:<out>``), w (``w:<out>``)
 /fd/threshold               DetectorOutput         R in force (``R:<out>``), nominal (``rbar:``)
 /fd/alarm                   DetectorOutput         alarm flags 0/1 (outputs)
-/fd/guard_event             AgeiOutput             trigger (guard index or -1), phase, row
+/fd/guard_event             AgeiOutput             trigger (guard index or -1), phase, row,
+                                                   mode_uncertain (0/1)
 /fd/threshold_override      AgeiOutput             override per output (NaN = none)
 /fd/bias_estimate           BiasOutput             sigma^_{k+1} (outputs), ``iso:<out>``, active,
                                                    k_detect

@@ -2,26 +2,37 @@
 
 Joins, per sample k: ``/fd/state_estimate`` (q^_k), ``/fd/residual`` (r_k, w_k) and
 ``/fd/threshold`` (the nominal threshold at k). Publishes, stamped k + 1 (the sample they are
-used at): ``/fd/guard_event`` (``trigger``: guard index or -1, ``phase``, ``row``) for the
+used at): ``/fd/guard_event`` (``trigger``: guard index or -1, ``phase``, ``row``,
+``mode_uncertain``) for the
 observer and ``/fd/threshold_override`` (per output; NaN = none) for the detector.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fd_monitor.core.agei import Agei
 from fd_monitor.core.thresholds import as_gains
-from fd_monitor.nodes.common import OK, Param, run_node
+from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
 from fd_monitor.nodes.detector import state_labels
-from fd_monitor.nodes.fd_node import FdNode, Input
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 
-__all__ = ["AgeiNode", "main"]
+__all__ = ["AgeiNode", "USAGE", "main"]
 
 PARAMS = (
     Param("enabled", True, "false: the ablation without AGEI (never triggers, no override)"),
 )
+
+USAGE = NodeUsage(
+    "agei", "agei: autonomous guard event identification (thresholds gain files only).",
+    (*COMMON_PARAMS, *PARAMS),
+    subscribes=(("/fd/state_estimate", "q^_k from observer"),
+                ("/fd/residual", "r_k, w_k from detector"),
+                ("/fd/threshold", "nominal threshold at k from detector")),
+    publishes=(("/fd/guard_event", "trigger, phase, row, mode_uncertain (stamp k + 1)"),
+               ("/fd/threshold_override", "override per output, NaN = none (stamp k + 1)"),
+               ("/diagnostics", "input and tracker status")))
 
 
 class AgeiNode(FdNode):
@@ -38,6 +49,15 @@ class AgeiNode(FdNode):
     def __init__(self, agei: Agei | None = None, system=None, gains=None, qos=None,
                  node_name: str = "agei", **kwargs: Any) -> None:
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+        self.start_runtime()
+        self._start(agei)
+
+    runtimes: Mapping[str, str] = {"thresholds": "_thresholds_only"}
+
+    def _thresholds_only(self) -> None:
+        """The sensor-bias chain's runtime (any other method is refused at start)."""
+
+    def _start(self, agei: Agei | None) -> None:
         s = self.system
         self.agei = (agei if agei is not None
                      else Agei(s, as_gains(s, self.gain_file), enabled=self.params.enabled))
@@ -46,11 +66,15 @@ class AgeiNode(FdNode):
         self.diag.add("tracker", self.params.stale_timeout)
         o = s.outputs
         self.start_inputs([
-            Input("est", "/fd/state_estimate", state_labels(s)),
+            Input("est", "/fd/state_estimate", state_labels(s), sequence=True),
             Input("residual", "/fd/residual", (*(f"r:{n}" for n in o), *(f"w:{n}" for n in o))),
             Input("threshold", "/fd/threshold",
                   (*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o))),
         ])
+
+    def reset(self) -> None:
+        """Back to monitoring (Monitor.reset)."""
+        self.agei.reset()
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """q^_k, w_k, r_k, nominal_k -> trigger and override for k + 1."""
@@ -70,7 +94,7 @@ class AgeiNode(FdNode):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the AGEI node."""
-    return run_node(AgeiNode, args, prog="agei")
+    return run_node(AgeiNode, args, prog="agei", usage=[USAGE])
 
 
 if __name__ == "__main__":

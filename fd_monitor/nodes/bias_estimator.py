@@ -2,25 +2,38 @@
 
 Joins, per sample k: ``/plant/u`` (u_k), ``/plant/y`` (raw y_k), ``/fd/state_estimate``
 (q^_k), ``/fd/alarm`` (alarm_k; the first alarm starts the estimator) and the AGEI decision
-at k (``/fd/guard_event`` stamped k + 1: its ``row`` says whether q^ is uncertain, in which
-case sigma^ is held). Publishes
+at k (``/fd/guard_event`` stamped k + 1: its ``mode_uncertain``, 1 while q^ may be wrong, in
+which case sigma^ is held). Publishes
 ``/fd/bias_estimate`` stamped k + 1: sigma^_{k+1} (per output), ``iso:<out>`` isolation
 flags, ``active``, ``k_detect`` (-1 before detection).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fd_monitor.core.bias_estimator import BiasEstimator
 from fd_monitor.core.thresholds import as_gains
-from fd_monitor.nodes.common import OK, WARN, run_node
+from fd_monitor.nodes.common import OK, WARN, NodeUsage, run_node
 from fd_monitor.nodes.detector import state_labels
-from fd_monitor.nodes.fd_node import FdNode, Input
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.nodes.observer import GUARD_LABELS
 
-__all__ = ["BiasEstimatorNode", "main"]
+__all__ = ["BiasEstimatorNode", "USAGE", "main"]
+
+PARAMS: tuple = ()
+
+USAGE = NodeUsage(
+    "bias_estimator", "bias_estimator: adaptive sensor-bias estimator (thresholds gain files "
+    "only).", (*COMMON_PARAMS, *PARAMS),
+    subscribes=(("/plant/u", "u_k"), ("/plant/y", "raw y_k"),
+                ("/fd/state_estimate", "q^_k from observer"),
+                ("/fd/alarm", "alarm_k from detector (the first one starts estimation)"),
+                ("/fd/guard_event", "AGEI mode_uncertain at k (stamped k + 1)")),
+    publishes=(("/fd/bias_estimate", "sigma^_{k+1}, iso:<out>, active, k_detect "
+                "(stamp k + 1)"),
+               ("/diagnostics", "input and estimate status")))
 
 
 class BiasEstimatorNode(FdNode):
@@ -36,7 +49,16 @@ class BiasEstimatorNode(FdNode):
 
     def __init__(self, estimator: BiasEstimator | None = None, system=None, gains=None,
                  qos=None, node_name: str = "bias_estimator", **kwargs: Any) -> None:
-        super().__init__(node_name, (), system, gains, qos, **kwargs)
+        super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+        self.start_runtime()
+        self._start(estimator)
+
+    runtimes: Mapping[str, str] = {"thresholds": "_thresholds_only"}
+
+    def _thresholds_only(self) -> None:
+        """The sensor-bias chain's runtime (any other method is refused at start)."""
+
+    def _start(self, estimator: BiasEstimator | None) -> None:
         s = self.system
         self.estimator = (estimator if estimator is not None
                           else BiasEstimator(s, as_gains(s, self.gain_file)))
@@ -45,24 +67,21 @@ class BiasEstimatorNode(FdNode):
         self.start_inputs([
             Input("u", "/plant/u", s.inputs, plain_ok=True),
             Input("y", "/plant/y", s.outputs, plain_ok=True),
-            Input("est", "/fd/state_estimate", state_labels(s)),
+            Input("est", "/fd/state_estimate", state_labels(s), sequence=True),
             Input("alarm", "/fd/alarm", tuple(s.outputs)),
             Input("guard", "/fd/guard_event", GUARD_LABELS, stamp_offset=-1),
         ])
-        # Rows of the AGEI matrix whose events residuals can see (AgeiOutput.mode_uncertain
-        # is "row >= 0 and the row affects a residual"; /fd/guard_event carries the row).
-        self._visible = [bool(r.affected) for r in as_gains(s, self.gain_file).agei_rows]
 
-    def mode_uncertain(self, row: int) -> bool:
-        """AGEI's mode_uncertain from the row it published."""
-        return 0 <= row < len(self._visible) and self._visible[row]
+    def reset(self) -> None:
+        """Back to inactive, sigma^ = 0 (Monitor.reset)."""
+        self.estimator.reset()
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """u_k, y_k, q^_k, alarm_k, AGEI row at k -> sigma^_{k+1}, isolation flags."""
         s = self.system
         out = self.estimator.step(k, inputs["u"], inputs["y"], int(inputs["est"][0]),
                                   inputs["alarm"] > 0.5,
-                                  self.mode_uncertain(int(inputs["guard"][2])))
+                                  bool(inputs["guard"][3] > 0.5))
         labels, values = out.payload(s)
         self.publish_array(self.pub, labels, k + 1, values)
         isolated = [o for o, f in zip(s.outputs, out.isolated) if f]
@@ -79,7 +98,7 @@ class BiasEstimatorNode(FdNode):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the bias estimator node."""
-    return run_node(BiasEstimatorNode, args, prog="bias_estimator")
+    return run_node(BiasEstimatorNode, args, prog="bias_estimator", usage=[USAGE])
 
 
 if __name__ == "__main__":

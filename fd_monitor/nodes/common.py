@@ -42,6 +42,7 @@ __all__ = [
     "OK", "WARN", "ERROR", "STALE", "LEVEL_NAMES",
     "AckPacer",
     "Diagnostics",
+    "NodeUsage",
     "Param",
     "data_pub_qos",
     "pub_events",
@@ -50,7 +51,9 @@ __all__ = [
     "declare_parameters",
     "diagnostics_qos",
     "run_node",
+    "usage_text",
     "use_dds_profile",
+    "wants_help",
 ]
 
 OK: bytes = DiagnosticStatus.OK
@@ -334,11 +337,87 @@ def use_dds_profile() -> str | None:
     return None
 
 
+# -- usage -----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class NodeUsage:
+    """What ``<exe> --help`` prints for one node: its parameters and topics.
+
+    Attributes
+    ----------
+    name : str
+        Node name (the key in its ``config/<name>.yaml``).
+    summary : str
+        One line.
+    params : sequence of Param
+        The same declarations the node passes to :func:`declare_parameters`.
+    subscribes, publishes : sequence of (str, str)
+        ``(topic, meaning)``.
+    """
+
+    name: str
+    summary: str
+    params: Sequence[Param]
+    subscribes: Sequence[tuple[str, str]] = ()
+    publishes: Sequence[tuple[str, str]] = ()
+
+
+def wants_help(args: Sequence[str] | None) -> bool:
+    """True when ``-h``/``--help`` comes before ``--ros-args`` (``args[0]`` is the program)."""
+    argv = list(sys.argv if args is None else args)[1:]
+    if "--ros-args" in argv:
+        argv = argv[:argv.index("--ros-args")]
+    return "-h" in argv or "--help" in argv
+
+
+def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None) -> str:
+    """The ``--help`` text of an executable running the nodes ``usages``.
+
+    Parameters
+    ----------
+    prog : str
+        Executable name.
+    usages : sequence of NodeUsage
+    config : str, optional
+        Parameter file stem under ``config/``; default ``prog``.
+    """
+    cfg = f"config/{config or prog}.yaml"
+    lines = [f"usage: {prog} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file {cfg}] "
+             f"[-r FROM:=TO ...]]", ""]
+    lines.append(usages[0].summary if len(usages) == 1 else
+                 f"{prog}: the nodes {', '.join(u.name for u in usages)} on one executor in "
+                 f"one process, each with its own parameters (one section per node in {cfg}).")
+    lines += ["", "Parameters come from a ROS 2 parameter file or -p overrides:",
+              f"  {prog} --ros-args --params-file {cfg}",
+              f"  python -m fd_monitor run {prog} --ros-args --params-file {cfg} "
+              f"-p NAME:=VALUE",
+              "Doubles are typed: write 1.0, not 1. Topics are remappable (-r /plant/y:=/x/y)."]
+    for u in usages:
+        if len(usages) > 1:
+            lines += ["", f"-- {u.summary}"]
+        lines += ["", f"parameters ({u.name}):"]
+        width = max((len(p.name) for p in u.params), default=0)
+        for p in u.params:
+            rng = (f", range [{p.low:g}, {p.high:g}]" if p.low is not None and p.high is not None
+                   and not isinstance(p.default, bool) else "")
+            lines.append(f"  {p.name:<{width}}  {p.description} (default {p.default!r}{rng})")
+        for head, topics in (("subscribes", u.subscribes), ("publishes", u.publishes)):
+            if topics:
+                lines += ["", f"{head} ({u.name}):"]
+                tw = max(len(t) for t, _ in topics)
+                lines += [f"  {t:<{tw}}  {m}" for t, m in topics]
+    lines += ["", "options:", "  -h, --help  show this message and exit (ROS is not started)"]
+    return "\n".join(lines) + "\n"
+
+
 # -- main ------------------------------------------------------------------------------------
 
 def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] | None = None,
-             prog: str = "fd_monitor") -> int:
+             prog: str = "fd_monitor", usage: Sequence[NodeUsage] = ()) -> int:
     """Init rclpy, build the node(s), spin until done or shut down; return an exit status.
+
+    With ``-h``/``--help`` before ``--ros-args`` it prints :func:`usage_text` of ``usage``
+    and returns 0 without starting ROS.
 
     A node may expose ``done`` (an ``rclpy.task.Future``) to end the spin, and
     ``exit_code``. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
@@ -346,6 +425,9 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
     cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
     ``rclpy.try_shutdown()``, as the ROS 2 demos do.
     """
+    if wants_help(args):
+        sys.stdout.write(usage_text(prog, usage))
+        return 0
     use_dds_profile()
     rclpy.init(args=None if args is None else list(args))
     nodes: list[Node] = []

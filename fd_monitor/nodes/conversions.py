@@ -36,6 +36,7 @@ __all__ = [
     "decode",
     "encode_data",
     "join_labels",
+    "readable_stamp",
     "split_labels",
     "to_msg",
     "truth_labels",
@@ -119,6 +120,24 @@ def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None)
         msg.data = data
         return msg
     return msg_type(labels, data)
+
+
+def readable_stamp(msg: Any) -> int | None:
+    """The stamp of a message that may not decode, when it is readable; else None.
+
+    Readable: ``layout.data_offset == 1`` and ``data[0]`` a finite integer in
+    ``[0, 2**53)``. Lets a node tell which sample a rejected message (NaN value, wrong
+    length) was for.
+    """
+    try:
+        if int(msg.layout.data_offset) != STAMP_OFFSET or len(msg.data) == 0:
+            return None
+        s = float(msg.data[0])
+    except (AttributeError, TypeError, ValueError):
+        return None
+    if not math.isfinite(s) or s != int(s) or not 0 <= s < MAX_STAMP:
+        return None
+    return int(s)
 
 
 @dataclass(frozen=True)

@@ -9,76 +9,109 @@ Publishes (stamp k) ``/fd/residual`` (``r:<out>``, ``w:<out>``), ``/fd/threshold
 |r| > ``warn_share`` x R; ERROR on alarm; STALE when no input came for ``stale_timeout`` s;
 values: residual, threshold, margin (R - |r|), mode, sigma_hat (the latest bias estimate),
 gain file id, certificate status.
+
+With a ``qb`` gain file it runs :class:`~fd_monitor.core.qb.QBDetector`: per channel of
+``QBDetector.channels`` (fault-model states, ``fault_norm``, ``r_<out>``, ``r_norm``) it
+publishes the compared signal on ``/fd/residual``, rho x bound on ``/fd/threshold`` and the
+alarm on ``/fd/alarm``, as :func:`fd_monitor.offline.run_bag` computes them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.core.detector import ResidualDetector, no_override
+from fd_monitor.core.qb import QBDetector, qb_model
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.errors import MessageError
 from fd_monitor.nodes.common import (
     ERROR,
     OK,
     WARN,
+    NodeUsage,
     Param,
     data_sub_qos,
     run_node,
     sub_events,
 )
 from fd_monitor.nodes.conversions import decode
-from fd_monitor.nodes.fd_node import FdNode, Input
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.nodes.observer import bias_labels
 
-__all__ = ["DetectorNode", "state_labels", "main"]
+__all__ = ["DetectorNode", "USAGE", "state_labels", "main"]
 
 PARAMS = (
     Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
           low=0.0, high=1.0),
 )
 
+USAGE = NodeUsage(
+    "detector", "detector: filtered residuals, thresholds and alarms (QB bounds for a qb "
+    "gain file).", (*COMMON_PARAMS, *PARAMS),
+    subscribes=(("/fd/state_estimate", "mode, x^_k, y~_k from observer"),
+                ("/fd/threshold_override", "AGEI override for k (stamped k; NaN = none)"),
+                ("/fd/bias_estimate", "latest sigma^ (diagnostics only)")),
+    publishes=(("/fd/residual", "r:<out>, w:<out> (stamp k)"),
+               ("/fd/threshold", "R:<out> in force, rbar:<out> nominal"),
+               ("/fd/alarm", "0/1 per channel"),
+               ("/diagnostics", "one status per channel: residual, threshold, margin")))
+
 
 def state_labels(system: Any) -> tuple[str, ...]:
-    """Labels of ``/fd/state_estimate`` (ObserverOutput.payload)."""
-    return ("mode", *system.states, *(f"y~{o}" for o in system.outputs))
+    """Labels of ``/fd/state_estimate``: ObserverOutput.payload, then ``restart``."""
+    return ("mode", *system.states, *(f"y~{o}" for o in system.outputs), "restart")
 
 
 class DetectorNode(FdNode):
-    """Residual detector node.
+    """Residual detector node: thresholds (``thresholds``) or QB bounds (``qb``).
 
     Parameters
     ----------
     detector : ResidualDetector, optional
-        Default: built from the gain file.
+        ``thresholds`` only; default: built from the gain file.
     system, gains, qos, **kwargs
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
+    runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds", "qb": "_start_qb"}
+
     def __init__(self, detector: ResidualDetector | None = None, system=None, gains=None,
                  qos=None, node_name: str = "detector", **kwargs: Any) -> None:
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
-        s = self.system
-        self.detector = (detector if detector is not None
-                         else ResidualDetector(s, as_gains(s, self.gain_file)))
+        self.detector: Any = detector
         self.pubs = {t: self.publisher(t) for t in ("/fd/residual", "/fd/threshold",
                                                     "/fd/alarm")}
-        self.channels = [f"residual {o}" for o in s.outputs]
+        self.sigma_hat = np.zeros(self.system.ny)
+        self.start_runtime()
         for ch in self.channels:
             self.diag.add(ch, self.params.stale_timeout)
-        self.sigma_hat = np.zeros(s.ny)
+
+    def _start_thresholds(self) -> None:
+        s = self.system
+        if self.detector is None:
+            self.detector = ResidualDetector(s, as_gains(s, self.gain_file))
+        self.channels = [f"residual {o}" for o in s.outputs]
         # The latest bias estimate, for diagnostics only (not joined: it does not enter r_k).
         self.create_subscription(Float64MultiArray, "/fd/bias_estimate", self._on_bias,
                                  data_sub_qos(), **sub_events())
         self.start_inputs([
-            Input("est", "/fd/state_estimate", state_labels(s)),
+            Input("est", "/fd/state_estimate", state_labels(s), sequence=True),
             Input("override", "/fd/threshold_override", tuple(s.outputs),
                   initial=no_override(s.ny), allow_nan=True),
         ])
+        self._step = self._step_thresholds
+
+    def _start_qb(self) -> None:
+        s = self.system
+        self.detector = QBDetector(s, self.gain_file)
+        self._C = qb_model(s).C                 # r = y - C_q x^ (QBObserver.residual)
+        self.channels = [f"residual {c}" for c in self.detector.channels]
+        self.start_inputs([Input("est", "/fd/state_estimate", state_labels(s), sequence=True)])
+        self._step = self._step_qb
 
     def _on_bias(self, msg: Any) -> None:
         try:
@@ -89,35 +122,55 @@ class DetectorNode(FdNode):
             return
         self.sigma_hat = d.values[:self.system.ny]
 
+    def reset(self) -> None:
+        """Forget the filters' history (Monitor.reset); the QB detector has no state."""
+        if isinstance(self.detector, ResidualDetector):
+            self.detector.reset()
+
     def process(self, k: int, inputs: dict[str, Any]) -> None:
-        """(q^_k, x^_k, y~_k), override -> r_k, R_k, alarm_k."""
+        """(q^_k, x^_k, y~_k), override -> residual, threshold, alarm at k."""
         s = self.system
         est = inputs["est"]
-        mode, x_hat, y_t = int(est[0]), est[1:1 + s.n], est[1 + s.n:]
-        out = self.detector.step(k, y_t, x_hat, mode, inputs["override"])
-        for topic, (labels, values) in out.payloads(s).items():
+        mode, x_hat, y_t = int(est[0]), est[1:1 + s.n], est[1 + s.n:1 + s.n + s.ny]
+        signal, threshold, alarm, extra = self._step(k, mode, x_hat, y_t, inputs)
+        for topic, (labels, values) in extra.items():
             self.publish_array(self.pubs[topic], labels, k, values)
-        self._report(k, mode, out)
+        self._report(k, mode, signal, threshold, alarm)
 
-    def _report(self, k: int, mode: int, out: Any) -> None:
+    def _step_thresholds(self, k, mode, x_hat, y_t, inputs):
+        out = self.detector.step(k, y_t, x_hat, mode, inputs["override"])
+        return out.residual, out.threshold, out.alarm, out.payloads(self.system)
+
+    def _step_qb(self, k, mode, x_hat, y_t, inputs):
+        det = self.detector
+        sig = det.signals(x_hat, y_t - self._C[mode] @ x_hat)
+        thr = det.rho * det.bounds(mode)
+        alarm = sig > thr
+        ch = det.channels
+        return sig, thr, alarm, {"/fd/residual": (ch, sig), "/fd/threshold": (ch, thr),
+                                 "/fd/alarm": (ch, alarm.astype(float))}
+
+    def _report(self, k: int, mode: int, signal: Any, threshold: Any, alarm: Any) -> None:
         share = self.params.warn_share
+        qb = not isinstance(self.detector, ResidualDetector)
         for i, ch in enumerate(self.channels):
-            r, R = float(out.residual[i]), float(out.threshold[i])
-            if out.alarm[i]:
+            r, R = float(signal[i]), float(threshold[i])
+            if alarm[i]:
                 level, msg = ERROR, "alarm: |residual| > threshold"
             elif abs(r) > share * R:
                 level, msg = WARN, f"|residual| > {share:g} x threshold"
             else:
                 level, msg = OK, "ok"
-            self.diag.update(ch, level, msg, {
-                "sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
-                "mode": self.system.mode_names[mode], "sigma_hat": float(self.sigma_hat[i]),
-                **self.gain_values()})
+            values = {"sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
+                      "mode": self.system.mode_names[mode], **self.gain_values()}
+            if not qb:
+                values["sigma_hat"] = float(self.sigma_hat[i])
+            self.diag.update(ch, level, msg, values)
 
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the detector node."""
-    return run_node(DetectorNode, args, prog="detector")
+    return run_node(DetectorNode, args, prog="detector", usage=[USAGE])
 
 
 if __name__ == "__main__":

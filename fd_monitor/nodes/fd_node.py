@@ -17,7 +17,8 @@ stamps.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,14 +40,15 @@ from fd_monitor.nodes.common import (
     pub_events,
     sub_events,
 )
-from fd_monitor.nodes.conversions import ArrivalStamper, decode, to_msg
-from fd_monitor.nodes.join import StampJoin
+from fd_monitor.nodes.conversions import ArrivalStamper, decode, readable_stamp, to_msg
+from fd_monitor.nodes.join import Sample, StampJoin
 from fd_monitor.system import System, load_system
 
 __all__ = ["COMMON_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
 
-#: Gain-file methods the chain nodes can run (one runtime per method).
-RUNTIMES = ("thresholds",)
+#: Gain-file methods the chain nodes can run; each node lists the ones it runs in its
+#: ``runtimes`` (method -> name of the method that builds that runtime).
+RUNTIMES = ("thresholds", "qb")
 
 COMMON_PARAMS = (
     Param("system", "three_tank", "plant file, or the name of a shipped plant"),
@@ -84,6 +86,10 @@ class Input:
     stamp_offset : int
         Joined at ``stamp + stamp_offset``: -1 for a feedback message (stamped k + 1) that
         is needed at the sample it was decided at (k).
+    sequence : bool
+        ``/fd/state_estimate`` of the entry node: its stamps are the samples this node
+        processes and its last value (``restart``) flags a restart (downstream role of
+        :class:`~fd_monitor.nodes.join.StampJoin`).
     """
 
     name: str
@@ -94,6 +100,7 @@ class Input:
     plain_ok: bool = False
     allow_nan: bool = False
     stamp_offset: int = 0
+    sequence: bool = False
 
 
 def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainFile]:
@@ -119,6 +126,8 @@ class FdNode(Node):
     """
 
     inputs: Sequence[Input] = ()
+    #: Gain-file method -> name of the method building the node's runtime for it.
+    runtimes: Mapping[str, str] = {}
 
     def __init__(self, node_name: str, params: Sequence[Param] = (),
                  system: System | None = None, gains: GainFile | None = None, qos=None,
@@ -128,16 +137,20 @@ class FdNode(Node):
         if system is None or gains is None:
             system, gains = load_plant_and_gains(self.params.system, self.params.gains)
         self.system, self.gain_file = system, gains
-        if gains.method not in RUNTIMES:
+        if gains.method not in self.runtimes:
             raise FdMonitorError(f"node {node_name}: {gains.path}: method {gains.method!r}: "
-                                 f"these nodes run {', '.join(RUNTIMES)} gain files (design "
-                                 f"one with `python -m fd_monitor design thresholds "
-                                 f"{system.name}`)")
+                                 f"{node_name} runs {' and '.join(self.runtimes)} gain files "
+                                 f"only (qb designs run on observer + detector; design a "
+                                 f"thresholds one with `python -m fd_monitor design "
+                                 f"thresholds {system.name}`)")
         self._qos = qos if qos is not None else data_pub_qos(self.params.qos_depth)
         self.diag = Diagnostics(self, system.name, self.params.diagnostics_period)
         self.diag.add("input", self.params.stale_timeout, "no input yet")
         self.bad_messages = 0
         self.processed = 0
+        self.holes = 0
+        #: True while :meth:`process` handles a restart sample (first, or first after a hole).
+        self.restarting = False
         # Reasons of the bad messages since the last /diagnostics publication: each one is
         # published (a burst in one status), and WARN holds for one period after the last.
         self._reasons: list[str] = []
@@ -146,22 +159,37 @@ class FdNode(Node):
 
     # -- set-up helpers for subclasses --------------------------------------------------------
 
+    def start_runtime(self) -> None:
+        """Build the runtime of the gain file's method (the one factory of the chain nodes)."""
+        getattr(self, self.runtimes[self.gain_file.method])()
+
     def publisher(self, topic: str) -> Any:
         """A data-path publisher of Float64MultiArray."""
         return self.create_publisher(Float64MultiArray, topic, self._qos, **pub_events())
 
-    def start_inputs(self, inputs: Sequence[Input]) -> None:
-        """Subscribe to every input and set up the stamp join."""
+    def start_inputs(self, inputs: Sequence[Input], gap_timeout: float | None = None) -> None:
+        """Subscribe to every input and set up the stamp join.
+
+        Without a ``sequence`` input the node is the chain's entry: it declares holes (a
+        rejected message, or a later stamp complete for ``gap_timeout`` s), checked on
+        message arrival and on a timer.
+        """
         self.inputs = tuple(inputs)
+        seq = [i.name for i in inputs if i.sequence]
         self.join = StampJoin([i.name for i in inputs if i.initial is None],
                               {i.name: i.initial for i in inputs if i.initial is not None},
-                              self.params.max_pending)
+                              self.params.max_pending, sequence=seq[0] if seq else None,
+                              gap_timeout=None if seq else gap_timeout)
         for inp in inputs:
             self.create_subscription(Float64MultiArray, inp.topic, self._callback(inp),
                                      data_sub_qos(), **sub_events())
+        if not seq and gap_timeout is not None:
+            # A hole must be declared even when no further message arrives.
+            self.create_timer(min(0.25, max(0.01, gap_timeout / 4)), self._on_gap_timer)
 
     def _callback(self, inp: Input) -> Callable[[Any], None]:
         stamper = ArrivalStamper()
+        order = _TopicOrder(inp.topic)
 
         def cb(msg: Any) -> None:
             try:
@@ -170,32 +198,45 @@ class FdNode(Node):
                                          allow_nan=inp.allow_nan))
             except MessageError as exc:
                 self.bad_input(str(exc))
+                k = readable_stamp(msg) if inp.initial is None else None
+                if k is not None and k + inp.stamp_offset >= 0:
+                    self.join.reject(k + inp.stamp_offset)
+                    self._drain()
                 return
+            note = order.check(int(d.stamp or 0))
+            if note is not None:
+                self._warn(note)
+                if "duplicate" in note:
+                    return
             stamp = int(d.stamp or 0) + inp.stamp_offset
             if stamp >= 0:
-                self.on_input(inp.name, stamp, d.values)
+                self.on_input(inp.name, stamp, d.values,
+                              restart=inp.sequence and d.values[-1] > 0.5)
         return cb
 
     def bad_input(self, reason: str) -> None:
         """Log a rejected message and report it on /diagnostics (WARN); keep running."""
         self.bad_messages += 1
+        self._warn(reason)
+
+    def _warn(self, reason: str) -> None:
+        """Log ``reason`` and report it on the ``input`` channel (WARN)."""
         self._last_bad = time.monotonic()
         self.get_logger().warning(reason)
         if len(self._reasons) < 10:
             self._reasons.append(reason)
         self.diag.update("input", WARN, "; ".join(self._reasons),
-                         {"bad_messages": self.bad_messages, "processed": self.processed,
-                          "last_bad_message": reason})
+                         {"bad_messages": self.bad_messages, "holes": self.holes,
+                          "processed": self.processed, "last_warning": reason})
 
-    def on_input(self, name: str, stamp: int, values: np.ndarray) -> None:
+    def on_input(self, name: str, stamp: int, values: np.ndarray,
+                 restart: bool = False) -> None:
         """Join one decoded input; process every sample that became complete."""
-        note = self.join.put(name, stamp, values)
+        note = self.join.put(name, stamp, values, time.monotonic(), restart)
         if note is not None:
             self.bad_input(note)
             return
-        for k, inputs in self.join.ready():
-            self.process(k, inputs)
-            self.processed += 1
+        self._drain()
         level = self.diag.level("input")
         if level == WARN and time.monotonic() - self._last_bad < self.diag.period:
             self.diag.touch("input")
@@ -207,6 +248,32 @@ class FdNode(Node):
                 "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for()})
         else:
             self.diag.touch("input")
+
+    def _on_gap_timer(self) -> None:
+        if self.join.pending:
+            self._drain()
+
+    def _drain(self) -> None:
+        """Process every sample the join releases now; report holes and restarts."""
+        for s in self.join.ready(time.monotonic()):
+            self._run(s)
+
+    def _run(self, s: Sample) -> None:
+        if s.hole is not None:
+            self.holes += 1
+            a, b = s.hole
+            span = f"stamp {a}" if a == b else f"stamps {a}..{b}"
+            self._warn(f"hole: no valid sample for {span}; restarted at {s.k} (fresh state, "
+                       f"feedback at initial values)")
+        if s.restart:
+            self.reset()
+        self.restarting = s.restart
+        self.process(s.k, s.inputs)
+        self.processed += 1
+
+    def reset(self) -> None:
+        """Reset the core component as :meth:`~fd_monitor.core.monitor.Monitor.reset` does
+        (subclasses); called before every restart sample."""
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:  # pragma: no cover
         """Process sample k (subclasses)."""
@@ -220,6 +287,32 @@ class FdNode(Node):
         """Gain-file id and certificate status, for /diagnostics."""
         return {"gain_file": self.gain_file.id,
                 "certificate": self.gain_file.certificate_status}
+
+
+class _TopicOrder:
+    """Per-topic duplicate and out-of-order detection, as :func:`fd_monitor.offline.read_inputs`
+    reports them (a duplicate is dropped, the first kept; out of order is only reported)."""
+
+    _MEMORY = 4096  # stamps remembered per topic
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self.top: int | None = None
+        self._seen: set[int] = set()
+        self._order: deque[int] = deque()
+
+    def check(self, k: int) -> str | None:
+        """Record stamp k; a one-line report when it is a duplicate or out of order."""
+        if k in self._seen:
+            return f"{self.topic} stamp {k}: duplicate (first kept)"
+        self._seen.add(k)
+        self._order.append(k)
+        if len(self._order) > self._MEMORY:
+            self._seen.discard(self._order.popleft())
+        top, self.top = self.top, k if self.top is None else max(self.top, k)
+        if top is not None and k < top:
+            return f"{self.topic} stamp {k} after stamp {top}: out of order"
+        return None
 
 
 def require(condition: bool, message: str) -> None:

@@ -1,88 +1,219 @@
-"""Join a node's inputs on the sample stamp (pure Python, no ROS).
+"""Join a node's inputs on the sample stamp (pure Python, no ROS; time is an argument).
 
 A node of the diagnosis chain processes sample k once it has every *required* input for k
 (e.g. u_k, y_k) and every *feedback* input for k (e.g. sigma^_k, which the estimator
-published while processing k - 1). The first sample a node processes, k0, is the smallest
-stamp with every required input; feedback for k0 defaults to the initial values (sigma^ = 0,
-no trigger, no override), as in :meth:`fd_monitor.core.monitor.Monitor.step`. Samples are
-processed in stamp order, consecutively, so the one-sample feedback delays of the in-process
-Monitor hold across processes and the numbers are the same.
+published while processing k - 1). Samples are processed in stamp order, so the one-sample
+feedback delays of the in-process Monitor hold across processes and the numbers are the
+same. At a *restart* (the first sample, and the first valid sample after a hole) feedback
+takes its initial values (sigma^ = 0, no trigger, no override), as after
+:meth:`fd_monitor.core.monitor.Monitor.reset`.
+
+Two roles, matching the offline runner (:func:`fd_monitor.offline.run_bag`):
+
+* the **entry** node (``sequence=None``: the observer) decides the holes. When its next stamp
+  k is incomplete, k is lost if a message for it was rejected (:meth:`StampJoin.reject`) or
+  a later stamp has been complete for ``gap_timeout`` s (per-topic delivery is reliable and
+  in order, so a later complete stamp means k will not come; the timeout absorbs
+  out-of-order publication). Then it restarts at the smallest complete stamp after the
+  lost ones. Never fills missing data.
+* a **downstream** node (``sequence="est"``) follows the entry node: it processes exactly the
+  stamps the entry node published on the sequence input (in order, so when est_s arrives,
+  every earlier est has arrived and any pending stamp below s without one is dead), and
+  restarts where the entry node flagged a restart. No timeout is involved.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["StampJoin"]
+__all__ = ["Sample", "StampJoin"]
+
+#: Holes remembered to recognise late messages for skipped stamps.
+_HOLE_HISTORY = 64
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One sample released by :meth:`StampJoin.ready`.
+
+    Attributes
+    ----------
+    k : int
+    inputs : dict
+        Input name -> value (feedback at its initial value at a restart).
+    restart : bool
+        First sample, or first after a hole: reset the core component before it.
+    hole : (int, int) or None
+        Inclusive stamps skipped just before ``k`` (None: none).
+    """
+
+    k: int
+    inputs: dict[str, Any]
+    restart: bool
+    hole: tuple[int, int] | None = None
 
 
 class StampJoin:
-    """Buffer inputs per stamp; release complete samples in order.
+    """Buffer inputs per stamp; release complete samples in order; decide holes.
 
     Parameters
     ----------
     required : sequence of str
         Inputs needed at every sample.
     feedback : mapping of str to object
-        Inputs needed at every sample after the first, with their value at the first.
+        Inputs needed at every sample but a restart, with their value at a restart.
     max_pending : int
         Stamps buffered at most; beyond, the oldest incomplete stamps are dropped (the node
         reports it).
+    sequence : str, optional
+        Downstream role: the required input published by the entry node (its stamps are the
+        samples to process; :meth:`put` with ``restart=True`` flags a restart).
+    gap_timeout : float, optional
+        Entry role: s a later stamp must have been complete before an incomplete one that
+        was not rejected is declared lost; None: only rejections make holes.
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
-                 max_pending: int = 100_000) -> None:
+                 max_pending: int = 100_000, *, sequence: str | None = None,
+                 gap_timeout: float | None = None) -> None:
         self.required = tuple(required)
         self.feedback = dict(feedback or {})
         self.names = (*self.required, *self.feedback)
+        if sequence is not None and sequence not in self.required:
+            raise ValueError(f"sequence input {sequence!r} is not a required input")
+        self.sequence = sequence
+        self.gap_timeout = gap_timeout
         self.max_pending = int(max_pending)
         self.pending: dict[int, dict[str, Any]] = {}
         #: Next stamp to process (None before the first sample).
         self.k_next: int | None = None
         self.dropped = 0
+        #: Stamps with a rejected required message (entry role).
+        self.rejected: set[int] = set()
+        #: Stamps whose required inputs are all here -> time they became complete.
+        self._complete_since: dict[int, float] = {}
+        self._seq: deque[int] = deque()        # downstream: sequence stamps, arrival order
+        self._restart_at: set[int] = set()     # downstream: stamps flagged restart
+        #: Recent holes ``(first, last)``, inclusive.
+        self.holes: deque[tuple[int, int]] = deque(maxlen=_HOLE_HISTORY)
 
-    def put(self, name: str, stamp: int, value: Any) -> str | None:
-        """Store one input. Returns a one-line reason when it is ignored, else None."""
+    # -- input ---------------------------------------------------------------------------------
+
+    def put(self, name: str, stamp: int, value: Any, now: float = 0.0,
+            restart: bool = False) -> str | None:
+        """Store one input. Returns a one-line reason when it is ignored, else None.
+
+        ``restart`` (downstream role, sequence input only): the entry node restarted at
+        ``stamp``. A late input for a stamp inside a hole is dropped silently when it is
+        feedback (its sample was skipped on purpose) and reported when it is required.
+        """
         if name not in self.names:
             raise KeyError(name)
         if self.k_next is not None and stamp < self.k_next:
+            if self._in_hole(stamp):
+                # Feedback for a skipped sample, or (downstream) anything of a dead stamp.
+                if name in self.feedback or self.sequence is not None:
+                    return None
+                return f"{name} stamp {stamp}: arrived after its hole was declared; ignored"
             return f"{name} stamp {stamp}: already processed (next is {self.k_next}); ignored"
         slot = self.pending.setdefault(stamp, {})
         if name in slot:
             return f"{name} stamp {stamp}: duplicate; the first one is kept"
         slot[name] = value
+        if name == self.sequence:
+            self._seq.append(stamp)
+            if restart:
+                self._restart_at.add(stamp)
+        if name in self.required and all(n in slot for n in self.required):
+            self._complete_since[stamp] = now
         if len(self.pending) > self.max_pending:
             oldest = min(self.pending)
-            del self.pending[oldest]
+            self._forget(oldest)
             self.dropped += 1
             return f"more than {self.max_pending} samples pending: dropped stamp {oldest}"
         return None
 
-    def _complete(self, k: int, first: bool) -> bool:
-        slot = self.pending.get(k)
-        if slot is None or any(n not in slot for n in self.required):
-            return False
-        return first or all(n in slot for n in self.feedback)
+    def reject(self, stamp: int) -> None:
+        """A required message for ``stamp`` was rejected (entry role): the stamp is lost."""
+        if self.sequence is None and (self.k_next is None or stamp >= self.k_next):
+            self.rejected.add(stamp)
 
-    def ready(self) -> Iterator[tuple[int, dict[str, Any]]]:
-        """Yield ``(k, inputs)`` for every sample that can be processed now, in order."""
-        if self.k_next is None:
-            firsts = [k for k in sorted(self.pending) if self._complete(k, True)]
-            if not firsts:
+    # -- release -------------------------------------------------------------------------------
+
+    def ready(self, now: float = 0.0) -> Iterator[Sample]:
+        """Yield every :class:`Sample` that can be processed at time ``now``, in order."""
+        step = self._next_downstream if self.sequence is not None else self._next_entry
+        while True:
+            s = step(now)
+            if s is None:
                 return
-            k0 = firsts[0]
-            for k in [k for k in self.pending if k < k0]:
-                del self.pending[k]
-            self.k_next = k0
-            slot = self.pending.pop(k0)
-            self.k_next = k0 + 1
-            yield k0, {**self.feedback, **slot}
-        while self._complete(self.k_next, False):
-            k = self.k_next
-            slot = self.pending.pop(k)
-            self.k_next = k + 1
-            yield k, slot
+            yield s
+
+    def _release(self, k: int, restart: bool, hole: tuple[int, int] | None) -> Sample:
+        if restart:
+            # Only a jump can leave stamps below k (put refuses stamps below k_next).
+            for j in [j for j in self.pending if j < k]:
+                self._forget(j)
+        if self.rejected:
+            self.rejected = {j for j in self.rejected if j > k}
+        slot = self._forget(k)
+        if hole is not None:
+            self.holes.append(hole)
+        self.k_next = k + 1
+        # At a restart, feedback decided before the hole does not belong to this run.
+        return Sample(k, {**slot, **self.feedback} if restart else slot, restart, hole)
+
+    def _forget(self, k: int) -> dict[str, Any]:
+        self._complete_since.pop(k, None)
+        self._restart_at.discard(k)
+        return self.pending.pop(k, {})
+
+    def _next_entry(self, now: float) -> Sample | None:
+        k = self.k_next
+        if k is None:
+            if not self._complete_since:
+                return None
+            return self._release(min(self._complete_since), True, None)
+        if k in self._complete_since:
+            slot = self.pending[k]
+            if all(n in slot for n in self.feedback):
+                return self._release(k, False, None)
+            return None                          # waiting for feedback, not a hole
+        later = [j for j in self._complete_since if j > k]
+        if not later:
+            return None
+        s = min(later)
+        timed_out = (self.gap_timeout is not None
+                     and now - min(self._complete_since[j] for j in later) >= self.gap_timeout)
+        if not timed_out and any(j not in self.rejected for j in range(k, s)):
+            return None
+        return self._release(s, True, (k, s - 1))
+
+    def _next_downstream(self, now: float) -> Sample | None:
+        seq = self._seq
+        while seq and (seq[0] not in self.pending or self.sequence not in self.pending[seq[0]]):
+            seq.popleft()                        # already released or dropped
+        if not seq:
+            return None
+        s = seq[0]
+        slot = self.pending[s]
+        if any(n not in slot for n in self.required):
+            return None
+        k = self.k_next
+        restart = k is None or s in self._restart_at or s != k
+        if not restart and any(n not in slot for n in self.feedback):
+            return None
+        hole = (k, s - 1) if k is not None and s != k else None
+        seq.popleft()
+        return self._release(s, restart, hole)
+
+    # -- queries -------------------------------------------------------------------------------
+
+    def _in_hole(self, stamp: int) -> bool:
+        return any(a <= stamp <= b for a, b in self.holes)
 
     def waiting_for(self) -> list[str]:
         """Inputs still missing for the next sample (for diagnostics)."""

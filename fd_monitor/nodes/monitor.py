@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
 from fd_monitor.nodes.common import run_node
@@ -22,7 +23,8 @@ def make_nodes(**kwargs) -> list:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the four nodes in one process."""
-    return run_node(make_nodes, args, prog="monitor")
+    return run_node(make_nodes, args, prog="monitor",
+                    usage=[m.USAGE for m in (observer, detector, agei, bias_estimator)])
 
 
 if __name__ == "__main__":

@@ -3,22 +3,48 @@
 Joins, per sample k: ``/plant/u`` (u_k), ``/plant/y`` (y_k) (plain messages from a driver
 are accepted and stamped on arrival), ``/fd/bias_estimate`` (sigma^_k, published by the
 bias estimator at k - 1, stamped k) and ``/fd/guard_event`` (the AGEI trigger decided at
-k - 1, stamped k). Publishes ``/fd/state_estimate`` (stamp k): ``mode``, x^_k (states) and
-y~_k = y_k - sigma^_k (``y~<output>``).
+k - 1, stamped k). Publishes ``/fd/state_estimate`` (stamp k): ``mode``, x^_k (states),
+y~_k = y_k - sigma^_k (``y~<output>``) and ``restart`` (1 at the first sample and at the first
+valid sample after a hole: downstream nodes reset there).
+
+With a ``qb`` gain file it runs :class:`~fd_monitor.core.qb.QBObserver` on ``/plant/u`` (when
+the plant has inputs) and ``/plant/y`` and publishes the same layout (y~ = y).
+
+The observer is the chain's entry: it declares the holes in the data (a rejected message, or
+a later sample complete for ``gap_timeout`` s) and restarts at the next valid sample, as the
+offline runner does (:func:`fd_monitor.offline.run_bag`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver
-from fd_monitor.nodes.common import OK, run_node
-from fd_monitor.nodes.fd_node import FdNode, Input
+from fd_monitor.core.qb import QBObserver
+from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 
-__all__ = ["ObserverNode", "bias_labels", "main"]
+__all__ = ["ObserverNode", "USAGE", "bias_labels", "main"]
+
+PARAMS = (
+    Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
+          "one is declared lost (a hole: restart at the next valid sample); absorbs "
+          "out-of-order publication", low=0.001, high=3600.0),
+)
+
+USAGE = NodeUsage(
+    "observer", "observer: the hybrid observer (or the QB observer for a qb gain file).",
+    (*COMMON_PARAMS, *PARAMS),
+    subscribes=(("/plant/u", "u_k (stamped, or plain: stamped on arrival)"),
+                ("/plant/y", "y_k (stamped, or plain: stamped on arrival)"),
+                ("/fd/bias_estimate", "sigma^_k from bias_estimator (stamped k)"),
+                ("/fd/guard_event", "AGEI trigger for k (stamped k)")),
+    publishes=(("/fd/state_estimate", "mode, x^_k, y~_k, restart (1: first sample, or "
+                "first after a hole) (stamp k)"),
+               ("/diagnostics", "input and estimate status")))
 
 
 def bias_labels(system: Any) -> tuple[str, ...]:
@@ -27,51 +53,93 @@ def bias_labels(system: Any) -> tuple[str, ...]:
     return (*o, *(f"iso:{n}" for n in o), "active", "k_detect")
 
 
-GUARD_LABELS = ("trigger", "phase", "row")
+GUARD_LABELS = ("trigger", "phase", "row", "mode_uncertain")
 
 
 class ObserverNode(FdNode):
-    """Hybrid observer node.
+    """Observer node: the hybrid observer (``thresholds``) or the QB observer (``qb``).
 
     Parameters
     ----------
     observer : HybridObserver, optional
-        Default: built for the ``system`` parameter.
+        ``thresholds`` only; default: built for the ``system`` parameter.
     system, gains, qos, **kwargs
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
+    runtimes: Mapping[str, str] = {"thresholds": "_start_hybrid", "qb": "_start_qb"}
+
     def __init__(self, observer: HybridObserver | None = None, system=None, gains=None,
                  qos=None, node_name: str = "observer", **kwargs: Any) -> None:
-        super().__init__(node_name, (), system, gains, qos, **kwargs)
-        s = self.system
-        self.observer = observer if observer is not None else HybridObserver(s)
+        super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+        self.observer: Any = observer
         self.pub = self.publisher("/fd/state_estimate")
         self.diag.add("estimate", self.params.stale_timeout)
+        self.start_runtime()
+
+    def _start_hybrid(self) -> None:
+        s = self.system
+        if self.observer is None:
+            self.observer = HybridObserver(s)
         blab = bias_labels(s)
         self.start_inputs([
             Input("u", "/plant/u", s.inputs, plain_ok=True),
             Input("y", "/plant/y", s.outputs, plain_ok=True),
             Input("sigma", "/fd/bias_estimate", blab, initial=np.zeros(len(blab))),
             Input("guard", "/fd/guard_event", GUARD_LABELS,
-                  initial=np.array([float(NO_TRIGGER), 0.0, 0.0])),
-        ])
+                  initial=np.array([float(NO_TRIGGER), 0.0, 0.0, 0.0])),
+        ], gap_timeout=self.params.gap_timeout)
+        self._step = self._step_hybrid
+
+    def _start_qb(self) -> None:
+        s = self.system
+        self.observer = QBObserver(s, self.gain_file)
+        # A plant without inputs has no /plant/u (offline: u = () at every sample).
+        self.start_inputs([
+            *([Input("u", "/plant/u", s.inputs, plain_ok=True)] if s.nu else []),
+            Input("y", "/plant/y", s.outputs, plain_ok=True),
+        ], gap_timeout=self.params.gap_timeout)
+        self._step = self._step_qb
+
+    def reset(self) -> None:
+        """Fresh observer state, as the offline runner restarts it after a hole."""
+        if isinstance(self.observer, QBObserver):
+            self.observer = QBObserver(self.system, self.gain_file)
+        else:
+            self.observer.reset()                # Monitor.reset
+
+    def _step_hybrid(self, k: int, inputs: dict[str, Any]) -> tuple[int, np.ndarray,
+                                                                     np.ndarray]:
+        out = self.observer.step(k, inputs["u"], inputs["y"], inputs["sigma"][:self.system.ny],
+                                 int(inputs["guard"][0]))
+        return int(out.mode), np.ravel(out.x_hat), np.ravel(out.y_tilde)
+
+    def _step_qb(self, k: int, inputs: dict[str, Any]) -> tuple[int, np.ndarray, np.ndarray]:
+        u = inputs["u"] if self.system.nu else np.zeros(0)
+        mode, x_hat = self.observer.step(k, u, inputs["y"])
+        return mode, x_hat, np.asarray(inputs["y"], float)   # y~ = y (no accommodation)
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
-        """u_k, y_k, sigma^_k, trigger -> (q^_k, x^_k, y~_k)."""
-        ny = self.system.ny
-        out = self.observer.step(k, inputs["u"], inputs["y"], inputs["sigma"][:ny],
-                                 int(inputs["guard"][0]))
-        labels, values = out.payload(self.system)
-        self.publish_array(self.pub, labels, k, values)
-        self.diag.update("estimate", OK, f"mode {self.system.mode_names[out.mode]}",
-                         {"sample": k, "mode": self.system.mode_names[out.mode],
-                          "x_hat": out.x_hat, **self.gain_values()})
+        """Inputs of k -> (q^_k, x^_k, y~_k, restart) on /fd/state_estimate."""
+        mode, x_hat, y_t = self._step(k, inputs)
+        self.publish_array(self.pub, self.labels, k,
+                           np.concatenate([[float(mode)], x_hat, y_t,
+                                           [float(self.restarting)]]))
+        name = self.system.mode_names[mode]
+        self.diag.update("estimate", OK, f"mode {name}",
+                         {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()})
+
+    @property
+    def labels(self) -> tuple[str, ...]:
+        """Labels of ``/fd/state_estimate``."""
+        from fd_monitor.nodes.detector import state_labels
+
+        return state_labels(self.system)
 
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the observer node."""
-    return run_node(ObserverNode, args, prog="observer")
+    return run_node(ObserverNode, args, prog="observer", usage=[USAGE])
 
 
 if __name__ == "__main__":

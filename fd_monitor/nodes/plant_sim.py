@@ -35,6 +35,7 @@ from fd_monitor.nodes.common import (
     OK,
     AckPacer,
     Diagnostics,
+    NodeUsage,
     Param,
     data_pub_qos,
     declare_parameters,
@@ -45,7 +46,7 @@ from fd_monitor.nodes.common import (
 from fd_monitor.nodes.conversions import to_msg, truth_labels
 from fd_monitor.scenario import load_scenario
 
-__all__ = ["PARAMS", "PlantSimNode", "main"]
+__all__ = ["PARAMS", "PlantSimNode", "USAGE", "main"]
 
 PARAMS = (
     Param("scenario", "three_tank_bias_h1", "scenario: a shipped name or a YAML path"),
@@ -74,6 +75,14 @@ PARAMS = (
 )
 
 _TICK = 0.001  # s: timer period of the publishing loop (bursts catch up on late ticks)
+
+
+USAGE = NodeUsage(
+    "plant_sim", "plant_sim: simulate a scenario's plant and publish it sample by sample.",
+    PARAMS,
+    publishes=(("/plant/u", "inputs u_k (stamp k)"), ("/plant/y", "measurements y_k"),
+               ("/plant/truth", "true mode, state, injected faults (evaluation only)"),
+               ("/diagnostics", "simulation status")))
 
 
 class PlantSimNode(Node):
@@ -194,7 +203,7 @@ class PlantSimNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run ``plant_sim`` until the scenario ends (or SIGINT/SIGTERM)."""
-    return run_node(PlantSimNode, args, prog="plant_sim")
+    return run_node(PlantSimNode, args, prog="plant_sim", usage=[USAGE])
 
 
 if __name__ == "__main__":
