@@ -33,7 +33,7 @@ import numpy as np
 from fd_monitor.errors import BagError, FdMonitorError, MessageError
 
 __all__ = ["BagRun", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs", "run_bag",
-           "run_thresholds", "summarize_run", "truth_at"]
+           "run_thresholds", "stamp_runs", "summarize_run", "truth_at"]
 
 #: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml).
 INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
@@ -141,14 +141,14 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
     if ks:
         have = set(ks)
         hole = [k for k in range(ks[0], ks[-1] + 1) if k not in have and k not in rejected]
-        for a, b in _ranges(hole):
+        for a, b in stamp_runs(hole):
             rep.errors.append({"kind": "missing", "topic": "/plant/u,/plant/y",
                                "sample": [a, b], "message": f"no message for stamps {a}..{b} "
                                f"({b - a + 1} samples)"})
     return us, ys, rep
 
 
-def _ranges(ks: Sequence[int]) -> list[tuple[int, int]]:
+def stamp_runs(ks: Sequence[int]) -> list[tuple[int, int]]:
     """Sorted stamps -> inclusive runs ``(first, last)`` of consecutive stamps."""
     out: list[tuple[int, int]] = []
     for k in ks:

@@ -19,7 +19,7 @@ from ros_util import Proc, run_cli
 
 from fd_monitor.bags import read_bag
 from fd_monitor.library import check_expected, load_expected, load_library
-from fd_monitor.offline import _ranges, run_bag
+from fd_monitor.offline import run_bag, stamp_runs
 
 pytestmark = pytest.mark.ros
 
@@ -69,7 +69,7 @@ def logged_input_errors(log: str) -> dict[str, list]:
         elif m := re.search(r"hole: no valid sample for stamps? (\d+)(?:\.\.(\d+))?", line):
             a = int(m.group(1))
             holes += range(a, int(m.group(2) or a) + 1)
-    missing = [list(r) for r in _ranges(sorted(set(holes) - rejected))]
+    missing = [list(r) for r in stamp_runs(sorted(set(holes) - rejected))]
     if missing:
         out["missing"] = missing
     return {k: sorted(v) for k, v in out.items()}
