@@ -343,11 +343,12 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
 def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],
                   fails: list[str] | None, exp_file: Path | None) -> str:
     dt = float(run.system.sample_time)
-    lines = [f"# Report: bag `{Path(run.bag).name}`", "",
+    lines = [f"# Report: bag `{Path(run.bag).resolve()}`", "",
              f"Plant `{run.system.name}`, gain file `{run.gains}` (method `{run.method}`), "
              f"{s['samples']} samples at Ts = {dt:g} s"
              + (f", transient {run.transient:g} s not evaluated" if run.transient else "")
-             + f". Summary from `{s.get('source', '?')}`.", ""]
+             + " (the offline run of `python -m fd_monitor analyze`: "
+               "`fd_monitor.offline.run_bag`).", ""]
     onsets = _onsets(run)
     alarms = {a["channel"]: a for a in s["alarms"]}
     rows = []
