@@ -7,6 +7,7 @@ Two measurements in one run, both over DDS on loopback (isolated ROS_DOMAIN_ID):
 2. **pipeline**: observer, detector, agei and bias_estimator run as four processes; this
    process is the plant driver: it publishes /plant/u and /plant/y at each rate (samples of
    the demo scenario, consecutive stamps across rates) and subscribes to /fd/alarm.
+3. **monitor**: the same four nodes on one executor in one process (``monitor``), same driver.
 
 For each rate: samples missing (not received within the drain window: 5 s + 10 ms per
 sample; lossless QoS means these are late, not dropped, unless the run is cut), and latency
@@ -161,7 +162,14 @@ def bench_raw(rates: list[float], seconds: float, e: dict[str, str]) -> list[dic
     return out
 
 
-def bench_pipeline(rates: list[float], seconds: float, e: dict[str, str]) -> list[dict]:
+LAYOUTS = {
+    "pipeline (4 node processes)": ("observer", "detector", "agei", "bias_estimator"),
+    "monitor (1 process, 4 nodes)": ("monitor",),
+}
+
+
+def bench_pipeline(rates: list[float], seconds: float, e: dict[str, str],
+                   what: str = "pipeline (4 node processes)") -> list[dict]:
     import rclpy
     from std_msgs.msg import Float64MultiArray
 
@@ -176,7 +184,7 @@ def bench_pipeline(rates: list[float], seconds: float, e: dict[str, str]) -> lis
     u, y = traj.u[0], traj.y[0]
     procs = [subprocess.Popen([sys.executable, "-m", "fd_monitor", "run", n], env=e,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-             for n in ("observer", "detector", "agei", "bias_estimator")]
+             for n in LAYOUTS[what]]
     node = rclpy.create_node("bench_driver")
     pu = node.create_publisher(Float64MultiArray, "/plant/u", data_pub_qos())
     py = node.create_publisher(Float64MultiArray, "/plant/y", data_pub_qos())
@@ -184,7 +192,8 @@ def bench_pipeline(rates: list[float], seconds: float, e: dict[str, str]) -> lis
     out = []
     try:
         deadline = time.monotonic() + 60
-        while (py.get_subscription_count() < 2 or pu.get_subscription_count() < 2
+        need = 2  # observer and bias_estimator read /plant/u and /plant/y (in both layouts)
+        while (py.get_subscription_count() < need or pu.get_subscription_count() < need
                or rx.node.count_publishers("/fd/alarm") < 1) and time.monotonic() < deadline:
             time.sleep(0.05)  # discovery of the four node processes
         labels_u, labels_y = sc.system.inputs, sc.system.outputs
@@ -210,8 +219,7 @@ def bench_pipeline(rates: list[float], seconds: float, e: dict[str, str]) -> lis
             burst_end = time.perf_counter()
             stamps = range(k, k + n)
             last = rx.wait_for(stamps, 5.0 + n / 100.0)
-            out.append(stats("pipeline (4 node processes)", rate, stamps, sent, rx, burst_end,
-                             last))
+            out.append(stats(what, rate, stamps, sent, rx, burst_end, last))
             k += n
             if out[-1]["missing"]:
                 break  # the chain fell behind: later rates would only measure the backlog
@@ -239,8 +247,9 @@ def main() -> int:
 
     rclpy.init()
     try:
-        rows = bench_raw(args.rates, args.seconds, e) + bench_pipeline(args.rates,
-                                                                       args.seconds, e)
+        rows = bench_raw(args.rates, args.seconds, e)
+        for what in LAYOUTS:
+            rows += bench_pipeline(args.rates, args.seconds, e, what)
     finally:
         rclpy.try_shutdown()
     best = {w: max([r["rate_hz"] for r in rows if r["what"] == w and r["sustained"]],
