@@ -95,22 +95,31 @@ def plot_bank(system: System, results: Mapping[str, Any], outdir: str | Path) ->
 
 def plot_switched(system: System, results: Mapping[str, Any], outdir: str | Path
                   ) -> list[Path]:
-    """sigma_min of T_rf per mode and design (Farhat & Koenig Fig. 3)."""
+    """sigma_min of T_rf per mode, every stored design on one panel per mode (F & K Fig. 3).
+
+    ``stability`` (LMI 26 only, "SO" in the paper) and ``hminus`` (loop-shaped, "FDO") are
+    drawn in dB over 1e-3 rad/s .. Nyquist, with the report frequencies marked.
+    """
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     dt = float(results["sample_time"])
-    w = np.logspace(-3, np.log10(np.pi / dt), 300)
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for name, obs in results["observers"].items():
-        for i in range(len(obs["modes"])):
+    w = np.logspace(-3, np.log10(0.999 * np.pi / dt), 300)
+    nm = len(system.modes)
+    fig, axes = plt.subplots(1, nm, figsize=(5.2 * nm, 4.2), squeeze=False)
+    styles = {"stability": ("--", "stability only (26), SO"),
+              "hminus": ("-", "H-minus loop-shaped (44), FDO")}
+    for i, ax in enumerate(axes[0]):
+        for name, obs in results["observers"].items():
             A, B, C, D = residual_ss(obs, i)
-            ax.semilogx(w, sigma_db(A, B, C, D, w, dt)[:, -1],
-                        label=f"{name}, {system.modes[i].name}")
-    ax.set_title(f"{system.name}: fault -> residual sensitivity T_rf")
-    ax.set_xlabel("frequency omega (rad/s)")
-    ax.set_ylabel("minimum singular value (dB)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+            ls, lab = styles.get(name, (":", name))
+            ax.semilogx(w, sigma_db(A, B, C, D, w, dt)[:, -1], ls, label=lab)
+        for wk in (1e-3, 1e-2, 1e-1, 1.0):
+            ax.axvline(wk, color="0.8", lw=0.6)
+        ax.set_title(f"{system.name}: T_rf, {system.modes[i].name}")
+        ax.set_xlabel("frequency omega (rad/s)")
+        ax.set_ylabel("minimum singular value (dB)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
     p = out / f"{system.name}_trf.png"
     fig.tight_layout()
     fig.savefig(p, dpi=110)

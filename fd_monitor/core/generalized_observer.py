@@ -56,18 +56,20 @@ def stability_lmi(Fi: np.ndarray, Pi: np.ndarray, Pj: np.ndarray) -> np.ndarray:
 
 def hminus_lmi(Acl: np.ndarray, Bcl: np.ndarray, Ca: np.ndarray, Da: np.ndarray,
                Pi: np.ndarray, Pj: np.ndarray, beta2: float) -> np.ndarray:
-    """LMI (39)/(44a) for the pair (i, j)::
+    """H-minus inequality (39)/(44a) for the pair (i, j), non-Schur (KYP) form::
 
-        [[-P_j - Ca'Ca, -Ca'Da,             Acl' P_i],
-         [*,            -Da'Da + beta^2 I,  Bcl' P_i],
-         [*,            *,                  -P_i    ]]  < 0
+        [Acl Bcl]' P_i [Acl Bcl] - diag(P_j, -beta^2 I) - [Ca Da]' [Ca Da]  < 0
 
-    i.e. ``V+ - V - r'r + beta^2 f'f < 0`` (40) with ``V_k = x_k' P_{alpha(k-1)} x_k``.
+    i.e. ``V+ - V - r'r + beta^2 f'f < 0`` (40) with ``V_k = x_k' P_{alpha(k-1)} x_k``. Unlike
+    the printed Schur form (whose ``-P_i`` block forces ``P_i > 0``) it is valid for
+    sign-indefinite ``P`` (Remark 4); with ``x_0 = 0`` and a convergent switched error it
+    gives ``||r||_2 >= beta ||f||_2`` under arbitrary switching.
     """
     nf = Bcl.shape[1]
-    M = np.block([[-Pj - Ca.T @ Ca, -Ca.T @ Da, (Pi @ Acl).T],
-                  [-(Da.T @ Ca), -Da.T @ Da + beta2 * np.eye(nf), (Pi @ Bcl).T],
-                  [Pi @ Acl, Pi @ Bcl, -Pi]])
+    AB = np.hstack([Acl, Bcl])
+    CD = np.hstack([Ca, Da])
+    Z = np.zeros((Acl.shape[0], nf))
+    M = AB.T @ Pi @ AB - np.block([[Pj, Z], [Z.T, -beta2 * np.eye(nf)]]) - CD.T @ CD
     return 0.5 * (M + M.T)
 
 
@@ -168,7 +170,8 @@ def check_certificate(system: System, gains: Any) -> dict[str, Any]:
 
     For every stored design: the constraints (6a)-(6c) against the plant's discrete-time
     modes, and LMI (26) for every ordered pair of modes; for the H-minus design also the
-    LMI (44a) of the augmented system at the stored ``beta^2``.
+    H-minus inequality (44a) (non-Schur form, indefinite ``P_aug``) of the loop-shaped
+    augmented system of each mode (frozen mode, pair (i, i)) at the stored ``beta^2``.
     """
     res = _results(gains)
     obsd = res["observers"]
@@ -224,6 +227,8 @@ def _check_44a(obs: Mapping[str, Any], modes: Sequence[Mapping[str, Any]],
     beta2 = float(h["beta2"])
     Dadd = _arr(h["D_add"])
     nh = Ah.shape[0]
+    if nh and np.abs(np.linalg.eigvals(Ah)).max() >= 1:
+        raise GainFileError("observers: the weighting filter F_H is not Schur stable")
     Pa = [_arr(m["P_aug"]) for m in modes]
     out = []
     for i, _m in enumerate(modes):
@@ -233,13 +238,13 @@ def _check_44a(obs: Mapping[str, Any], modes: Sequence[Mapping[str, Any]],
         Bcl = np.vstack([B, Bh @ (D + Dadd)])
         Ca = np.hstack([Dh @ Cr, Ch])
         Da = Dh @ (D + Dadd)
-        for j in range(len(modes)):
+        for j in (i,):  # frozen mode (the mode-coupled pairs are infeasible, see design)
             lm = float(np.linalg.eigvalsh(hminus_lmi(Acl, Bcl, Ca, Da, Pa[i], Pa[j],
                                                      beta2)).max())
             out.append(lm)
             if not lm < 0:
-                raise GainFileError(f"observers: H-minus LMI (44a) fails for the mode pair "
-                                    f"({system.modes[i].name}, {system.modes[j].name}) at "
+                raise GainFileError(f"observers: H-minus inequality (44a) fails for the mode "
+                                    f"pair ({system.modes[i].name}, {system.modes[j].name}) at "
                                     f"beta^2 = {beta2:.4g} (max eigenvalue {lm:.3e})")
     return out
 
