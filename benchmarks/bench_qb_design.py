@@ -5,10 +5,12 @@ Run from the repository root::
     python benchmarks/bench_qb_design.py [--repeat 5] [--sizes 4,8,12,16,20]
 
 Prints, for pwa_cascade, the median wall time of ``design_qb`` with beta searched and with
-beta = 0.486 fixed, and one Clarabel solve of step 5 (the DPP problem re-solved at a new beta);
-then, for random 3-mode PWA plants of n states (n/2 outputs, n disturbances, modes differing
-by output injection like Sec. VI), the design time with the search (one run) and the median
-at the beta it found.
+beta = 0.486 fixed, and one Clarabel re-solve of the search's step-5 problem (reduced LMIs,
+DPP parameter update) and of the full step-5 problem; then a table for random 3-mode PWA
+plants of n states (n/2 outputs, n disturbances, modes differing by output injection like
+Sec. VI): Clarabel solves of the searched design, median wall time with beta searched, median
+with beta fixed at the value found, one reduced and one full step-5 re-solve, rho_max and the
+tie-break used. Large n use fewer repeats (``--repeat`` // 2, at least 1, for n > 12).
 No assertion: figures only.
 """
 
@@ -57,39 +59,57 @@ def _pwa(n: int, seed: int = 0):
     return parse_system(data, "<bench>")
 
 
+def _resolve_times(sys_, beta: float, repeat: int) -> tuple[float, float]:
+    """Median time of one re-solve of the reduced (search) and the full step-5 problem."""
+    model = qb_model(sys_)
+    out = []
+    for reduced in (True, False):
+        prob = QBProblem(model, reduced=reduced)
+        prob.solve(beta)  # first solve compiles the DPP problem
+        out.append(_median_time(lambda p=prob: p.solve(beta), repeat))
+    return out[0], out[1]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--sizes", default="4,8,12,16,20")
     args = ap.parse_args()
+    t_all = time.perf_counter()
     pwa = load_system("pwa_cascade")
     design_qb(pwa, 0.486)  # warm-up: imports, cvxpy canonicalisation caches
     t_search = _median_time(lambda: design_qb(pwa), args.repeat)
     t_fixed = _median_time(lambda: design_qb(pwa, 0.486), args.repeat)
-    prob = QBProblem(qb_model(pwa))
-    prob.solve(0.486)
-    t_solve = _median_time(lambda: prob.solve(0.486), max(args.repeat, 20))
+    t_red, t_full = _resolve_times(pwa, 0.486, max(args.repeat, 20))
     d = design_qb(pwa)
+    df = design_qb(pwa, 0.486)
     print("pwa_cascade (n=4, 3 modes, 2 outputs, 4 disturbances)")
     print(f"  design, beta searched : {t_search * 1e3:8.1f} ms median of {args.repeat} "
           f"({d.solver['solves']} solves, rho_max {d.rho_max:.5f}, beta {d.beta:.4f})")
-    print(f"  design, beta = 0.486  : {t_fixed * 1e3:8.1f} ms median of {args.repeat}")
-    print(f"  one step-5 re-solve   : {t_solve * 1e3:8.1f} ms (DPP parameter update + Clarabel)")
+    print(f"  design, beta = 0.486  : {t_fixed * 1e3:8.1f} ms median of {args.repeat} "
+          f"({df.solver['solves']} solves, rho_max {df.rho_max:.5f}, "
+          f"tie-break {df.solver['tie_break']})")
+    print(f"  one step-5 re-solve   : {t_red * 1e3:8.1f} ms reduced (search), "
+          f"{t_full * 1e3:.1f} ms full (DPP parameter update + Clarabel)")
     print("\nrandom 3-mode PWA plants, n states, n/2 outputs, n disturbances")
-    print(f"  {'n':>3} {'beta fixed [s]':>15} {'beta searched [s]':>18} {'solves':>7} "
-          f"{'rho_max':>9}")
+    print(f"  {'n':>3} {'solves':>6} {'searched [s]':>12} {'fixed [s]':>10} "
+          f"{'re-solve red./full [s]':>22} {'rho_max':>9}  tie-break")
     for n in (int(s) for s in args.sizes.split(",")):
         sys_ = _pwa(n)
         rep = max(1, args.repeat // 2) if n > 12 else args.repeat
-        t0 = time.perf_counter()
         try:
             dn = design_qb(sys_)
         except DesignError as exc:
             print(f"  {n:>3} design failed: {exc}")
             continue
-        ts = time.perf_counter() - t0
+        ts = _median_time(lambda s=sys_: design_qb(s), rep)
         tf = _median_time(lambda s=sys_, b=dn.beta: design_qb(s, b), rep)
-        print(f"  {n:>3} {tf:>15.3f} {ts:>18.3f} {dn.solver['solves']:>7} {dn.rho_max:>9.4f}")
+        tr, tfull = _resolve_times(sys_, dn.beta, rep)
+        tb = dn.solver["tie_break"].split(" (")[0]
+        print(f"  {n:>3} {dn.solver['solves']:>6} {ts:>12.3f} {tf:>10.3f} "
+              f"{tr:>10.3f} / {tfull:<9.3f} {dn.rho_max:>9.4f}  {tb}", flush=True)
+    print(f"\ntotal benchmark time {time.perf_counter() - t_all:.0f} s")
+
 
 if __name__ == "__main__":
     main()

@@ -126,6 +126,41 @@ def test_min_norm_tie_break_is_reproducible(pwa, design_paper):
     assert np.allclose(again.L, design_paper.L, rtol=1e-4, atol=1e-6)
 
 
+def test_min_norm_tie_break_succeeds_on_sec6(design_paper, design_free, repo):
+    """Step 4 returns optimal on pwa_cascade (no fallback to the step-5 gains), also in the
+    shipped gain file."""
+    assert design_paper.solver["tie_break"].startswith("minimum-norm (inner margin")
+    assert design_free.solver["tie_break"].startswith("minimum-norm (inner margin")
+    doc = yaml.safe_load((repo / "config" / "gains" / "pwa_cascade_qb.yaml").read_text())
+    assert doc["solver"]["tie_break"].startswith("minimum-norm (inner margin")
+
+
+def test_min_norm_gains_no_larger_than_step5(pwa, design_paper):
+    """The step-5 gains at the same P are feasible for the tie-break (their margin is 10x
+    larger), so the minimum-norm |(P L_i)_i|_F is at most theirs; P is step 5's."""
+    from fd_monitor.design.qb import QBProblem
+
+    prob = QBProblem(qb_model(pwa), 10 * 1e-6)
+    _, status = prob.solve(BETA_PAPER)
+    assert status == "optimal"
+    P5 = 0.5 * (prob.P.value + prob.P.value.T)
+    assert np.allclose(design_paper.P, P5, rtol=1e-9, atol=1e-9)
+    y5 = np.sqrt(sum(np.linalg.norm(Y.value) ** 2 for Y in prob.Y))
+    y_tb = np.sqrt(sum(np.linalg.norm(design_paper.P @ L) ** 2 for L in design_paper.L))
+    assert y_tb <= y5 * (1 + 1e-6)
+
+
+def test_reduced_lmis_same_optimum(pwa):
+    """Eliminating Y_i (projection lemma) leaves lambda*(beta) unchanged (the search uses it)."""
+    from fd_monitor.design.qb import QBProblem
+
+    model = qb_model(pwa)
+    for b in (0.1, BETA_PAPER, 2.0):
+        full, _ = QBProblem(model).solve(b)
+        red, _ = QBProblem(model, reduced=True).solve(b)
+        assert red == pytest.approx(full, rel=1e-5), b
+
+
 def test_gain_file_roundtrip_and_tamper(tmp_path, pwa, design_paper):
     path = write_gain_file(tmp_path / "g.yaml", pwa, design_paper, ("b1", "b2"), {})
     gf = load_gains(path, pwa)
@@ -209,6 +244,7 @@ def test_random_detectable_lti_property(time):
                          "spectral_abscissa": d.spectral_abscissa}))
         if time == "discrete":
             assert 0 < d.beta < 1
+        assert d.solver["tie_break"].startswith("minimum-norm"), d.solver["tie_break"]
 
 
 def test_not_detectable_mode_is_named():

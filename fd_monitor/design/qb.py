@@ -15,28 +15,43 @@ argument on ``V(e_{k+1}) - V(e_k)``)::
     [      0       -diag(alpha)      (P D_i - Y_i E_i)' ]  < 0,  sum alpha <= beta,  0 < beta < 1.
     [ P A_i - Y_i C_i   P D_i - Y_i E_i        -P       ]
 
+Both read ``M_i = Q_i(P, alpha, beta) - U' Y_i V_i - V_i' Y_i' U < 0`` with ``V_i = [C_i E_i]``
+(continuous) or ``[C_i E_i 0]`` (discrete). By the projection (elimination) lemma, a Y_i exists
+iff ``W_i' Q_i W_i < 0`` for an orthonormal basis W_i of ker V_i (the other projection,
+``-diag(alpha) < 0`` resp. ``diag(-(1-beta)P, -diag(alpha)) < 0``, holds by construction):
+the *reduced* LMIs, in (P, alpha) only, of size ``n + q - ny`` instead of ``n + q``.
+
 Procedure (Table I of the paper, made well-posed). The printed procedure has two faults:
 step 1 (max beta s.t. eq. 10) is unbounded when the gains can place the error poles anywhere
 (here the modes differ only by output injection), and the stop test ``|L_k - L_{k-1}| < eps``
 compares gains that are not unique (each optimum has a set of optimal gains), so the loop
 wanders. This designer instead
 
-1. solves step 5 -- ``max lambda s.t. P >= lambda I, (14a), (14b)`` at fixed beta, an SDP in
-   (P, Y_i, alpha, lambda) -- as one DPP-parametrised cvxpy problem re-solved over beta;
+1. defines ``lambda*(beta)`` as the optimum of step 5, ``max lambda s.t. P >= lambda I`` and
+   the LMIs at fixed beta, and evaluates it on the reduced LMIs (one DPP-parametrised cvxpy
+   problem in (P, alpha, lambda), re-solved over beta; same optimum as with the Y_i);
 2. maximises ``lambda*(beta)`` (so minimises rho_max = 1/sqrt(lambda_min(P)), eq. 6) by a 1-D
-   search over beta: a log-spaced grid (continuous time 1e-4 .. 1e4 1/s, a decade apart;
-   discrete time 1e-4 .. 0.999), then a bounded Brent search in log(beta) (tolerance 0.01)
-   between the neighbours of the best grid point. ``--beta B`` skips the search. No
-   normalisation of P is needed: step 5 is bounded because the (2, 2) block
-   ``-diag(alpha)`` with ``sum alpha <= beta`` does not scale with P;
-3. breaks the tie among optimal gains: minimise ``|(Y_1, ..., Y_s)|_F`` (``Y_i = P L_i``)
-   subject to the same LMIs, ``P >= (1 - slack) lambda* I`` and ``|P - P*|_F <= slack |P*|_F``
-   (``slack`` = 1e-4: P and rho_max stay within 1e-4 relative of step 5's optimum P*). The
-   objective is strictly convex in Y_i, so the gains are unique (minimum-norm gains). Fixing
-   P at the optimum instead leaves a set of gains that is often a single point on the LMI's
-   boundary, which the solver reaches only inaccurately. If this step is not optimal, the
-   verified step-5 solution is kept and the gain file's ``solver.tie_break`` says so;
-4. verifies the answer itself (not trusting the solver): P > 0, the LMIs evaluated at
+   search: a coarse log grid (continuous time 6 points 1e-4 .. 1e4 1/s, 1.6 decades apart;
+   discrete time 7 points 1e-4 .. 0.99), then a bounded Brent search in log(beta) between the
+   neighbours of the best grid point, to ``|d log(beta)| <= 0.05`` (beta within about 5 %;
+   rho_max is flat at its minimum). ``--beta B`` skips the search. Step 5 is bounded at fixed
+   beta because the ``-diag(alpha)`` block with ``sum alpha <= beta`` does not scale with P;
+3. solves step 5 once more at the chosen beta with the full LMIs (14a)-(14b) and an inner
+   margin ten times the final one (``-M_i >= 10 margin I``), which fixes P* and alpha*;
+4. breaks the tie among the gains that certify this ellipsoid: with P = P* and
+   alpha = alpha* fixed the LMIs are linear in the Y_i alone, and the designer solves
+   ``min |(Y_1, ..., Y_s)|_F  s.t.  -M_i(P*, Y_i, alpha*) >= margin I`` (Y_i = P* L_i), a
+   small SOC + LMI problem posed in ``P*/lambda_min(P*)`` (numbers of order one whatever the
+   plant's units). The objective is strictly convex, so the minimum-norm gains are unique,
+   and the gap between the inner margin of step 3 and ``margin`` gives the feasible set an
+   interior the solver can work in. If this step is not ``optimal`` the inner margin is
+   raised to 100 and 1000 times ``margin`` (steps 3-4 again). If step 3 itself is never
+   ``optimal`` (the reduced optimum is a supremum reached only as the gains grow without
+   bound), the same norm is minimised over (P, Y_i, alpha) with
+   ``lambda_min(P) >= (1 - delta) lambda*(beta)``, delta = 1e-3, 1e-2, 1e-1. Only if all of
+   these fail are the verified step-3 gains kept; the gain file's ``solver.tie_break`` says
+   which case happened;
+5. verifies the answer itself (not trusting the solver): P > 0, the LMIs evaluated at
    (P, L_i, alpha, beta) negative definite, ``sum alpha <= beta``, ``A_i - L_i C_i`` Hurwitz
    (Schur), and writes them to the gain file's certificate, which the loader recomputes.
 
@@ -57,6 +72,7 @@ from typing import Any
 
 import cvxpy as cp
 import numpy as np
+from scipy.linalg import null_space
 from scipy.optimize import minimize_scalar
 
 from fd_monitor.core.qb import (
@@ -76,8 +92,13 @@ from fd_monitor.system import System, load_system
 __all__ = ["QBDesign", "QBProblem", "design_qb", "add_arguments", "run"]
 
 SOLVER = cp.CLARABEL
-_GRID_CONT = np.logspace(-4, 4, 9)
-_GRID_DISC = np.concatenate([np.logspace(-4, -0.5, 8), [0.5, 0.7, 0.85, 0.95, 0.99, 0.999]])
+_GRID_CONT = np.logspace(-4, 4, 6)
+_GRID_DISC = np.array([1e-4, 1e-3, 1e-2, 0.1, 0.5, 0.9, 0.99])
+_XATOL = 0.05
+# Inner margins of the final step-5 solve, as multiples of ``margin`` (see step 3).
+_INNER = (10.0, 100.0, 1000.0)
+# Relative bands on lambda_min(P) of the fallback tie-break (see step 4).
+_BAND = (1e-3, 1e-2, 1e-1)
 
 
 @dataclass
@@ -135,20 +156,27 @@ class QBProblem:
     model : QBModel
     margin : float
         Strictness margin of the LMIs.
+    reduced : bool
+        Use the reduced LMIs ``W_i' Q_i W_i <= -margin I`` in (P, alpha) only (projection
+        lemma; the search) instead of the full LMIs in (P, Y_i, alpha) (the final solve).
     """
 
-    def __init__(self, model: QBModel, margin: float = 1e-6) -> None:
+    def __init__(self, model: QBModel, margin: float = 1e-6, *, reduced: bool = False) -> None:
         self.model = model
+        self.reduced = reduced
         n, ny, q, s = model.n, model.C.shape[1], model.q, model.s
         self.beta = cp.Parameter(nonneg=True, name="beta")
         self.P = cp.Variable((n, n), symmetric=True, name="P")
-        self.Y = [cp.Variable((n, ny), name=f"Y{i}") for i in range(s)]
+        self.Y = [] if reduced else [cp.Variable((n, ny), name=f"Y{i}") for i in range(s)]
         self.alpha = cp.Variable(q, name="alpha")
         self.lam = cp.Variable(name="lam")
         cons = [self.P >> self.lam * np.eye(n), self.lam >= margin, self.alpha >= margin,
                 cp.sum(self.alpha) <= self.beta]
-        cons += [-_sym(M) >> margin * np.eye(M.shape[0])
-                 for M in _lmis(model, self.P, self.Y, self.alpha, self.beta)]
+        if reduced:
+            lmis = _reduced_lmis(model, self.P, self.alpha, self.beta)
+        else:
+            lmis = [-_sym(M) for M in _lmis(model, self.P, self.Y, self.alpha, self.beta)]
+        cons += [M >> margin * np.eye(M.shape[0]) for M in lmis]
         self.problem = cp.Problem(cp.Maximize(self.lam), cons)
         self.solves = 0
         self.solve_time = 0.0
@@ -157,19 +185,44 @@ class QBProblem:
         """Solve at ``beta``; return ``(lambda*, status)`` (lambda* nan unless optimal)."""
         self.beta.value = beta
         t0 = time.perf_counter()
-        try:
-            with warnings.catch_warnings():
-                # cvxpy warns on inaccurate solutions; the status is checked below instead.
-                warnings.simplefilter("ignore", UserWarning)
-                self.problem.solve(solver=SOLVER)
-            status = str(self.problem.status)
-        except cp.error.SolverError as exc:
-            status = f"solver_error ({str(exc).splitlines()[0][:80]})"
+        status = _solve(self.problem)
         self.solve_time += time.perf_counter() - t0
         self.solves += 1
         if status != cp.OPTIMAL or self.lam.value is None:
             return math.nan, status
         return float(self.lam.value), status
+
+
+def _solve(problem: cp.Problem) -> str:
+    """Solve with Clarabel; return the status (solver errors as a status string)."""
+    try:
+        with warnings.catch_warnings():
+            # cvxpy warns on inaccurate solutions; the caller checks the status instead.
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=SOLVER)
+        return str(problem.status)
+    except cp.error.SolverError as exc:
+        return f"solver_error ({str(exc).splitlines()[0][:80]})"
+
+
+def _reduced_lmis(model: QBModel, P: Any, alpha: Any, beta: Any) -> list[Any]:
+    """``-W_i' Q_i W_i`` per mode (must be > 0): the LMIs with Y_i eliminated.
+
+    ``Q_i`` is the LMI matrix at ``Y_i = 0``; W_i an orthonormal basis of ker V_i,
+    ``V_i = [C_i E_i]`` (continuous) or ``[C_i E_i 0]`` (discrete). Modes whose V_i has a
+    trivial kernel add no constraint.
+    """
+    ny = model.C.shape[1]
+    zeros = [np.zeros((model.n, ny))] * model.s
+    out = []
+    for i, Q in enumerate(_lmis(model, P, zeros, alpha, beta)):
+        V = np.hstack([model.C[i], model.E[i]])
+        if model.time == "discrete":
+            V = np.hstack([V, np.zeros((ny, model.n))])
+        W = null_space(V)
+        if W.shape[1]:
+            out.append(-_sym(W.T @ Q @ W))
+    return out
 
 
 def _lmis(model: QBModel, P: Any, Y: list[Any], alpha: Any, beta: Any) -> list[Any]:
@@ -202,61 +255,64 @@ def check_detectable(system: System, model: QBModel) -> None:
                               f"A - L C stable, so the LMIs (14a) have no solution")
 
 
-class _MinNormProblem:
-    """Tie-break: ``min |(Y_1, ..., Y_s)|_F`` (Y_i = P L_i) s.t. the LMIs and
-    ``P >= (1 - slack) lambda* I``, at beta and lambda* (cvxpy Parameters).
+def _min_norm_gains(model: QBModel, P: np.ndarray, alpha: np.ndarray, beta: float,
+                    margin: float) -> tuple[np.ndarray, str, float]:
+    """Tie-break: ``min |(Y_1, ..., Y_s)|_F s.t. -M_i(P, Y_i, alpha) >= margin I`` at fixed P,
+    alpha, beta (linear in the Y_i; Y_i = P L_i).
 
-    Fixing P at the optimum leaves a set of gains that is often a single point on the LMI's
-    boundary (numerically ill-posed); keeping P free with lambda_min(P) within ``slack`` of the
-    optimum (and P within ``slack`` of it) gives a well-posed problem whose strictly convex
-    objective makes the gains unique.
-    The problem is posed in ``P / lambda*``, ``Y / lambda*``, ``alpha / lambda*`` (the LMIs
-    are homogeneous in (P, Y, alpha) once (14b) reads ``sum alpha <= beta``), so its numbers
-    are of order one whatever the plant's units.
+    Posed in ``P / lambda_min(P)``, ``Y_i / lambda_min(P)``, ``alpha / lambda_min(P)`` (the
+    LMIs are homogeneous in (P, Y, alpha)), so its numbers are of order one whatever the
+    plant's units; the norm is a second-order-cone epigraph.
+
+    Returns
+    -------
+    tuple
+        ``(L (s, n, ny) or empty, status, solve time in s)``.
     """
+    n, ny = model.n, model.C.shape[1]
+    lam = float(np.linalg.eigvalsh(P)[0])
+    Pn, an = P / lam, alpha / lam
+    Y = [cp.Variable((n, ny), name=f"Y{i}") for i in range(model.s)]
+    t = cp.Variable(name="t")
+    cons = [-_sym(M) >> (margin / lam) * np.eye(M.shape[0])
+            for M in _lmis(model, Pn, Y, an, beta)]
+    cons.append(cp.SOC(t, cp.hstack([cp.vec(y, order="F") for y in Y])))
+    problem = cp.Problem(cp.Minimize(t), cons)
+    t0 = time.perf_counter()
+    status = _solve(problem)
+    dt = time.perf_counter() - t0
+    if status != cp.OPTIMAL or Y[0].value is None:
+        return np.zeros(0), status, dt
+    return np.array([np.linalg.solve(Pn, y.value) for y in Y]), status, dt
 
-    def __init__(self, model: QBModel, margin: float) -> None:
-        n, ny = model.n, model.C.shape[1]
-        self.beta = cp.Parameter(nonneg=True, name="beta")
-        self.beta_scaled = cp.Parameter(nonneg=True, name="beta_over_lambda")
-        self.lam_lb = cp.Parameter(nonneg=True, name="lam_lb")
-        self.margin = cp.Parameter(nonneg=True, name="margin_over_lambda")
-        self.margin_value = margin
-        self.P = cp.Variable((n, n), symmetric=True, name="P")
-        self.Y = [cp.Variable((n, ny), name=f"Y{i}") for i in range(model.s)]
-        self.alpha = cp.Variable(model.q, name="alpha")
-        self.P_ref = cp.Parameter((n, n), symmetric=True, name="P_over_lambda")
-        self.radius = cp.Parameter(nonneg=True, name="radius")
-        cons = [self.P >> self.lam_lb * np.eye(n), self.alpha >= self.margin,
-                cp.sum(self.alpha) <= self.beta_scaled,
-                cp.norm(self.P - self.P_ref, "fro") <= self.radius]
-        cons += [-_sym(M) >> self.margin * np.eye(M.shape[0])
-                 for M in _lmis(model, self.P, self.Y, self.alpha, self.beta)]
-        # One second-order cone (the Frobenius norm of all Y_i): same minimiser as
-        # sum |Y_i|_F^2 and better conditioned for the solver.
-        self.problem = cp.Problem(
-            cp.Minimize(cp.norm(cp.hstack([cp.vec(Y, order="F") for Y in self.Y]), 2)), cons)
 
-    def solve(self, beta: float, lam: float, slack: float, P_opt: np.ndarray) -> tuple[
-            np.ndarray, np.ndarray, np.ndarray, str]:
-        """Return ``(P, L (s, n, ny), alpha, status)`` in the plant's units."""
-        self.beta.value, self.beta_scaled.value = beta, beta / lam
-        self.P_ref.value = P_opt / lam
-        self.radius.value = slack * float(np.linalg.norm(P_opt / lam))
-        self.lam_lb.value = 1.0 - slack
-        self.margin.value = self.margin_value / lam  # the same margin in the plant's units
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                self.problem.solve(solver=SOLVER)
-        except cp.error.SolverError as exc:
-            return (np.zeros(0), np.zeros(0), np.zeros(0),
-                    f"solver_error ({str(exc).splitlines()[0][:80]})")
-        if self.problem.status != cp.OPTIMAL:
-            return np.zeros(0), np.zeros(0), np.zeros(0), str(self.problem.status)
-        P = _sym(np.asarray(self.P.value))
-        L = np.array([np.linalg.solve(P, Y.value) for Y in self.Y])
-        return lam * P, L, lam * np.asarray(self.alpha.value), str(self.problem.status)
+def _min_norm_band(model: QBModel, beta: float, lam: float, delta: float,
+                   margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, float]:
+    """Fallback tie-break when step 5 is not attained with finite gains (the full problem is
+    not ``optimal`` at beta): ``min |(Y_1, ..., Y_s)|_F`` over (P, Y_i, alpha) s.t. the LMIs
+    with margin, (14b) and ``lambda_min(P) >= (1 - delta) lam`` (lam: the reduced optimum).
+
+    Posed in ``P / lam`` etc. Returns ``(P, L, alpha, status, solve time in s)`` in the
+    plant's units (empty arrays unless optimal).
+    """
+    n, ny = model.n, model.C.shape[1]
+    P = cp.Variable((n, n), symmetric=True, name="P")
+    Y = [cp.Variable((n, ny), name=f"Y{i}") for i in range(model.s)]
+    alpha = cp.Variable(model.q, name="alpha")
+    t = cp.Variable(name="t")
+    mn = margin / lam
+    cons = [P >> (1.0 - delta) * np.eye(n), alpha >= mn, cp.sum(alpha) <= beta / lam]
+    cons += [-_sym(M) >> mn * np.eye(M.shape[0]) for M in _lmis(model, P, Y, alpha, beta)]
+    cons.append(cp.SOC(t, cp.hstack([cp.vec(y, order="F") for y in Y])))
+    problem = cp.Problem(cp.Minimize(t), cons)
+    t0 = time.perf_counter()
+    status = _solve(problem)
+    dt = time.perf_counter() - t0
+    if status != cp.OPTIMAL or P.value is None:
+        return np.zeros(0), np.zeros(0), np.zeros(0), status, dt
+    Pv = _sym(np.asarray(P.value))
+    L = np.array([np.linalg.solve(Pv, y.value) for y in Y])
+    return lam * Pv, L, lam * np.asarray(alpha.value), status, dt
 
 
 def _fail_search(system: System, search: list[tuple[float, float, str]]) -> DesignError:
@@ -274,7 +330,7 @@ def _fail_search(system: System, search: list[tuple[float, float, str]]) -> Desi
 
 
 def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6,
-              xatol: float = 1e-2, slack: float = 1e-4) -> QBDesign:
+              xatol: float = _XATOL) -> QBDesign:
     """Design the QB (hybrid) Luenberger observer of ``system``.
 
     Parameters
@@ -285,12 +341,9 @@ def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6
         Fixed S-procedure multiplier (1/s in continuous time); default: searched to minimise
         rho_max.
     margin : float
-        Strictness margin of the LMIs.
+        Strictness margin of the LMIs at the returned point.
     xatol : float
-        Tolerance of the search in log(beta).
-    slack : float
-        Relative give on lambda_min(P) allowed to the minimum-norm tie-break (rho_max grows by
-        at most a factor 1/sqrt(1 - slack)).
+        Tolerance of the Brent search in log(beta).
 
     Returns
     -------
@@ -309,7 +362,7 @@ def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6
     # margin, solve again with a ten times larger margin (twice at most).
     for m in (margin, 10 * margin, 100 * margin):
         try:
-            return _design(system, model, beta, m, xatol, slack)
+            return _design(system, model, beta, m, xatol)
         except _NotVerifiedError as exc:
             err = exc
     assert err is not None
@@ -320,20 +373,19 @@ class _NotVerifiedError(DesignError):
     """The solver's point failed the independent check (retried with a larger margin)."""
 
 
-def _design(system: System, model: QBModel, beta: float | None, margin: float, xatol: float,
-            slack: float) -> QBDesign:
-    if beta is not None and (not beta > 0 or (model.time == "discrete" and beta >= 1)):
-        lim = "0 < beta < 1 in discrete time" if model.time == "discrete" else "beta > 0"
-        raise DesignError(f"--beta: expected {lim}, got {beta}")
-    prob = QBProblem(model, margin)
-    search: list[tuple[float, float, str]] = []
+def _search_beta(system: System, model: QBModel, margin: float, xatol: float,
+                 search: list[tuple[float, float, str]],
+                 stats: dict[str, float]) -> tuple[float, float]:
+    """Steps 1-2: ``(beta, lambda*(beta))`` maximising lambda* on the reduced LMIs (grid, then
+    Brent)."""
+    prob = QBProblem(model, margin, reduced=True)
 
     def lam_at(b: float) -> float:
         v, st = prob.solve(b)
         search.append((b, v, st))
         return v
 
-    if beta is None:
+    try:
         grid = _GRID_CONT if model.time == "continuous" else _GRID_DISC
         vals = np.array([lam_at(float(b)) for b in grid])
         if not np.any(np.isfinite(vals)):
@@ -347,27 +399,80 @@ def _design(system: System, model: QBModel, beta: float | None, margin: float, x
                 lambda lb: -(v if np.isfinite(v := lam_at(math.exp(lb))) else -1.0),
                 bounds=(lo, hi), method="bounded", options={"xatol": xatol})
             if -float(res.fun) > best_v:
-                best_b = math.exp(float(res.x))
-        beta = best_b
-    lam_opt, status = prob.solve(beta)
-    search.append((beta, lam_opt, status))
-    if not np.isfinite(lam_opt):
-        raise _fail_search(system, [search[-1]])
-    P1 = _sym(np.asarray(prob.P.value))
-    L1 = np.array([np.linalg.solve(P1, Y.value) for Y in prob.Y])
-    alpha1 = np.asarray(prob.alpha.value)
-    P, L, alpha, st2 = _MinNormProblem(model, margin).solve(beta, lam_opt, slack, P1)
-    tie_break = "minimum-norm"
-    if st2 == cp.OPTIMAL:
-        try:
-            return _verified(system, model, P, L, _fit_alpha(alpha, beta), beta, search, prob,
-                             tie_break)
-        except _NotVerifiedError as exc:
-            st2 = f"not verified ({exc})"
-    # The tie-break is a refinement: when its solve is not optimal (or its point fails the
-    # check) the verified optimum of step 5 is kept and the gain file says so.
-    return _verified(system, model, P1, L1, _fit_alpha(alpha1, beta), beta, search, prob,
-                     f"none (tie-break step: {st2})")
+                best_b, best_v = math.exp(float(res.x)), -float(res.fun)
+        return best_b, best_v
+    finally:
+        stats["solves"] += prob.solves
+        stats["time"] += prob.solve_time
+
+
+def _design(system: System, model: QBModel, beta: float | None, margin: float,
+            xatol: float) -> QBDesign:
+    if beta is not None and (not beta > 0 or (model.time == "discrete" and beta >= 1)):
+        lim = "0 < beta < 1 in discrete time" if model.time == "discrete" else "beta > 0"
+        raise DesignError(f"--beta: expected {lim}, got {beta}")
+    search: list[tuple[float, float, str]] = []
+    stats = {"solves": 0, "time": 0.0}
+    lam_red = math.nan
+    if beta is None:
+        beta, lam_red = _search_beta(system, model, margin, xatol, search, stats)
+    fallback: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    notes: list[str] = []
+    # Steps 3-4; the last pass (inner margin = margin, no room for a tie-break) only provides
+    # the fallback when step 5 was never optimal with a larger inner margin.
+    for k in (*_INNER, 1.0):
+        if k == 1.0 and fallback is not None:
+            break
+        prob = QBProblem(model, k * margin)
+        lam, status = prob.solve(beta)
+        stats["solves"] += prob.solves
+        stats["time"] += prob.solve_time
+        search.append((beta, lam, status))
+        if not np.isfinite(lam):
+            notes.append(f"step 5 at inner margin {k:g} x margin: {status}")
+            continue
+        P1 = _sym(np.asarray(prob.P.value))
+        alpha1 = _fit_alpha(np.asarray(prob.alpha.value), beta)
+        if fallback is None:
+            fallback = (P1, np.array([np.linalg.solve(P1, Y.value) for Y in prob.Y]), alpha1)
+        if k == 1.0:
+            break
+        L, st2, dt = _min_norm_gains(model, P1, alpha1, beta, margin)
+        stats["solves"] += 1
+        stats["time"] += dt
+        if st2 == cp.OPTIMAL:
+            try:
+                return _verified(system, model, P1, L, alpha1, beta, search, stats,
+                                 f"minimum-norm (inner margin {k:g} x margin)")
+            except _NotVerifiedError as exc:
+                st2 = f"not verified ({exc})"
+        notes.append(f"tie-break at inner margin {k:g} x margin: {st2}")
+    # Step 5 at beta not attained with finite gains (or no tie-break at fixed P succeeded):
+    # minimum-norm gains with P free and lambda_min(P) within delta of the reduced optimum.
+    if not np.isfinite(lam_red):
+        rp = QBProblem(model, margin, reduced=True)
+        lam_red, st = rp.solve(beta)
+        stats["solves"] += rp.solves
+        stats["time"] += rp.solve_time
+        search.append((beta, lam_red, st))
+    for delta in (_BAND if np.isfinite(lam_red) else ()):
+        P, L, alpha, st3, dt = _min_norm_band(model, beta, lam_red, delta, margin)
+        stats["solves"] += 1
+        stats["time"] += dt
+        if st3 == cp.OPTIMAL:
+            try:
+                return _verified(system, model, P, L, _fit_alpha(alpha, beta), beta, search,
+                                 stats, f"minimum-norm with P free, lambda_min(P) >= "
+                                        f"(1 - {delta:g}) lambda*(beta) ({'; '.join(notes)})")
+            except _NotVerifiedError as exc:
+                st3 = f"not verified ({exc})"
+        notes.append(f"band {delta:g}: {st3}")
+    if fallback is None:
+        raise _fail_search(system, [e for e in search if e[0] == beta])
+    # The tie-break is a refinement: when it never succeeds the verified optimum of step 5
+    # is kept and the gain file says so.
+    return _verified(system, model, *fallback, beta, search, stats,
+                     f"none ({'; '.join(notes)})")
 
 
 def _fit_alpha(alpha: np.ndarray, beta: float) -> np.ndarray:
@@ -380,7 +485,7 @@ def _fit_alpha(alpha: np.ndarray, beta: float) -> np.ndarray:
 
 def _verified(system: System, model: QBModel, P: np.ndarray, L: np.ndarray,
               alpha: np.ndarray, beta: float, search: list[tuple[float, float, str]],
-              prob: QBProblem, tie_break: str) -> QBDesign:
+              stats: dict[str, float], tie_break: str) -> QBDesign:
     if float(np.linalg.eigvalsh(P)[0]) <= 0:
         raise DesignError(f"plant {system.name}: verification failed: P not positive definite")
     if np.any(alpha <= 0) or alpha.sum() > beta:
@@ -397,8 +502,8 @@ def _verified(system: System, model: QBModel, P: np.ndarray, L: np.ndarray,
         if (model.time == "continuous" and a >= 0) or (model.time == "discrete" and a >= 1):
             raise DesignError(f"plant {system.name}: verification failed: mode {name!r}: "
                               f"A - L C not stable (spectral abscissa {a:.4g})")
-    solver = {"name": str(SOLVER), "status": "optimal", "time_s": round(prob.solve_time, 6),
-              "solves": prob.solves + 1, "tie_break": tie_break}
+    solver = {"name": str(SOLVER), "status": "optimal", "time_s": round(stats["time"], 6),
+              "solves": int(stats["solves"]), "tie_break": tie_break}
     return QBDesign(model, P, L, alpha, float(beta), qb_bounds(model, P), eigs, absc, search,
                     solver)
 
@@ -462,9 +567,10 @@ def run(args: argparse.Namespace) -> int:
     d = design_qb(system, args.beta, margin=args.margin)
     out = Path(args.output) if args.output else default_gain_path(system.name, "qb")
     params = {"beta": "search" if args.beta is None else args.beta, "margin": args.margin,
-              "search": "grid + bounded Brent in log(beta), max lambda_min(P)",
-              "tie_break": ("minimum |(P L_i)_i|_F, lambda_min(P) >= (1 - 1e-4) lambda*, "
-                            "|P - P*|_F <= 1e-4 |P*|_F"),
+              "search": ("reduced LMIs (Y eliminated), max lambda_min(P): log grid + bounded "
+                         f"Brent in log(beta), xatol {_XATOL}"),
+              "tie_break": ("P, alpha from step 5 with inner margin k x margin (k = 10, 100, "
+                            "1000); minimum |(P L_i)_i|_F s.t. the LMIs with margin"),
               "fault_states": list(fs)}
     write_gain_file(out, system, d, fs, params)
     summary: dict[str, Any] = {
