@@ -87,6 +87,26 @@ def run_cli(args: Sequence[str], timeout: float = 120.0) -> subprocess.Completed
 
 
 @contextmanager
+def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[str],
+                   wait_subscribers: int, timeout: float = 180.0) -> None:
+    """Replay ``topics`` of ``bag`` flat out into running node processes and wait until the
+    recorder ``rec`` (started with ``--until``) has everything; stop all processes, always.
+
+    Fails if replay or record fail, or if a node printed a traceback.
+    """
+    try:
+        rep = run_cli(["replay", str(bag), "--topics", *topics, "--rate", "0",
+                       "--wait-subscribers", str(wait_subscribers)], timeout=timeout)
+        assert rep.returncode == 0, rep.stderr
+        assert rec.wait(timeout) == 0, rec.output() + "".join(p.output()[-2000:]
+                                                              for p in procs)
+    finally:
+        for p in [rec, *procs]:
+            p.stop()
+    for p in procs:
+        assert "Traceback" not in p.output(), p.output()
+
+
 def ros_context() -> Iterator[Any]:
     """An initialised rclpy Context of its own, shut down at the end."""
     from fd_monitor.nodes.common import use_dds_profile

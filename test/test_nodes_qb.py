@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ros_util import REPO, Proc, run_cli
+from ros_util import REPO, Proc, replay_through
 
 from fd_monitor.bags import read_bag
 from fd_monitor.offline import run_bag
@@ -28,17 +28,8 @@ def test_qb_observer_and_detector_equal_offline(tmp_path):
     procs = [Proc(["run", x, *QB]) for x in ("observer", "detector")]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
-    try:
-        # pwa_cascade has no inputs: the QB observer subscribes to /plant/y only.
-        rep = run_cli(["replay", str(BAG), "--topics", "/plant/y", "--rate", "0",
-                       "--wait-subscribers", "1"], timeout=180)
-        assert rep.returncode == 0, rep.stderr
-        assert rec.wait(180) == 0, rec.output() + "".join(p.output()[-2000:] for p in procs)
-    finally:
-        for p in [rec, *procs]:
-            p.stop()
-    for p in procs:
-        assert "Traceback" not in p.output(), p.output()
+    # pwa_cascade has no inputs: the QB observer subscribes to /plant/y only.
+    replay_through(procs, rec, BAG, ["/plant/y"], wait_subscribers=1)
     got = read_bag(tmp_path / "rec", TOPICS)
     for t in TOPICS:
         np.testing.assert_array_equal(got[t].stamps, off.k, err_msg=t)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
-from ros_util import REPO, Proc, run_cli
+from ros_util import REPO, Proc, replay_through
 
 from fd_monitor.bags import read_bag
 from fd_monitor.commands.simulate import simulate_to_bag
@@ -53,17 +53,9 @@ def test_distributed_chain_equals_offline_monitor(tmp_path, layout):
     until = [a for t in FD_TOPICS for a in ("--until", f"{t}={K}")]
     rec = Proc(["record", "/plant/u", "/plant/y", *FD_TOPICS, "-o", str(tmp_path / "rec"),
                 *until])
-    try:
-        # /plant/u and /plant/y: observer, bias_estimator and the recorder.
-        rep = run_cli(["replay", str(bag), "--topics", "/plant/u", "/plant/y", "--rate", "0",
-                       "--wait-subscribers", "3"], timeout=120)
-        assert rep.returncode == 0, rep.stderr
-        assert rec.wait(120) == 0, rec.output() + "".join(p.output()[-2000:] for p in procs)
-    finally:
-        for p in [rec, *procs]:
-            p.stop()
-    for p in procs:
-        assert "Traceback" not in p.output(), p.output()
+    # /plant/u and /plant/y: observer, bias_estimator and the recorder.
+    replay_through(procs, rec, bag, ["/plant/u", "/plant/y"], wait_subscribers=3,
+                   timeout=120)
     got = read_bag(tmp_path / "rec")
     u, y = got["/plant/u"].values, got["/plant/y"].values
     outs = offline(u, y)

@@ -15,7 +15,7 @@ import re
 
 import numpy as np
 import pytest
-from ros_util import Proc, run_cli
+from ros_util import Proc, replay_through
 
 from fd_monitor.bags import read_bag
 from fd_monitor.library import check_expected, load_expected, load_library
@@ -93,17 +93,8 @@ def test_live_nodes_match_expected(tmp_path, name, layout):
     procs = [Proc(["run", x]) for x in nodes]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
-    try:
-        # /plant/u and /plant/y have two subscribers: the observer and the bias estimator.
-        rep = run_cli(["replay", str(spec.folder), "--topics", "/plant/u", "/plant/y",
-                       "--rate", "0", "--wait-subscribers", "2"], timeout=180)
-        assert rep.returncode == 0, rep.stderr
-        assert rec.wait(180) == 0, rec.output() + "".join(p.output()[-2000:] for p in procs)
-    finally:
-        for p in [rec, *procs]:
-            p.stop()
-    for p in procs:
-        assert "Traceback" not in p.output(), p.output()
+    # /plant/u and /plant/y have two subscribers: the observer and the bias estimator.
+    replay_through(procs, rec, spec.folder, ["/plant/u", "/plant/y"], wait_subscribers=2)
     s = live_summary(tmp_path / "rec", system.outputs, system.mode_names)
     s["input_errors"] = logged_input_errors("".join(p.output() for p in procs))
     assert s["samples"] == n                       # no valid sample lost
