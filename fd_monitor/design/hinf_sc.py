@@ -785,13 +785,23 @@ def run(args: argparse.Namespace) -> int:
     doc = {"method": "hinf_sc", "system": system.name, "kind": out["results"]["kind"],
            "gain_file": str(path), "solver_time_s": out["solver"]["time_s"],
            "generators": out["summary"], "thresholds": out["results"].get("thresholds"),
+           "mu_grid": {g["fault"]: g["mu_grid"] for g in out["results"]["generators"]},
            "plots": plots}
     if args.json:
         print_json(doc)
-    else:
-        rows = [(s["fault"], s["lambda"], s["mu"],
-                 ", ".join(f"{k}={v:.3g}" for k, v in s["gamma2"].items())) for s in
-                out["summary"]]
-        print_table(rows, header=["fault", "lambda", "mu", "gamma^2"],
-                    title=f"hinf_sc bank for {system.name} ({out['results']['kind']}) -> {path}")
+        return 0
+    rows = [(s["fault"], s["lambda"], s["mu"],
+             ", ".join(f"{k}={v:.3g}" for k, v in s["gamma2"].items())) for s in
+            out["summary"]]
+    print_table(rows, header=["fault", "lambda", "mu", "gamma^2"],
+                title=f"hinf_sc bank for {system.name} ({out['results']['kind']}) -> {path}")
+    grids = doc["mu_grid"]
+    lams = next(iter(grids.values()))["lambda"]
+    if len(lams) > 1 and all(g["lambda"] == lams for g in grids.values()):
+        # The performance ratio mu(lambda) of eq. (4.35) per generator (thesis Fig. 4.3).
+        print()
+        print_table([(lam, *(g["mu"][i] for g in grids.values()))
+                     for i, lam in enumerate(lams)],
+                    header=["lambda", *(f"mu_{f}" for f in grids)],
+                    title="mu(lambda) over the lambda grid (eq. 4.35)")
     return 0
