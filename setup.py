@@ -13,21 +13,12 @@ from setuptools import find_packages, setup
 package_name = "fd_monitor"
 here = Path(__file__).resolve().parent
 
-# Executables: name -> module with main(). One list feeds the console scripts, the launchers
-# under lib/fd_monitor/ and the `python -m fd_monitor run <node>` table.
-EXECUTABLES = {
-    "fd_monitor": "fd_monitor.cli",
-    "plant_sim": "fd_monitor.nodes.plant_sim",
-    "observer": "fd_monitor.nodes.observer",
-    "detector": "fd_monitor.nodes.detector",
-    "agei": "fd_monitor.nodes.agei",
-    "bias_estimator": "fd_monitor.nodes.bias_estimator",
-    "monitor": "fd_monitor.nodes.monitor",
-    "replay": "fd_monitor.commands.replay",
-    "record": "fd_monitor.commands.record",
-    "design": "fd_monitor.commands.design",
-    "report": "fd_monitor.commands.report",
-}
+# Executables: name -> module with main(). One table (fd_monitor/executables.py, read here
+# without importing the package) feeds the console scripts, the launchers under
+# lib/fd_monitor/ and `python -m fd_monitor run <node>`.
+_ns: dict = {}
+exec((here / "fd_monitor" / "executables.py").read_text(), _ns)
+EXECUTABLES: dict[str, str] = _ns["EXECUTABLES"]
 
 
 def data_tree(src: str, dest: str) -> list[tuple[str, list[str]]]:

@@ -8,7 +8,6 @@ launchers directly, as `ros2 run` would.
 
 from __future__ import annotations
 
-import ast
 import os
 import shutil
 import subprocess
@@ -17,17 +16,7 @@ from pathlib import Path
 
 import pytest
 
-
-def _executables() -> dict[str, str]:
-    """setup.py's EXECUTABLES table (read, not imported: importing would run setup())."""
-    tree = ast.parse((Path(__file__).resolve().parent.parent / "setup.py").read_text())
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "EXECUTABLES":
-            return dict(ast.literal_eval(node.value))
-    raise AssertionError("EXECUTABLES not found in setup.py")
-
-
-EXECUTABLES = _executables()
+from fd_monitor.executables import EXECUTABLES
 
 pytestmark = pytest.mark.slow
 

@@ -11,18 +11,10 @@ import argparse
 import importlib
 
 from fd_monitor.errors import FdMonitorError
+from fd_monitor.executables import NODES
 
 __all__ = ["NODES", "add_arguments", "run"]
 
-#: node -> module with ``main(args)`` (the nodes of setup.py's EXECUTABLES).
-NODES: dict[str, str] = {
-    "plant_sim": "fd_monitor.nodes.plant_sim",
-    "observer": "fd_monitor.nodes.observer",
-    "detector": "fd_monitor.nodes.detector",
-    "agei": "fd_monitor.nodes.agei",
-    "bias_estimator": "fd_monitor.nodes.bias_estimator",
-    "monitor": "fd_monitor.nodes.monitor",
-}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
