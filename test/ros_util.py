@@ -86,7 +86,6 @@ def run_cli(args: Sequence[str], timeout: float = 120.0) -> subprocess.Completed
                           capture_output=True, text=True, timeout=timeout)
 
 
-@contextmanager
 def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[str],
                    wait_subscribers: int, timeout: float = 180.0) -> None:
     """Replay ``topics`` of ``bag`` flat out into running node processes and wait until the
@@ -107,6 +106,7 @@ def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[
         assert "Traceback" not in p.output(), p.output()
 
 
+@contextmanager
 def ros_context() -> Iterator[Any]:
     """An initialised rclpy Context of its own, shut down at the end."""
     from fd_monitor.nodes.common import use_dds_profile
