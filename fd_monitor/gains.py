@@ -10,16 +10,24 @@ A gain file is YAML with human-readable matrices (nested lists)::
     parameters: {...}                # the design parameters
     results: {...}                   # gains per mode, P, thresholds, ...
     certificate: {...}               # what the loader re-verifies (LMI margins, eigenvalues)
+    digest: {sha256: ..., parts: {key path: ...}}   # covers every key above
 
 A gain file for another plant (a different SHA-256) is refused. The certificate is checked
 by the method's ``check_certificate(system, gains)`` in ``fd_monitor.core`` (numpy only), so
-the runtime trusts nothing it cannot recompute.
+the runtime trusts nothing it cannot recompute. What cannot be recomputed from the plant
+(estimator, AGEI and isolation parameters, design parameters, solver figures, ...) is covered
+by the ``digest`` the designer writes: a SHA-256 of the canonical form of every other key,
+plus a short digest per key path, so that an edit anywhere is refused with the key path that
+changed. The digest detects edits and bit rot; it is not a signature (anyone can re-run the
+writer), so a file is trusted as far as its origin is.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import importlib
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -33,8 +41,9 @@ from fd_monitor.errors import GainFileError
 from fd_monitor.paths import find_config_file
 from fd_monitor.system import System, read_yaml
 
-__all__ = ["GainFile", "CERTIFICATE_CHECKS", "load_gains", "save_gains", "to_plain",
-           "from_plain"]
+__all__ = ["GainFile", "CERTIFICATE_CHECKS", "check_digest", "gain_digest", "gains_from_doc",
+           "load_gains",
+           "save_gains", "to_plain", "from_plain", "write_gain_doc"]
 
 FORMAT_VERSION = 1
 
@@ -135,6 +144,114 @@ def _float_repr(dumper: yaml.SafeDumper, value: float) -> yaml.Node:
 
 _Dumper.add_representer(float, _float_repr)
 
+#: The top-level key holding the digest; it covers every other key of the file.
+DIGEST_KEY = "digest"
+_PART_HEX = 16  # 64 bits per key path: enough to name the edit; the full SHA-256 decides
+
+
+def _canonical(obj: Any) -> bytes:
+    """Canonical bytes of a parsed YAML value: sorted keys, floats as ``repr`` (exact)."""
+    def norm(v: Any) -> Any:
+        if isinstance(v, Mapping):
+            return {str(k): norm(e) for k, e in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [norm(e) for e in v]
+        return v
+    return json.dumps(norm(obj), sort_keys=True, separators=(",", ":"), allow_nan=True,
+                      default=str).encode("utf-8")
+
+
+def _key_paths(obj: Any, prefix: str, out: dict[str, Any]) -> None:
+    """Leaves of a gain-file tree by key path (``results.L.m1``, ``results.rows[2].r``).
+
+    Mappings and lists of mappings are descended; a number, a string or a numeric array is
+    one leaf.
+    """
+    if isinstance(obj, Mapping) and obj:
+        for k, v in obj.items():
+            _key_paths(v, f"{prefix}.{k}" if prefix else str(k), out)
+    elif isinstance(obj, list) and any(isinstance(e, Mapping) for e in obj):
+        for i, v in enumerate(obj):
+            _key_paths(v, f"{prefix}[{i}]", out)
+    else:
+        out[prefix] = obj
+
+
+def gain_digest(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """The digest of a gain-file document (as YAML parses it), its own key left out.
+
+    Parameters
+    ----------
+    doc : mapping
+        The parsed gain file.
+
+    Returns
+    -------
+    dict
+        ``{algorithm, sha256, parts}``: ``sha256`` of the canonical form of every key but
+        ``digest``; ``parts`` maps each key path (see :func:`_key_paths`) to the first 16 hex
+        digits of its own SHA-256.
+    """
+    body = {k: v for k, v in doc.items() if k != DIGEST_KEY}
+    leaves: dict[str, Any] = {}
+    _key_paths(body, "", leaves)
+    return {
+        "algorithm": "sha256 of canonical JSON (sorted keys, repr floats) of every other key",
+        "sha256": hashlib.sha256(_canonical(body)).hexdigest(),
+        "parts": {p: hashlib.sha256(_canonical(v)).hexdigest()[:_PART_HEX]
+                  for p, v in leaves.items()},
+    }
+
+
+def check_digest(doc: Mapping[str, Any], path: str | Path) -> None:
+    """Refuse a gain file whose content differs from what its designer wrote.
+
+    Raises
+    ------
+    GainFileError
+        One line naming the key paths that changed (or were added or removed).
+    """
+    stored = doc.get(DIGEST_KEY)
+    sys_info = doc.get("system")
+    plant = sys_info.get("name") if isinstance(sys_info, Mapping) else "<plant>"
+    redesign = f"redesign with `python -m fd_monitor design {doc.get('method')} {plant}`"
+    if not isinstance(stored, Mapping) or not isinstance(stored.get("parts"), Mapping):
+        raise GainFileError(f"{path}: {DIGEST_KEY}: missing or malformed (a gain file is "
+                            f"written by a designer, which adds it): {redesign}")
+    now = gain_digest(doc)
+    if stored.get("sha256") == now["sha256"]:
+        return
+    old = stored["parts"]
+    changed = [p for p in now["parts"] if p in old and old[p] != now["parts"][p]]
+    added = [p for p in now["parts"] if p not in old]
+    removed = [str(p) for p in old if p not in now["parts"]]
+    what = ([f"{p} changed" for p in changed] + [f"{p} added" for p in added]
+            + [f"{p} removed" for p in removed]) or [f"{DIGEST_KEY}.sha256 changed"]
+    more = f" (and {len(what) - 3} more)" if len(what) > 3 else ""
+    raise GainFileError(f"{path}: edited after design: {', '.join(what[:3])}{more}; the "
+                        f"digest no longer matches, so nothing in the file is trusted: "
+                        f"{redesign}")
+
+
+def write_gain_doc(path: str | Path, doc: Mapping[str, Any]) -> Path:
+    """Write a gain-file document with a fresh digest (the one writer of gain files).
+
+    The digest is computed on the document as YAML will parse it back, so the loader sees
+    exactly what was digested. Designers call this through :func:`save_gains`.
+    """
+    body = {k: v for k, v in to_plain(doc).items() if k != DIGEST_KEY}
+    text = yaml.dump(body, Dumper=_Dumper, sort_keys=False, width=100)
+    body[DIGEST_KEY] = gain_digest(yaml.safe_load(text))
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    header = (f"# fd_monitor gain file: method {body.get('method')}, plant "
+              f"{(body.get('system') or {}).get('name')}.\n"
+              "# Written by a designer; the digest at the end covers every value, so an edit "
+              "is refused.\n")
+    p.write_text(header + yaml.dump(body, Dumper=_Dumper, sort_keys=False, width=100),
+                 encoding="utf-8")
+    return p
+
 
 def save_gains(path: str | Path, method: str, system: System, parameters: Mapping[str, Any],
                results: Mapping[str, Any], certificate: Mapping[str, Any],
@@ -164,13 +281,7 @@ def save_gains(path: str | Path, method: str, system: System, parameters: Mappin
         "results": to_plain(results),
         "certificate": to_plain(certificate),
     }
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    header = (f"# fd_monitor gain file: method {method}, plant {system.name}.\n"
-              "# Written by a designer; edited values void the certificate the loader checks.\n")
-    p.write_text(header + yaml.dump(doc, Dumper=_Dumper, sort_keys=False, width=100),
-                 encoding="utf-8")
-    return p
+    return write_gain_doc(path, doc)
 
 
 def load_gains(source: str | Path, system: System | None = None, *,
@@ -185,7 +296,8 @@ def load_gains(source: str | Path, system: System | None = None, *,
         The plant it must be for; when given, a different plant SHA-256 is refused and the
         certificate is re-checked against it.
     verify : bool
-        Re-check the certificate (needs ``system``).
+        Re-check the digest (any edit after design is refused, naming the key path) and,
+        with ``system``, the certificate.
 
     Raises
     ------
@@ -193,7 +305,12 @@ def load_gains(source: str | Path, system: System | None = None, *,
         One line naming the file and the problem.
     """
     path = find_config_file(source, "gains", GainFileError, what="gain file")
-    raw = read_yaml(path, GainFileError)
+    return gains_from_doc(read_yaml(path, GainFileError), path, system, verify=verify)
+
+
+def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
+                   verify: bool = True) -> GainFile:
+    """:func:`load_gains` on a gain-file document already parsed from ``path``."""
     if not isinstance(raw, Mapping):
         raise GainFileError(f"{path}: expected a mapping of gain-file keys")
     for key in ("format_version", "method", "system", "parameters", "results", "certificate"):
@@ -209,6 +326,8 @@ def load_gains(source: str | Path, system: System | None = None, *,
     sys_info = raw["system"]
     if not isinstance(sys_info, Mapping) or not {"name", "sha256"} <= set(sys_info):
         raise GainFileError(f"{path}: system: expected {{name, sha256}}")
+    if verify:
+        check_digest(raw, path)
     gf = GainFile(str(path), str(method), str(sys_info["name"]), str(sys_info["sha256"]),
                   str(raw.get("created", "")), dict(raw.get("solver") or {}),
                   dict(raw["parameters"] or {}), from_plain(dict(raw["results"] or {})),

@@ -13,7 +13,7 @@ from fd_monitor.cli import main as cli_main
 from fd_monitor.commands.analyze import analyze_arrays, analyze_bag
 from fd_monitor.core.simulator import simulate
 from fd_monitor.errors import BagError, GainFileError, MessageError
-from fd_monitor.gains import load_gains
+from fd_monitor.gains import load_gains, write_gain_doc
 from fd_monitor.scenario import load_scenario
 from fd_monitor.system import load_system
 
@@ -79,16 +79,19 @@ def test_gain_file_of_another_plant_version_is_refused(bias_bag, tmp_path):
     doc = yaml.safe_load(GAINS.read_text())
     doc["system"]["sha256"] = "0" * 64
     p = tmp_path / "other.yaml"
-    p.write_text(yaml.safe_dump(doc))
+    p.write_text(yaml.safe_dump(doc))  # a hand edit: the digest names it
+    with pytest.raises(GainFileError, match=r"system\.sha256 changed"):
+        analyze_bag(str(bias_bag), str(p))
+    write_gain_doc(p, doc)
     with pytest.raises(GainFileError, match="designed for"):
         analyze_bag(str(bias_bag), str(p))
     doc["system"]["sha256"] = load_system("three_tank").sha256
     doc["method"] = "qb"  # a QB design cannot exist for this nonlinear plant
-    p.write_text(yaml.safe_dump(doc))
+    write_gain_doc(p, doc)
     with pytest.raises(GainFileError, match=r"certificate does not hold: .*nonlinear"):
         analyze_bag(str(bias_bag), str(p))
     doc["method"] = "hinf_sc"
-    p.write_text(yaml.safe_dump(doc))
+    write_gain_doc(p, doc)
     with pytest.raises(GainFileError, match="analyze runs 'thresholds'"):
         analyze_bag(str(bias_bag), str(p))
 

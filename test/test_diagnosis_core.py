@@ -25,7 +25,7 @@ from fd_monitor.core.monitor import Monitor, run_batch, validate_sample
 from fd_monitor.core.simulator import simulate, simulate_batch
 from fd_monitor.core.thresholds import DiagnosisGains, as_gains, noise_l1_bound
 from fd_monitor.errors import GainFileError, MessageError
-from fd_monitor.gains import load_gains
+from fd_monitor.gains import load_gains, write_gain_doc
 from fd_monitor.scenario import FaultEvent, load_scenario
 from fd_monitor.system import load_system
 
@@ -152,7 +152,7 @@ def test_tampered_gain_file_is_refused(system, tmp_path, edit, match):
     doc = yaml.safe_load(GAINS.read_text())
     edit(doc)
     p = tmp_path / "bad.yaml"
-    p.write_text(yaml.safe_dump(doc))
+    write_gain_doc(p, doc)  # re-digested: the re-derived checks must still refuse it
     with pytest.raises(GainFileError, match=match):
         load_gains(p, system)
 

@@ -19,7 +19,7 @@ from fd_monitor.core.qb import (
 )
 from fd_monitor.design.qb import design_qb, write_gain_file
 from fd_monitor.errors import DesignError, GainFileError
-from fd_monitor.gains import load_gains
+from fd_monitor.gains import load_gains, write_gain_doc
 from fd_monitor.system import load_system, parse_system
 
 # QB paper Sec. VI, as printed.
@@ -169,12 +169,12 @@ def test_gain_file_roundtrip_and_tamper(tmp_path, pwa, design_paper):
     doc = yaml.safe_load(path.read_text())
     doc["results"]["rho_max"] = 0.05  # a tighter threshold than P guarantees
     bad = tmp_path / "bad.yaml"
-    bad.write_text(yaml.safe_dump(doc))
+    write_gain_doc(bad, doc)  # re-digested: the recomputed bound refuses it
     with pytest.raises(GainFileError, match="rho_max"):
         load_gains(bad, pwa)
     doc = yaml.safe_load(path.read_text())
     doc["results"]["L"]["safe"] = [[0.0, 0.0]] * 4  # no output injection: A - L C not Hurwitz
-    bad.write_text(yaml.safe_dump(doc))
+    write_gain_doc(bad, doc)
     with pytest.raises(GainFileError, match="safe"):
         load_gains(bad, pwa)
 

@@ -16,7 +16,7 @@ import yaml
 
 from fd_monitor.commands.analyze import analyze_bag
 from fd_monitor.errors import GainFileError
-from fd_monitor.gains import load_gains
+from fd_monitor.gains import load_gains, write_gain_doc
 from fd_monitor.library import analyze_summary, check_expected, load_expected, load_library
 from fd_monitor.paths import find_config_file
 
@@ -62,7 +62,7 @@ def _scaled_gains(tmp_path, factor):
     for row in res["agei"]["rows"]:
         row["r_bar_star"] = [v * factor for v in row["r_bar_star"]]
     out = tmp_path / f"three_tank_thresholds_x{factor}.yaml"
-    out.write_text(yaml.safe_dump(doc, sort_keys=False))
+    write_gain_doc(out, doc)  # as a designer would write it (a hand edit is refused)
     return out
 
 
