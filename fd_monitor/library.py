@@ -381,23 +381,13 @@ def _corrupt(msgs: list[_Msg], c: Corruption, spec: BagSpec) -> list[_Msg]:
 
 
 def _write_messages(path: Path, msgs: Sequence[_Msg]) -> None:
-    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
+    from fd_monitor.bags import BagWriter, serialize_array
 
-    from fd_monitor.bags import FLOAT64_MULTI_ARRAY, serialize_array
-
-    store = get_typestore(Stores.ROS2_JAZZY)
-    w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-    w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    w.open()
-    try:
-        conns: dict[str, Any] = {}
+    with BagWriter(path) as w:
         for topic in dict.fromkeys(m.topic for m in msgs):
-            conns[topic] = w.add_connection(topic, FLOAT64_MULTI_ARRAY, typestore=store)
+            w.add_topic(topic)
         for m in msgs:
-            w.write(conns[m.topic], m.t_ns, serialize_array(m.labels, m.stamp, m.values))
-    finally:
-        w.close()
+            w.write_raw(m.topic, m.t_ns, serialize_array(m.labels, m.stamp, m.values))
 
 
 def generate_bag(spec: BagSpec, folder: str | Path | None = None) -> Path:

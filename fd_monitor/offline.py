@@ -90,7 +90,7 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
     (dict, dict, InputReport)
         stamp -> u (nu,), stamp -> y (ny,), the report.
     """
-    from fd_monitor.bags import read_messages
+    from fd_monitor.bags import FLOAT64_MULTI_ARRAY, read_messages
     from fd_monitor.nodes.conversions import decode
 
     rep = InputReport()
@@ -108,7 +108,7 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
     if missing:
         raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
                        f"{', '.join(sorted(present)) or 'none'})")
-    for topic, _t, msg in read_messages(bag, topics):
+    for topic, _t, msg in read_messages(bag, topics, msgtype=FLOAT64_MULTI_ARRAY):
         raw_stamp: int | None = None
         try:
             if int(msg.layout.data_offset) == 1 and len(msg.data):

@@ -74,9 +74,9 @@ def _transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
 
 def _first_labels(bag: str, topic: str) -> tuple[str, ...] | None:
     """Channel labels of the first message of ``topic`` (None when it has none)."""
-    from fd_monitor.bags import read_messages
+    from fd_monitor.bags import FLOAT64_MULTI_ARRAY, read_messages
 
-    for _topic, _t, msg in read_messages(bag, [topic]):
+    for _topic, _t, msg in read_messages(bag, [topic], msgtype=FLOAT64_MULTI_ARRAY):
         dims = msg.layout.dim
         return tuple(dims[0].label.split(",")) if dims and dims[0].label else None
     return None
