@@ -56,7 +56,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from fd_monitor.errors import BagError, MessageError
+from fd_monitor.errors import BagError, FdMonitorWarning, MessageError
 from fd_monitor.nodes.conversions import ArrivalStamper, decode, encode_data, join_labels
 
 __all__ = [
@@ -440,7 +440,7 @@ class BagDamage:
         return f"{self.file}: byte {self.offset}: {self.what}"
 
 
-class BagDamageWarning(UserWarning):
+class BagDamageWarning(FdMonitorWarning):
     """A bag is damaged or incomplete; what could be read was read (see :class:`BagDamage`)."""
 
 
@@ -659,7 +659,8 @@ class _Scan:
         except _PARSE_ERRORS as exc:
             self.report(pos, f"malformed end-of-data record ({exc})")
             return
-        if rec.data_section_crc and zlib.crc32(buf[:pos]) != rec.data_section_crc:
+        if not self.damage and rec.data_section_crc and \
+                zlib.crc32(buf[:pos]) != rec.data_section_crc:
             self.report(pos, "data-section CRC mismatch: bytes outside the message chunks "
                              "(indexes, headers) changed; every message read passed its "
                              "chunk CRC")
@@ -754,7 +755,9 @@ def _scan(path: str | Path, damage: list[BagDamage] | None
     finally:
         if damage is None:
             for d in found:
-                warnings.warn(str(d), BagDamageWarning, stacklevel=3)
+                # one location, so Python's default filter says each damage once even when
+                # a command reads the bag several times
+                warnings.warn(str(d), BagDamageWarning, stacklevel=1)
 
 
 def read_raw(path: str | Path, topics: Sequence[str] | None = None, *,

@@ -12,9 +12,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from collections.abc import Sequence
+from typing import Any
 
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.errors import FdMonitorError, FdMonitorWarning
 
 __all__ = ["ARGV", "SUBCOMMANDS", "build_parser", "main"]
 
@@ -33,6 +35,7 @@ SUBCOMMANDS: dict[str, str] = {
     "analyze": "run the monitor over a bag offline and print alarms and estimates",
     "report": "figures and a summary of a bag or a campaign",
     "evaluate": "Monte Carlo campaigns: false-alarm rate, detection rate and delay",
+    "bag": "check a bag's integrity, or recover a bag whose recorder died",
 }
 
 
@@ -70,6 +73,17 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+    """fd_monitor's warnings as one line ``fd_monitor: warning: ...``; others as Python's."""
+    if issubclass(category, FdMonitorWarning):
+        print(f"fd_monitor: warning: {message}", file=sys.stderr)
+    else:
+        _default_showwarning(message, category, *args, **kwargs)
+
+
+_default_showwarning = warnings.showwarning
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m fd_monitor`` and the ``fd_monitor`` console script."""
     args_list = list(sys.argv[1:] if argv is None else argv)
@@ -78,6 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    warnings.showwarning = _show_warning
     try:
         return int(args._run(args) or 0)
     except FdMonitorError as exc:

@@ -16,6 +16,7 @@ __all__ = [
     "DesignError",
     "BagError",
     "MessageError",
+    "FdMonitorWarning",
 ]
 
 
@@ -45,3 +46,8 @@ class BagError(FdMonitorError, OSError):
 
 class MessageError(FdMonitorError, ValueError):
     """A message is malformed (wrong length, NaN/Inf, missing stamp)."""
+
+
+class FdMonitorWarning(UserWarning):
+    """Something the user should know that did not stop the work (a damaged bag's chunk
+    skipped, ...); the command line prints ``fd_monitor: warning: <message>``."""

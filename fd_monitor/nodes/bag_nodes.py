@@ -62,6 +62,10 @@ def _sub_qos(msgtype: str) -> QoSProfile:
 class RecorderNode(Node):
     """Subscribe to topics and write every message to an MCAP bag.
 
+    With a writer made with ``flush_seconds`` (``record`` uses
+    :data:`fd_monitor.bags.FLUSH_SECONDS`), every message is in the file within about that
+    long of its arrival, so a killed recorder loses at most the last second.
+
     Parameters
     ----------
     writer : BagWriter
@@ -91,6 +95,9 @@ class RecorderNode(Node):
                                      _sub_qos(msgtype), raw=True, **sub_events())
         if duration is not None:
             self.create_timer(float(duration), self._stop)
+        if writer.flush_seconds is not None:
+            # a quiet topic still gets its last messages on disk within ~flush_seconds
+            self.create_timer(writer.flush_seconds / 2, writer.tick)
 
     def _callback(self, topic: str):  # type: ignore[no-untyped-def]
         def cb(raw: bytes) -> None:
