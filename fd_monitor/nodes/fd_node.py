@@ -268,7 +268,14 @@ class FdNode(Node):
         if s.restart:
             self.reset()
         self.restarting = s.restart
-        self.process(s.k, s.inputs)
+        try:
+            self.process(s.k, s.inputs)
+        except MessageError as exc:
+            # Refused by the core (an implausible value): reported like a bad message and a
+            # hole at k, so the next sample restarts the chain (core/plausibility.py).
+            self.bad_input(str(exc))
+            self.join.lost(s.k)
+            return
         self.processed += 1
 
     def reset(self) -> None:
