@@ -16,6 +16,7 @@ __all__ = [
     "DesignError",
     "BagError",
     "MessageError",
+    "ImplausibleError",
 ]
 
 
@@ -45,3 +46,7 @@ class BagError(FdMonitorError, OSError):
 
 class MessageError(FdMonitorError, ValueError):
     """A message is malformed (wrong length, NaN/Inf, missing stamp)."""
+
+
+class ImplausibleError(MessageError):
+    """A finite sample outside the plant's physical range or far from its prediction."""

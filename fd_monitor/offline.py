@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import BagError, FdMonitorError, MessageError
+from fd_monitor.errors import BagError, FdMonitorError, ImplausibleError, MessageError
 
 __all__ = ["BagRun", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs", "run_bag",
            "run_thresholds", "stamp_runs", "summarize_run", "truth_at"]
@@ -68,7 +68,7 @@ class InputReport:
 
 def _classify(exc: MessageError) -> str:
     text = str(exc)
-    if "implausible" in text:
+    if isinstance(exc, ImplausibleError):
         return "implausible"
     if "expected finite" in text or "non-finite" in text:
         return "non_finite"
@@ -305,9 +305,11 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
                    rep: InputReport, agei: bool = True) -> dict[str, Any]:
     """The diagnosis chain over samples ``ks`` (``us[k]``, ``ys[k]``); restarts after a hole.
 
-    Returns the per-sample fields of a :class:`BagRun`. A sample the monitor refuses
-    (implausible, :mod:`fd_monitor.core.plausibility`; or invalid) is reported in ``rep``
-    and left out, and the monitor restarts at the next sample, as after a hole.
+    Returns the per-sample fields of a :class:`BagRun`. A sample the monitor refuses as
+    implausible (:mod:`fd_monitor.core.plausibility`) is reported in ``rep`` and left out,
+    and the monitor restarts at the next sample, as after a hole. Another invalid sample
+    raises :class:`~fd_monitor.errors.MessageError` naming its stamp (:func:`read_inputs`
+    has already left such samples out of a bag).
     """
     from fd_monitor.core.monitor import Monitor
 
@@ -325,7 +327,7 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
             rep.restarts.append(k)
         try:
             o = mon.step(k, us[k], ys[k])
-        except MessageError as exc:
+        except ImplausibleError as exc:
             # Refused by the core (implausible): reported and left out like a NaN message;
             # the next sample restarts the monitor (prev stays behind: a hole).
             _refused(rep, k, exc)
@@ -363,7 +365,7 @@ def _run_qb(system: Any, gf: Any, ks: list[int], us: dict, ys: dict, rep: InputR
             obs = QBObserver(system, gf)
         try:
             q, xh = obs.step(k, us[k], ys[k])
-        except MessageError as exc:
+        except ImplausibleError as exc:
             _refused(rep, k, exc)
             obs = None                       # restart at the next sample, as after a hole
             continue

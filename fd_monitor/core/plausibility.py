@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import MessageError
+from fd_monitor.errors import ImplausibleError
 from fd_monitor.system import System
 
 __all__ = ["PREDICTION_FACTOR", "Plausibility"]
@@ -60,7 +60,7 @@ class Plausibility:
         self.tolerance = np.where(vbar > 0, self.factor * vbar, np.inf)
 
     def check(self, k: int, u: Any, y: Any, y_pred: Any = None) -> None:
-        """Raise :class:`MessageError` (``... implausible ...``) unless sample k is plausible.
+        """Raise :class:`~fd_monitor.errors.ImplausibleError` unless sample k is plausible.
 
         Parameters
         ----------
@@ -81,7 +81,7 @@ class Plausibility:
             bad = np.flatnonzero((v < lo) | (v > hi))
             if bad.size:
                 i = int(bad[0])
-                raise MessageError(
+                raise ImplausibleError(
                     f"{name} at sample {k}: {names[i]} = {float(v[i])!r} outside the "
                     f"physical range [{lo[i]:g}, {hi[i]:g}] of plant {s.name!r}: implausible "
                     f"(refused like NaN)")
@@ -91,7 +91,7 @@ class Plausibility:
         bad = np.flatnonzero(d > self.tolerance)
         if bad.size:
             i = int(bad[0])
-            raise MessageError(
+            raise ImplausibleError(
                 f"y at sample {k}: {s.outputs[i]} = {float(yy[i])!r} is {float(d[i]):.3g} away "
                 f"from its prediction, more than {self.factor:g} x the noise bound "
                 f"({self.tolerance[i]:g}): implausible (refused like NaN)")
