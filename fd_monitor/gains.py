@@ -199,7 +199,7 @@ def load_gains(source: str | Path, system: System | None = None, *,
     for key in ("format_version", "method", "system", "parameters", "results", "certificate"):
         if key not in raw:
             raise GainFileError(f"{path}: {key}: missing key (is this an fd_monitor gain file?)")
-    if raw["format_version"] != FORMAT_VERSION:
+    if isinstance(raw["format_version"], bool) or raw["format_version"] != FORMAT_VERSION:
         raise GainFileError(f"{path}: format_version: expected {FORMAT_VERSION}, got "
                             f"{raw['format_version']!r}")
     method = raw["method"]
@@ -209,6 +209,10 @@ def load_gains(source: str | Path, system: System | None = None, *,
     sys_info = raw["system"]
     if not isinstance(sys_info, Mapping) or not {"name", "sha256"} <= set(sys_info):
         raise GainFileError(f"{path}: system: expected {{name, sha256}}")
+    for key in ("solver", "parameters", "results", "certificate"):
+        if raw.get(key) is not None and not isinstance(raw[key], Mapping):
+            raise GainFileError(f"{path}: {key}: expected a mapping, got "
+                                f"{type(raw[key]).__name__}")
     gf = GainFile(str(path), str(method), str(sys_info["name"]), str(sys_info["sha256"]),
                   str(raw.get("created", "")), dict(raw.get("solver") or {}),
                   dict(raw["parameters"] or {}), from_plain(dict(raw["results"] or {})),

@@ -8,6 +8,7 @@ pace by acknowledgements). Ends once every message is published and acknowledged
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -56,10 +57,29 @@ def run(args: argparse.Namespace) -> int:
                                 args.wait_subscribers, args.wait_timeout))
         return nodes[0]
 
-    code = run_node(make, ["replay"], prog="replay")
+    got: list[int] = []
+
+    def remember(signum: int, _frame: object) -> None:
+        got.append(signum)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+
+    # rclpy chains its own SIGINT/SIGTERM handlers to these: the signal is remembered, and
+    # an interrupted replay exits 128 + signal (130, 143) like any shell tool, not 0.
+    old = {s: signal.signal(s, remember) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        code = run_node(make, ["replay"], prog="replay")
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
     if code or not nodes:
-        return code
+        return code or (128 + got[0] if got else 0)
     node = nodes[0]
+    if got or not node.done.done():
+        sig = got[0] if got else signal.SIGTERM
+        print(f"fd_monitor: error: replay interrupted by {signal.Signals(sig).name} after "
+              f"{node.published} messages", file=sys.stderr)
+        return 128 + sig
     summary = {"bag": args.bag, "published": node.published,
                "topics": {t: n for t, n in node.expected.items()}}
     if args.json:
