@@ -471,6 +471,15 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+# YAML 1.2 floats (1e-300, 1.0e12, 5E3): YAML 1.1, which PyYAML implements, reads them as
+# strings, and "expected a number, got '1e-300'" puzzles everyone. Integers keep their own
+# resolver (it comes first); this one needs a dot or an exponent.
+_StrictLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
 def _check_structure(text: str, origin: str, error: type[Exception]) -> None:
     """Refuse, from the event stream (no recursion, nothing built), a YAML document nested
     deeper than MAX_YAML_DEPTH, using more than MAX_YAML_ALIASES aliases, or expanding to

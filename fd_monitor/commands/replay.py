@@ -72,14 +72,15 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
-    if code or not nodes:
-        return code or (128 + got[0] if got else 0)
-    node = nodes[0]
-    if got or not node.done.done():
+    if got or (nodes and not code and not nodes[0].done.done()):
         sig = got[0] if got else signal.SIGTERM
+        sent = nodes[0].published if nodes else 0
         print(f"fd_monitor: error: replay interrupted by {signal.Signals(sig).name} after "
-              f"{node.published} messages", file=sys.stderr)
+              f"{sent} messages", file=sys.stderr)
         return 128 + sig
+    if code or not nodes:
+        return code
+    node = nodes[0]
     summary = {"bag": args.bag, "published": node.published,
                "topics": {t: n for t, n in node.expected.items()}}
     if args.json:
