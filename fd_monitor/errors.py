@@ -17,6 +17,7 @@ __all__ = [
     "BagError",
     "MessageError",
     "FdMonitorWarning",
+    "ImplausibleError",
 ]
 
 
@@ -51,3 +52,7 @@ class MessageError(FdMonitorError, ValueError):
 class FdMonitorWarning(UserWarning):
     """Something the user should know that did not stop the work (a damaged bag's chunk
     skipped, ...); the command line prints ``fd_monitor: warning: <message>``."""
+
+
+class ImplausibleError(MessageError):
+    """A finite sample outside the plant's physical range or far from its prediction."""

@@ -316,7 +316,7 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
     for key in ("format_version", "method", "system", "parameters", "results", "certificate"):
         if key not in raw:
             raise GainFileError(f"{path}: {key}: missing key (is this an fd_monitor gain file?)")
-    if raw["format_version"] != FORMAT_VERSION:
+    if isinstance(raw["format_version"], bool) or raw["format_version"] != FORMAT_VERSION:
         raise GainFileError(f"{path}: format_version: expected {FORMAT_VERSION}, got "
                             f"{raw['format_version']!r}")
     method = raw["method"]
@@ -326,6 +326,10 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
     sys_info = raw["system"]
     if not isinstance(sys_info, Mapping) or not {"name", "sha256"} <= set(sys_info):
         raise GainFileError(f"{path}: system: expected {{name, sha256}}")
+    for key in ("solver", "parameters", "results", "certificate"):
+        if raw.get(key) is not None and not isinstance(raw[key], Mapping):
+            raise GainFileError(f"{path}: {key}: expected a mapping, got "
+                                f"{type(raw[key]).__name__}")
     if verify:
         check_digest(raw, path)
     gf = GainFile(str(path), str(method), str(sys_info["name"]), str(sys_info["sha256"]),

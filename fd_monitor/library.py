@@ -261,7 +261,8 @@ def load_library(path: str | Path | None = None) -> Library:
     data = read_yaml(p, LibraryError)
     if not isinstance(data, Mapping) or not isinstance(data.get("bags"), list):
         _fail(p, "bags", "a list of bag entries")
-    if data.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
+    if (isinstance(data.get("format_version"), bool)
+            or data.get("format_version", FORMAT_VERSION) != FORMAT_VERSION):
         _fail(p, "format_version", str(FORMAT_VERSION), data.get("format_version"))
     bags: list[BagSpec] = []
     seen: set[str] = set()

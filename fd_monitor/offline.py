@@ -30,14 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import BagError, FdMonitorError, MessageError
+from fd_monitor.errors import BagError, FdMonitorError, ImplausibleError, MessageError
 
 __all__ = ["BagRun", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs", "run_bag",
            "run_thresholds", "stamp_runs", "summarize_run", "truth_at"]
 
 #: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml).
 INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
-                     "missing")
+                     "missing", "implausible")
 
 
 @dataclass
@@ -68,6 +68,8 @@ class InputReport:
 
 def _classify(exc: MessageError) -> str:
     text = str(exc)
+    if isinstance(exc, ImplausibleError):
+        return "implausible"
     if "expected finite" in text or "non-finite" in text:
         return "non_finite"
     if "wrong length" in text or "labels for" in text or "size" in text:
@@ -303,9 +305,11 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
                    rep: InputReport, agei: bool = True) -> dict[str, Any]:
     """The diagnosis chain over samples ``ks`` (``us[k]``, ``ys[k]``); restarts after a hole.
 
-    Returns the per-sample fields of a :class:`BagRun`. An invalid sample raises
-    :class:`~fd_monitor.errors.MessageError` naming its stamp (:func:`read_inputs` has already
-    left such samples out of a bag).
+    Returns the per-sample fields of a :class:`BagRun`. A sample the monitor refuses as
+    implausible (:mod:`fd_monitor.core.plausibility`) is reported in ``rep`` and left out,
+    and the monitor restarts at the next sample, as after a hole. Another invalid sample
+    raises :class:`~fd_monitor.errors.MessageError` naming its stamp (:func:`read_inputs`
+    has already left such samples out of a bag).
     """
     from fd_monitor.core.monitor import Monitor
 
@@ -316,16 +320,26 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
     sh = np.zeros((K, ny))
     mode = np.zeros(K, int)
     prev: int | None = None
+    keep: list[int] = []
     for j, k in enumerate(ks):
         if prev is not None and k != prev + 1:
             mon.reset()
             rep.restarts.append(k)
-        o = mon.step(k, us[k], ys[k])
+        try:
+            o = mon.step(k, us[k], ys[k])
+        except ImplausibleError as exc:
+            # Refused by the core (implausible): reported and left out like a NaN message;
+            # the next sample restarts the monitor (prev stays behind: a hole).
+            _refused(rep, k, exc)
+            continue
+        keep.append(j)
         sig[j], thr[j], alarm[j] = o.detector.residual, o.detector.threshold, o.detector.alarm
         sh[j], iso[j], mode[j] = o.estimator.sigma_hat, o.estimator.isolated, o.mode
         prev = k
+    sig, thr, alarm, iso, sh, mode = (a[keep] for a in (sig, thr, alarm, iso, sh, mode))
     unit = _units(system)
-    return {"method": "thresholds", "k": np.asarray(ks), "channels": tuple(system.outputs),
+    return {"method": "thresholds", "k": np.asarray(ks)[keep],
+            "channels": tuple(system.outputs),
             "units": (unit,) * ny, "signal": sig, "threshold": thr, "alarm": alarm,
             "mode_hat": mode, "estimate": {o: sh[:, i] for i, o in enumerate(system.outputs)},
             "isolated": iso}
@@ -343,17 +357,26 @@ def _run_qb(system: Any, gf: Any, ks: list[int], us: dict, ys: dict, rep: InputR
     mode = np.zeros(K, int)
     obs: QBObserver | None = None
     prev: int | None = None
+    keep: list[int] = []
     for j, k in enumerate(ks):
         if obs is None or (prev is not None and k != prev + 1):
-            if obs is not None:
+            if obs is not None or prev is not None:
                 rep.restarts.append(k)
             obs = QBObserver(system, gf)
-        q, xh = obs.step(k, us[k], ys[k])
+        try:
+            q, xh = obs.step(k, us[k], ys[k])
+        except ImplausibleError as exc:
+            _refused(rep, k, exc)
+            obs = None                       # restart at the next sample, as after a hole
+            continue
+        keep.append(j)
         r = obs.residual(q, xh, ys[k])
         sig[j] = det.signals(xh, r)
         thr[j] = det.rho * det.bounds(q)
         X[j], mode[j] = xh, q
         prev = k
+    sig, thr, X, mode = sig[keep], thr[keep], X[keep], mode[keep]
+    ks = [ks[j] for j in keep]
     P = np.asarray(gf.results["P"], dtype=float)
     qb: dict[str, Any] = {"component_bound": np.asarray(gf.results["component_bound"], float),
                           "rho_max": float(gf.results["rho_max"]), "x_hat": X}
@@ -368,6 +391,12 @@ def _run_qb(system: Any, gf: Any, ks: list[int], us: dict, ys: dict, rep: InputR
     return {"method": "qb", "k": np.asarray(ks), "channels": tuple(det.channels),
             "units": units, "signal": sig, "threshold": thr, "alarm": sig > thr,
             "mode_hat": mode, "estimate": est, "isolated": None, "qb": qb}
+
+
+def _refused(rep: InputReport, k: int, exc: MessageError) -> None:
+    """Report sample k refused by the runtime (implausible) as an input error."""
+    rep.errors.append({"kind": _classify(exc), "topic": "/plant/u,/plant/y", "sample": k,
+                       "message": str(exc)})
 
 
 def truth_at(truth: Any, ks: Sequence[int], labels: Sequence[str]) -> np.ndarray:

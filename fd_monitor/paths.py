@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 from pathlib import Path
 
-__all__ = ["config_dirs", "config_dir", "default_gain_path", "find_config_file", "repo_root"]
+__all__ = ["check_output", "config_dirs", "config_dir", "default_gain_path", "find_config_file",
+           "repo_root"]
 
 
 def repo_root() -> Path | None:
@@ -86,3 +88,46 @@ def default_gain_path(plant: str, method: str) -> Path:
     root = repo_root()
     name = f"{plant}_{method}.yaml"
     return root / "config" / "gains" / name if root is not None else Path(name)
+
+
+def check_output(path: str | Path, what: str, error: type[Exception], *, folder: bool,
+                 force: bool | None = None) -> Path:
+    """Check, before a long computation, that its output can be written; one-line errors.
+
+    Creates the missing parent folders (and the folder itself for ``folder=True``) and
+    writes and removes a probe file there, so an unwritable place (a read-only mount, a
+    path under a file, no permission — even for root) is refused now, not after minutes
+    of computing.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    what : str
+        The option, for the message (``"-o"``, ``"--report"``).
+    error : type of Exception
+    folder : bool
+        True: ``path`` is a folder to write files into; False: a file to write.
+    force : bool or None
+        None: existing content may be overwritten (no check). False: refuse an existing
+        file (``folder=False``) or a non-empty folder (``folder=True``); True: allow.
+    """
+    p = Path(path)
+    if folder:
+        if p.exists() and not p.is_dir():
+            raise error(f"{what} {p}: exists and is not a folder")
+        if force is False and p.is_dir() and any(p.iterdir()):
+            raise error(f"{what} {p}: folder is not empty (would overwrite; use --force)")
+        target = p
+    else:
+        if p.is_dir():
+            raise error(f"{what} {p}: is a folder, expected a file name")
+        if force is False and p.exists():
+            raise error(f"{what} {p}: exists (would overwrite; use --force)")
+        target = p.parent
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=target, prefix=".fd_monitor_probe_"):
+            pass
+    except OSError as exc:
+        raise error(f"{what} {p}: cannot write there: {exc.strerror or exc}") from None
+    return p

@@ -44,10 +44,10 @@ import numpy as np
 
 from fd_monitor.errors import ScenarioError, SystemFileError
 from fd_monitor.paths import find_config_file
-from fd_monitor.system import System, load_system, read_yaml
+from fd_monitor.system import System, load_system, read_yaml, require_memory
 
-__all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "load_scenario",
-           "parse_scenario"]
+__all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "check_horizon",
+           "load_scenario", "parse_scenario"]
 
 _DISTRIBUTIONS = ("uniform", "extreme")
 
@@ -214,6 +214,19 @@ def load_scenario(source: str | Path, system: System | None = None) -> Scenario:
     return parse_scenario(data, str(path), system)
 
 
+def check_horizon(system: System, duration: float, what: str,
+                  error: type[Exception] = ScenarioError, runs: int = 1) -> int:
+    """Samples of a run of ``duration`` s; refuse, before allocating, a horizon whose
+    per-sample arrays (state, inputs, outputs, truth, estimates: ~8 rows of the widest
+    vector, float64, per run) would not fit in memory. Returns the sample count."""
+    n = duration / system.sample_time
+    width = 8 * (system.n + system.nu + system.ny + len(system.faults) + 1)
+    require_memory(8.0 * width * n * max(runs, 1),
+                   f"{what} {duration:g} s at {system.sample_time:g} s per sample "
+                   f"({n:.3g} samples)", error)
+    return round(n)
+
+
 def _fail(origin: str, key: str, expected: str, got: Any = None, show: bool = True) -> None:
     tail = f", got {got!r}" if show else ""
     raise ScenarioError(f"{origin}: {key}: expected {expected}{tail}")
@@ -295,6 +308,7 @@ def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = No
     duration = _num(origin, "duration", data["duration"], positive=True)
     if duration < system.sample_time:
         _fail(origin, "duration", f"at least one sample ({system.sample_time} s)", duration)
+    check_horizon(system, duration, f"{origin}: duration", ScenarioError)
     seed = data.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         _fail(origin, "seed", "an integer >= 0", seed)
@@ -388,14 +402,22 @@ def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = No
                 _fail(origin, f"{key}.rate", "the decay rate alpha > 0 of an incipient fault "
                       "(thesis eq. 1.4; missing key)", show=False)
             rate = _num(origin, f"{key}.rate", f["rate"], positive=True)
-        relative = bool(f.get("relative", False))
+        relative = f.get("relative", False)
+        if not isinstance(relative, bool):
+            _fail(origin, f"{key}.relative", "true or false", relative)
         if relative and system.faults[ch].kind != "actuator":
             _fail(origin, f"{key}.relative", "relative faults only on actuator channels",
                   show=False)
-        faults.append(FaultEvent(ch, str(prof), _num(origin, f"{key}.time", f["time"],
-                                                      nonneg=True),
+        t_f = _num(origin, f"{key}.time", f["time"], nonneg=True)
+        if round(t_f / system.sample_time) >= round(duration / system.sample_time):
+            _fail(origin, f"{key}.time", f"a time inside the run [0, {duration:g}) s (a fault "
+                  f"after the end would never be applied)", f["time"])
+        faults.append(FaultEvent(ch, str(prof), t_f,
                                  _num(origin, f"{key}.magnitude", f["magnitude"]), rate,
                                  relative))
-    return Scenario(name, str(data.get("description", "")), system, duration, int(seed), q0,
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        _fail(origin, "description", "a string", type(description).__name__)
+    return Scenario(name, description, system, duration, int(seed), q0,
                     np.asarray(x0, dtype=float), nscale, ndist, uscale, udist, tuple(inputs),
                     tuple(faults), origin)

@@ -62,6 +62,15 @@ Schema (``format_version: 1``)::
         - {name: rho1, min: -1.0, max: 1.0, measured: true}   # measured: false = uncertain
     # and in a linear mode:  A_rho: [A_1, ..., A_d] (d x n x n), B_rho (d x n x nu)
     # so that A(rho) = A + sum_j rho_j A_j, B(rho) = B + sum_j rho_j B_j (thesis 5.2, 6.5).
+    limits:                           # optional: the physical range of what is measured
+      outputs: {y1: [-1.0, 1.0]}      # [min, max] per output (any subset), output units
+      inputs: {u1: [0.0, 2.0]}        # [min, max] per input (any subset)
+
+``limits`` say what a sensor or an actuator command can physically read: a sample outside
+them is implausible and refused where samples enter the runtime
+(:mod:`fd_monitor.core.plausibility`), like a NaN. A channel without limits may read any
+value of magnitude <= MAX_MAGNITUDE. Limits describe the instruments, not the dynamics,
+so they do not enter the plant's canonical form (its SHA-256).
 
 The optional keys ``switching``, ``lpv``, ``A_rho``, ``B_rho`` and a process fault's ``E`` or
 per-mode ``F`` enter the plant's canonical form (its SHA-256) only when they are given, so
@@ -105,7 +114,10 @@ __all__ = [
     "SUPPORTED_FORMAT_VERSIONS",
     "load_system",
     "parse_system",
+    "MAX_MAGNITUDE",
+    "parse_yaml_text",
     "read_yaml",
+    "require_memory",
 ]
 
 SUPPORTED_FORMAT_VERSIONS = (1,)
@@ -115,7 +127,7 @@ _FAULT_KINDS = ("sensor_bias", "actuator", "state_jump", "process", "parameter")
 _TOP_KEYS = {
     "format_version", "name", "description", "time", "sample_time", "states", "inputs",
     "outputs", "disturbances", "bounds", "shared", "modes", "guards", "faults", "initial",
-    "switching", "lpv",
+    "switching", "lpv", "limits",
 }
 _MODE_KEYS = {
     "dynamics", "time", "A", "B", "C", "D", "E", "offset", "uncertainty", "model", "params",
@@ -335,6 +347,9 @@ class System:
         ``guards`` (mode changes by the guards only) or ``arbitrary`` (any mode sequence).
     lpv : tuple of LPVParameter
         Parameters of an LPV plant (empty for other plants).
+    output_limits, input_limits : numpy.ndarray
+        (ny, 2) and (nu, 2) ``[min, max]`` physical range of each output and input (the
+        ``limits`` key; +-MAX_MAGNITUDE where the file gives none).
     """
 
     name: str
@@ -356,6 +371,8 @@ class System:
     sha256: str
     switching: str = "guards"
     lpv: tuple[LPVParameter, ...] = ()
+    output_limits: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    input_limits: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def n_rho(self) -> int:
@@ -418,21 +435,169 @@ class System:
 # reading
 
 
+#: Limits of the strict YAML reader (:func:`read_yaml`): nesting depth, alias uses, and
+#: nodes after alias expansion (a 500x500 plant is 250,000 nodes per matrix). Beyond them a
+#: file is refused before it is built (a deep nesting overflows the recursive builder, an
+#: alias bomb expands into gigabytes when printed).
+MAX_YAML_DEPTH = 64
+MAX_YAML_ALIASES = 1000
+MAX_YAML_NODES = 20_000_000
+#: Largest magnitude of a number in a plant file: beyond, products in the simulation and
+#: the designs overflow float64 (1e308) or lose every digit.
+MAX_MAGNITUDE = 1.0e15
+#: Sample times accepted, s (1 MHz .. 1e6 s).
+SAMPLE_TIME_RANGE = (1.0e-6, 1.0e6)
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses duplicate keys (YAML 1.2; PyYAML keeps the last one).
+
+    Merge keys (``<<: *base``) stay allowed: explicit keys override merged ones, as YAML
+    defines; only two explicit equal keys in one mapping are refused.
+    """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> Any:
+        seen: dict[tuple[str, str], int] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node,
+                                                                           yaml.ScalarNode):
+                continue
+            key = (key_node.tag, key_node.value)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key_node.value!r} (first at line "
+                    f"{seen[key]})", key_node.start_mark)
+            seen[key] = key_node.start_mark.line + 1
+        return super().construct_mapping(node, deep)
+
+
+# YAML 1.2 floats (1e-300, 1.0e12, 5E3): YAML 1.1, which PyYAML implements, reads them as
+# strings, and "expected a number, got '1e-300'" puzzles everyone. Integers keep their own
+# resolver (it comes first); this one needs a dot or an exponent.
+_StrictLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+def _check_structure(text: str, origin: str, error: type[Exception]) -> None:
+    """Refuse, from the event stream (no recursion, nothing built), a YAML document nested
+    deeper than MAX_YAML_DEPTH, using more than MAX_YAML_ALIASES aliases, or expanding to
+    more than MAX_YAML_NODES nodes."""
+    depth, aliases = 0, 0
+    sizes: dict[str, int] = {}            # anchor -> nodes of the anchored node, expanded
+    stack: list[list[Any]] = [[0, None]]  # per open collection: [nodes so far, anchor]
+    for ev in yaml.parse(text, Loader=yaml.SafeLoader):
+        line = ev.start_mark.line + 1 if ev.start_mark is not None else 0
+        if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                raise error(f"{origin}: line {line}: YAML nested deeper than "
+                            f"{MAX_YAML_DEPTH} levels (refused)")
+            stack.append([1, ev.anchor])
+        elif isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+            count, anchor = stack.pop()
+            if anchor is not None:
+                sizes[anchor] = count
+            stack[-1][0] += count
+        elif isinstance(ev, yaml.ScalarEvent):
+            if ev.anchor is not None:
+                sizes[ev.anchor] = 1
+            stack[-1][0] += 1
+        elif isinstance(ev, yaml.AliasEvent):
+            aliases += 1
+            if aliases > MAX_YAML_ALIASES:
+                raise error(f"{origin}: line {line}: more than {MAX_YAML_ALIASES} YAML "
+                            f"aliases (refused)")
+            stack[-1][0] += sizes.get(ev.anchor or "", 1)
+            total = sum(c for c, _ in stack)
+            if total > MAX_YAML_NODES:
+                raise error(f"{origin}: line {line}: YAML aliases expand to more than "
+                            f"{MAX_YAML_NODES} nodes (an alias bomb? refused)")
+
+
 def read_yaml(path: Path, error: type[Exception] = SystemFileError) -> Any:
-    """Read a YAML file; raise ``error`` with a one-line message on any failure."""
+    """Read a YAML file strictly; raise ``error`` with a one-line message on any failure.
+
+    The one YAML reader of every fd_monitor file (plants, scenarios, gain files, design
+    files, the bag library): UTF-8 only; duplicate keys, nesting deeper than
+    :data:`MAX_YAML_DEPTH`, more than :data:`MAX_YAML_ALIASES` aliases or an alias expansion
+    beyond :data:`MAX_YAML_NODES` nodes are refused.
+    """
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except FileNotFoundError:
         raise error(f"{path}: file not found") from None
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return parse_yaml_text(raw, str(path), error)
+
+
+def parse_yaml_text(raw: bytes | str, origin: str, error: type[Exception] = SystemFileError
+                    ) -> Any:
+    """:func:`read_yaml` on bytes or text already read (``origin`` names it in messages)."""
+    if isinstance(raw, bytes):
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise error(f"{origin}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset "
+                        f"{exc.start})") from None
+    else:
+        text = raw
     try:
-        return yaml.safe_load(text)
+        _check_structure(text, origin, error)
+        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise error(f"{path}: invalid YAML{where}: {problem}") from None
+        raise error(f"{origin}: invalid YAML{where}: {problem}") from None
+    except RecursionError:
+        raise error(f"{origin}: YAML nested too deeply (refused)") from None
+
+
+def require_memory(nbytes: float, what: str, error: type[Exception]) -> None:
+    """Refuse, before allocating, arrays of ``nbytes`` bytes that would not fit in memory.
+
+    Parameters
+    ----------
+    nbytes : float
+        Bytes the computation would allocate (an estimate from the shapes).
+    what : str
+        What needs them, with where it comes from (``"scenario x.yaml: 1e12 samples"``).
+    error : type of Exception
+        Raised with the size needed and the memory available.
+    """
+    avail = _available_memory()
+    if not math.isfinite(nbytes) or nbytes > avail:
+        raise error(f"{what}: would need {_human(nbytes)} of memory, "
+                    f"{_human(avail)} available (refused before allocating)")
+
+
+def _available_memory() -> float:
+    """Bytes of memory available now (MemAvailable), else physical memory."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return float(line.split()[1]) * 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    import os
+
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError):
+        return 8.0e9
+
+
+def _human(nbytes: float) -> str:
+    if not math.isfinite(nbytes):
+        return "unbounded bytes"
+    for unit, f in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if nbytes >= f:
+            return f"{nbytes / f:.3g} {unit}"
+    return f"{nbytes:.0f} bytes"
 
 
 def load_system(source: str | Path) -> System:
@@ -505,6 +670,9 @@ def _number(ctx: _Ctx, key: str, v: Any, *, positive: bool = False, nonneg: bool
     x = float(v)
     if not math.isfinite(x):
         ctx.fail(key, "a finite number", v)
+    if abs(x) > MAX_MAGNITUDE:
+        ctx.fail(key, f"a number of magnitude <= {MAX_MAGNITUDE:g} (larger ones overflow the "
+                 f"simulation and the designs)", v)
     if positive and x <= 0:
         ctx.fail(key, "a number > 0", v)
     if nonneg and x < 0:
@@ -571,20 +739,25 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
         ctx.fail("(top level)", "a mapping of plant keys", type(data).__name__)
     _check_keys(ctx, "", data, _TOP_KEYS)
     version = data.get("format_version", 1)
-    if version not in SUPPORTED_FORMAT_VERSIONS:
+    if isinstance(version, bool) or version not in SUPPORTED_FORMAT_VERSIONS:
         ctx.fail("format_version", f"one of {SUPPORTED_FORMAT_VERSIONS}", version)
     if "name" not in data:
         ctx.fail("name", "the plant's name (missing key)", show_got=False)
     name = data["name"]
     if not isinstance(name, str) or not _NAME_RE.match(name):
         ctx.fail("name", "a name of letters, digits and '_'", name)
-    description = str(data.get("description", ""))
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        ctx.fail("description", "a string", _Got(type(description).__name__))
     default_time = data.get("time", "continuous")
     if default_time not in ("continuous", "discrete"):
         ctx.fail("time", "'continuous' or 'discrete'", default_time)
     if "sample_time" not in data:
         ctx.fail("sample_time", "the sample time in s (missing key)", show_got=False)
     ts = _number(ctx, "sample_time", data["sample_time"], positive=True)
+    if not SAMPLE_TIME_RANGE[0] <= ts <= SAMPLE_TIME_RANGE[1]:
+        ctx.fail("sample_time", f"a sample time in [{SAMPLE_TIME_RANGE[0]:g}, "
+                 f"{SAMPLE_TIME_RANGE[1]:g}] s", data["sample_time"])
 
     states = _names(ctx, data, "states", required=True)
     if not states:
@@ -690,6 +863,12 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                     ctx.fail(f"{key}.params.{p}", "a number (missing parameter)",
                              show_got=False)
                 params[p] = _number(ctx, f"{key}.params.{p}", praw[p])
+            for p, (lo, hi, lo_open) in mdl.ranges.items():
+                v = params[p]
+                if (v <= lo if lo_open else v < lo) or v > hi:
+                    ctx.fail(f"{key}.params.{p}", f"a value in {'(' if lo_open else '['}"
+                             f"{lo:g}, {hi:g}] (the physical range of model {model!r})",
+                             praw.get(p, v))
         modes.append(Mode(mname, dyn, mtime, A, B, C, D, E, offset, unc, model, params,
                           A_rho, B_rho))
     mode_names = [m.name for m in modes]
@@ -791,6 +970,8 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                 faults.append(FaultChannel(str(fname), kind, -1,
                                            F=_vector(ctx, f"{key}.F", tgt, n), E=Fe))
         else:
+            if not isinstance(tgt, str):
+                ctx.fail(f"{key}.parameter", "the name of a model parameter", tgt)
             for m in modes:
                 if m.dynamics != "nonlinear" or tgt not in m.params:
                     ctx.fail(f"{key}.parameter", f"a parameter of the nonlinear model of every "
@@ -819,9 +1000,34 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                            switching if "switching" in data else None,
                            lpv if "lpv" in data else None)
     digest = hashlib.sha256(canonical.encode()).hexdigest()
+    ylim, ulim = _parse_limits(ctx, data, outputs, inputs)
     return System(name, description, ts, states, inputs, outputs, dists, tuple(modes),
                   tuple(guards), tuple(faults), wbar, vbar, q0, x0, origin, canonical, digest,
-                  str(switching), lpv)
+                  str(switching), lpv, ylim, ulim)
+
+
+def _parse_limits(ctx: _Ctx, data: Mapping[str, Any], outputs: Sequence[str],
+                  inputs: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The optional ``limits: {outputs: {name: [min, max]}, inputs: {...}}``."""
+    lim = _mapping(ctx, "limits", data.get("limits", {}) or {})
+    _check_keys(ctx, "limits", lim, {"outputs", "inputs"})
+    out = []
+    for group, names in (("outputs", outputs), ("inputs", inputs)):
+        arr = np.tile([-MAX_MAGNITUDE, MAX_MAGNITUDE], (len(names), 1))
+        spec = _mapping(ctx, f"limits.{group}", lim.get(group, {}) or {})
+        for ch, rng in spec.items():
+            key = f"limits.{group}.{ch}"
+            if ch not in names:
+                ctx.fail(key, f"one of the {group} {list(names)}", ch)
+            if not isinstance(rng, list) or len(rng) != 2:
+                ctx.fail(key, "[min, max]", rng)
+            lo = _number(ctx, f"{key}[0]", rng[0])
+            hi = _number(ctx, f"{key}[1]", rng[1])
+            if hi <= lo:
+                ctx.fail(f"{key}[1]", f"max > min ({lo:g})", rng[1])
+            arr[list(names).index(ch)] = (lo, hi)
+        out.append(arr)
+    return out[0], out[1]
 
 
 def _parse_lpv(ctx: _Ctx, data: Mapping[str, Any]) -> tuple[LPVParameter, ...]:

@@ -39,6 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         p.add_argument("-o", "--output", metavar="GAINS", default=None,
                        help="gain file to write (default: config/gains/<plant>_<method>.yaml "
                             "in a checkout, else ./<plant>_<method>.yaml)")
+        p.add_argument("--force", action="store_true",
+                       help="overwrite an existing -o GAINS file")
         add_json_flag(p)
         if name == chosen:
             mod = importlib.import_module(f"fd_monitor.design.{name}")
@@ -57,6 +59,13 @@ def run(args: argparse.Namespace) -> int:
     """Run the chosen method's designer."""
     if not hasattr(args, "_method_run"):
         raise SystemExit(f"fd_monitor design: error: method {args.method!r} is not available")
+    if args.output is not None:
+        # Before the design (minutes for the large ones): a place we cannot write, or an
+        # existing file without --force, is refused now, not after the solver ran.
+        from fd_monitor.errors import DesignError
+        from fd_monitor.paths import check_output
+
+        check_output(args.output, "-o", DesignError, folder=False, force=args.force)
     return int(args._method_run(args) or 0)
 
 

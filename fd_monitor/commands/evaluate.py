@@ -19,7 +19,7 @@ from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.errors import FdMonitorError
 from fd_monitor.evaluate import run_campaign
 from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
+from fd_monitor.scenario import check_horizon, load_scenario
 
 __all__ = ["add_arguments", "run"]
 
@@ -72,7 +72,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the campaign and print its metrics."""
+    from fd_monitor.paths import check_output
+
+    if args.runs < 1:
+        raise FdMonitorError(f"--runs {args.runs}: expected an integer >= 1")
+    if args.chunk < 1:
+        raise FdMonitorError(f"--chunk {args.chunk}: expected an integer >= 1")
+    if args.seed0 < 0:
+        raise FdMonitorError(f"--seed0 {args.seed0}: expected an integer >= 0")
+    if not 0 <= args.transient < float("inf"):
+        raise FdMonitorError(f"--transient {args.transient}: expected a finite number >= 0")
+    if args.report is not None:
+        check_output(args.report, "--report", FdMonitorError, folder=True)
     scenarios = [load_scenario(s) for s in args.scenario]
+    for sc in scenarios:
+        check_horizon(sc.system, sc.duration, f"{sc.source}: duration", FdMonitorError,
+                      runs=min(args.chunk, args.runs))
     system = scenarios[0].system
     gains = load_gains(args.gains, system)
     common: dict[str, Any] = {}

@@ -8,6 +8,7 @@ pace by acknowledgements). Ends once every message is published and acknowledged
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -56,7 +57,27 @@ def run(args: argparse.Namespace) -> int:
                                 args.wait_subscribers, args.wait_timeout))
         return nodes[0]
 
-    code = run_node(make, ["replay"], prog="replay")
+    got: list[int] = []
+
+    def remember(signum: int, _frame: object) -> None:
+        got.append(signum)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+
+    # rclpy chains its own SIGINT/SIGTERM handlers to these: the signal is remembered, and
+    # an interrupted replay exits 128 + signal (130, 143) like any shell tool, not 0.
+    old = {s: signal.signal(s, remember) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        code = run_node(make, ["replay"], prog="replay")
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    if got or (nodes and not code and not nodes[0].done.done()):
+        sig = got[0] if got else signal.SIGTERM
+        sent = nodes[0].published if nodes else 0
+        print(f"fd_monitor: error: replay interrupted by {signal.Signals(sig).name} after "
+              f"{sent} messages", file=sys.stderr)
+        return 128 + sig
     if code or not nodes:
         return code
     node = nodes[0]

@@ -22,7 +22,7 @@ __all__ = ["add_arguments", "run", "main"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """BAG, --gains, -o, --transient, --json."""
+    """BAG, --gains, -o, --force, --transient, --json."""
     parser.add_argument("bag", metavar="BAG", help="rosbag2 bag folder with /plant/u, /plant/y "
                                                   "(and /plant/truth for the true values)")
     parser.add_argument("--gains", default=None, metavar="GAINS",
@@ -30,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "BAG/expected.yaml")
     parser.add_argument("-o", "--output", required=True, metavar="DIR",
                         help="folder for the PNG figures and summary.md (created)")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty DIR (overwriting an earlier report)")
     parser.add_argument("--transient", type=float, default=None, metavar="S",
                         help="ignore alarms before this time, s (default: expected.yaml's, "
                              "else 0)")
@@ -39,10 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Write the report; print where it is and the expectation check."""
     from fd_monitor.errors import FdMonitorError
+    from fd_monitor.paths import check_output
     from fd_monitor.report import bag_report
 
-    if args.transient is not None and args.transient < 0:
-        raise FdMonitorError(f"--transient {args.transient}: expected >= 0")
+    if args.transient is not None and not 0 <= args.transient < float("inf"):
+        raise FdMonitorError(f"--transient {args.transient}: expected a finite number >= 0")
+    check_output(args.output, "-o", FdMonitorError, folder=True, force=args.force)
     res = bag_report(args.bag, args.output, args.gains, transient=args.transient)
     s = res["summary"]
     fails = res["expected_failures"]

@@ -8,6 +8,7 @@ same scenario and seed), with bag timestamps t_k = k Ts.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import numpy as np
@@ -43,11 +44,15 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     from fd_monitor.bags import arrays_from, write_bag
     from fd_monitor.core.simulator import simulate
     from fd_monitor.nodes.conversions import truth_labels
-    from fd_monitor.scenario import load_scenario
+    from fd_monitor.scenario import check_horizon, load_scenario
 
     sc = load_scenario(scenario_source)
     if seed is not None and seed < 0:
         raise ScenarioError(f"--seed {seed}: expected an integer >= 0")
+    if duration is not None and not math.isfinite(duration):
+        raise ScenarioError(f"--duration {duration}: expected a finite number of s")
+    if duration is not None:
+        check_horizon(sc.system, duration, "--duration", ScenarioError)
     if duration is not None and duration < sc.system.sample_time:
         raise ScenarioError(f"--duration {duration}: expected at least one sample "
                             f"({sc.system.sample_time} s)")

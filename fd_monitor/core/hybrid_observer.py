@@ -26,6 +26,7 @@ import numpy as np
 
 from fd_monitor.core.models import get_model
 from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.system import System
 
 __all__ = ["HybridObserver", "ModeDynamics", "ObserverOutput", "NO_TRIGGER"]
@@ -127,6 +128,7 @@ class HybridObserver:
         self.batch = batch
         self.N = 1 if batch is None else int(batch)
         self.initial_mode = system.initial_mode if initial_mode is None else int(initial_mode)
+        self.plausibility = Plausibility(system)
         # trigger table: for guard j (autonomous) and current mode m, the guard to apply
         s = len(system.modes)
         self._trig = np.full((len(system.guards) + 1, s), -1, dtype=int)
@@ -188,8 +190,20 @@ class HybridObserver:
         Returns
         -------
         ObserverOutput
+
+        Raises
+        ------
+        MessageError
+            Single stream: an implausible sample (outside the plant's ``limits`` or far
+            from the prediction, :mod:`fd_monitor.core.plausibility`); no state has changed.
         """
         if self.batch is None:
+            # Refuse an implausible sample before any state changes (core/plausibility.py).
+            y_pred = None
+            if self.k_next is not None:
+                y_pred = (self.system.modes[int(self.q_mid[0])].C @ self.x_next[0]
+                          + np.asarray(sigma_hat, float))
+            self.plausibility.check(k, u, y, y_pred)
             q, x, yt = self.step_batch(k, np.asarray(u, float)[None], np.asarray(y, float)[None],
                                        np.asarray(sigma_hat, float)[None],
                                        np.array([int(np.asarray(trigger))]))

@@ -38,6 +38,9 @@ class NonlinearModel:
     defaults : dict
         Parameter defaults (a plant file may omit these).
     description : str
+    ranges : dict
+        Parameter name -> ``(low, high, low_open)``: the physical range a plant file's value
+        must lie in (``low < v`` when ``low_open``, else ``low <= v``; ``v <= high``).
     """
 
     name: str
@@ -48,6 +51,7 @@ class NonlinearModel:
     rhs: Callable[[np.ndarray, np.ndarray, Params], np.ndarray] | None = None
     defaults: Mapping[str, float] = field(default_factory=dict)
     description: str = ""
+    ranges: Mapping[str, tuple[float, float, bool]] = field(default_factory=dict)
 
 
 _REGISTRY: dict[str, NonlinearModel] = {}
@@ -194,4 +198,12 @@ register_model(NonlinearModel(
         "inputs q1, q2 (pump flows, m^3/s) and the bypass valve command (unused by the "
         "dynamics: the valve's state is the mode). Torricelli flows (thesis eq. 7.11); the "
         "discrete map is classical RK4 over one sample in 'substeps' steps."),
+    # A zero or negative tank area divides by zero or runs the levels backwards; areas and
+    # heights are >= 0; RK4 substeps are a positive count (1000 is already 0.1 ms at 0.1 s).
+    ranges={"tank_area": (0.0, 1.0e3, True), "pipe_area": (0.0, 1.0e3, False),
+            "outflow_area": (0.0, 1.0e3, False), "bypass_area": (0.0, 1.0e3, False),
+            "upper_area": (0.0, 1.0e3, False), "h_upper": (0.0, 1.0e3, False),
+            "leak_area_1": (0.0, 1.0e3, False), "leak_area_2": (0.0, 1.0e3, False),
+            "leak_area_3": (0.0, 1.0e3, False), "g": (0.0, 1.0e3, True),
+            "substeps": (1.0, 1.0e3, False)},
 ))

@@ -46,6 +46,7 @@ from scipy.linalg import expm
 
 from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.errors import DesignError, GainFileError
 from fd_monitor.system import System
 
@@ -491,6 +492,7 @@ class QBObserver:
                   else _as_array(x0, (system.n,), "x0")).copy()
         self.mode = system.initial_mode if mode0 is None else int(mode0)
         self.k: int | None = None
+        self.plausibility = Plausibility(system)
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -522,6 +524,8 @@ class QBObserver:
                              f"consecutive (reset the observer after a gap)")
         uu = _as_array(u, (sys_.nu,), "u")
         yy = _as_array(y, (sys_.ny,), "y")
+        # Range test only: the estimate converges from x0, it is no one-sample prediction.
+        self.plausibility.check(k, uu, yy)
         mode, x = self.mode, self.x.copy()
         z = np.concatenate([uu, yy, [1.0]])
         xn = self.Phi[mode] @ x + self.Gam[mode] @ z

@@ -25,10 +25,9 @@ from typing import Any
 
 import cvxpy as cp
 import numpy as np
-import yaml
 
 from fd_monitor.errors import DesignError
-from fd_monitor.system import System
+from fd_monitor.system import System, parse_yaml_text
 
 __all__ = ["Ctx", "load_design_section", "solve", "left_pinv", "complement_projector",
            "is_observable", "is_detectable", "region_blocks", "SOLVER"]
@@ -128,13 +127,7 @@ def load_design_section(system: System, section: str, path: str | Path | None = 
             raise DesignError(f"{p}: design file not found")
         return {}, str(p), ""
     raw = p.read_bytes()
-    try:
-        data = yaml.safe_load(raw.decode("utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark else ""
-        raise DesignError(f"{p}: invalid YAML{where}: "
-                          f"{getattr(exc, 'problem', None) or exc}") from None
+    data = parse_yaml_text(raw, str(p), DesignError)
     ctx = Ctx(str(p), "(top level)")
     if not isinstance(data, Mapping):
         ctx.fail("", "a mapping of design-file keys", type(data).__name__)
@@ -142,7 +135,7 @@ def load_design_section(system: System, section: str, path: str | Path | None = 
         if k not in ("format_version", "plant", "description", "hinf_sc", "hminus_switched"):
             raise DesignError(f"{p}: {k}: expected one of format_version, plant, description, "
                               f"hinf_sc, hminus_switched (unknown key)")
-    if data.get("format_version", 1) != 1:
+    if isinstance(data.get("format_version"), bool) or data.get("format_version", 1) != 1:
         raise DesignError(f"{p}: format_version: expected 1, got {data.get('format_version')!r}")
     if data.get("plant") != system.name:
         raise DesignError(f"{p}: plant: expected {system.name!r} (the plant being designed "

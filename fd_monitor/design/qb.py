@@ -87,7 +87,7 @@ from fd_monitor.core.qb import (
 from fd_monitor.errors import DesignError
 from fd_monitor.gains import save_gains
 from fd_monitor.paths import default_gain_path
-from fd_monitor.system import System, load_system
+from fd_monitor.system import System, load_system, require_memory
 
 __all__ = ["QBDesign", "QBProblem", "design_qb", "add_arguments", "run"]
 
@@ -356,6 +356,12 @@ def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6
         failure (with its status and what to try), or a result that fails verification.
     """
     model = qb_model(system)
+    # cvxpy canonicalises P @ A_i (P symmetric n x n) through a coefficient matrix of about
+    # (n (n + 1) / 2)^2 floats (an n = 500 plant asked for 125 GB and aborted): refuse before
+    # allocating, with the size it would need.
+    nP = system.n * (system.n + 1) / 2
+    require_memory(8.0 * nP * nP, f"plant {system.name}: a QB design of {system.n} states",
+                   DesignError)
     check_detectable(system, model)
     err: DesignError | None = None
     # The solver meets the LMIs to its own tolerance; when the verified point misses the

@@ -26,7 +26,7 @@ import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
-from fd_monitor.errors import FdMonitorError, MessageError
+from fd_monitor.errors import FdMonitorError, ImplausibleError, MessageError
 from fd_monitor.gains import GainFile, load_gains
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
@@ -268,7 +268,14 @@ class FdNode(Node):
         if s.restart:
             self.reset()
         self.restarting = s.restart
-        self.process(s.k, s.inputs)
+        try:
+            self.process(s.k, s.inputs)
+        except ImplausibleError as exc:
+            # Refused by the core (an implausible value): reported like a bad message and a
+            # hole at k, so the next sample restarts the chain (core/plausibility.py).
+            self.bad_input(str(exc))
+            self.join.lost(s.k)
+            return
         self.processed += 1
 
     def reset(self) -> None:

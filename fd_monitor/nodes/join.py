@@ -141,6 +141,12 @@ class StampJoin:
         if self.sequence is None and (self.k_next is None or stamp >= self.k_next):
             self.rejected.add(stamp)
 
+    def lost(self, stamp: int) -> None:
+        """Sample ``stamp``, already released, was refused by the core (implausible): it is
+        a hole, and the next complete sample is a restart (entry role)."""
+        self.holes.append((stamp, stamp))
+        self.k_next = None
+
     # -- release -------------------------------------------------------------------------------
 
     def ready(self, now: float = 0.0) -> Iterator[Sample]:
