@@ -853,7 +853,8 @@ def stress_runs(system: System, gains: Any, policy: str, n_runs: int, n_samples:
     * ``held``: a random vertex held, switched to another random vertex with probability
       ``hold_prob`` per sample (slow switching lets the state settle at the box's extremes);
     * ``adversarial``: the vertex that maximises ``V(e_{k+1}) = e_{k+1}'P e_{k+1}`` of the
-      gain file's observer (its estimated mode's error map ``Phi e_k + G w``), greedy.
+      gain file's observer as it runs (true next state minus the runtime's next estimate,
+      for every vertex), greedy.
 
     Parameters
     ----------
@@ -892,10 +893,7 @@ def stress_runs(system: System, gains: Any, policy: str, n_runs: int, n_samples:
     out = {"x": np.empty((N, K, n)), "y": np.empty((N, K, system.ny)),
            "u": np.empty((N, K, 0)), "mode": np.empty((N, K), dtype=int),
            "w": np.empty((N, K, nw))}
-    # error map per estimated mode for the greedy policy: e+ = F e + G w (the model's w
-    # channels are the plant's w times its bound, then noise/uncertainty channels, unused here)
-    F = model.A - L @ model.C
-    G = (model.D - L @ model.E)[:, :, :nw]
+    nv = len(verts)
     for k in range(K):
         if policy == "uniform":
             w = rng.uniform(-1.0, 1.0, size=(N, nw))
@@ -906,10 +904,17 @@ def stress_runs(system: System, gains: Any, policy: str, n_runs: int, n_samples:
             held[sw] = verts[rng.integers(len(verts), size=int(sw.sum()))]
             w = held
         else:
-            e = x - xh
-            cand = (np.einsum("nij,nj->ni", F[qh], e)[:, None, :]
-                    + np.einsum("nij,vj->nvi", G[qh], verts))
-            w = verts[np.einsum("nvi,ij,nvj->nv", cand, P, cand).argmax(axis=1)]
+            # every run x every vertex: next true state minus next estimate (the runtime's map)
+            wv = np.tile(verts, (N, 1)) * wbar
+            qv, xv = np.repeat(q, nv), np.repeat(x, nv, axis=0)
+            yv = plant.output(qv, xv, wv)
+            zv = np.concatenate([yv, np.ones((N * nv, 1))], axis=1)
+            qhv = np.repeat(qh, nv)
+            ev = (plant.step(qv, xv, np.zeros((N * nv, 0)), wv)
+                  - np.einsum("nij,nj->ni", Phi[qhv], np.repeat(xh, nv, axis=0))
+                  - np.einsum("nij,nj->ni", Gam[qhv], zv))
+            Vv = np.einsum("ni,ij,nj->n", ev, P, ev).reshape(N, nv)
+            w = verts[Vv.argmax(axis=1)]
         y = plant.output(q, x, w * wbar)
         out["x"][:, k], out["y"][:, k], out["mode"][:, k], out["w"][:, k] = x, y, q, w
         z = np.concatenate([y, np.ones((N, 1))], axis=1)
