@@ -61,7 +61,7 @@ def main() -> None:
     pwa = sc.system
     shipped = load_gains("pwa_cascade_qb", pwa)
     prob = QBProblem(qb_model(pwa), 1e-5)
-    lam, st = prob.solve(0.486)
+    _lam, st = prob.solve(0.486)
     Pv = np.asarray(prob.P.value)
     step5 = {m: np.linalg.solve(Pv, Y.value) for m, Y in zip(pwa.mode_names, prob.Y)}
     variants = {"min-norm (shipped)": shipped, f"step-5 ({st})": _with_L(shipped, step5),

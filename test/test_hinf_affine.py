@@ -86,7 +86,7 @@ def test_affine_gain_file_round_trip_and_tamper(tmp_path: Path):
     gf = load_gains(path, s)
     assert gf.certificate_status == "verified" and gf.results["lyapunov"] == "affine"
     # the bank runs with the rational gain P(rho)^-1 K(rho): f1 at 30 s shows on r1 only
-    kind, model, _g = parse_bank(gf.results)
+    _kind, model, _g = parse_bank(gf.results)
     t = np.arange(0.0, 45.0, s.sample_time)
     _x, y, u, rho = simulate_affine_plant(
         model, t, lambda tt: np.array([0.5 + np.sin(2 * np.pi * tt / 7), 0.0]),

@@ -83,7 +83,7 @@ def test_sampled_design_is_refused_when_edited(pwa, sampled, tmp_path):
 def _traj(pwa, runs):
     ks = np.arange(runs["y"].shape[1])
     return Trajectory(None, (), ks, ks * pwa.sample_time, runs["u"], runs["y"], runs["x"],
-                      runs["mode"], np.zeros(runs["y"].shape[:2] + (0,)))
+                      runs["mode"], np.zeros((*runs["y"].shape[:2], 0)))
 
 
 @pytest.mark.parametrize("policy", ["uniform", "extreme", "adversarial", "held"])

@@ -420,7 +420,8 @@ def check_generator(model: AffineModel, gen: Generator) -> dict[str, Any]:
             "eigvec_residual": eig_res, "region_max_eig": reg_max}
 
 
-def _second_difference(f: Any, rho: np.ndarray, j: int) -> np.ndarray:
+def _second_difference(f: Callable[[np.ndarray], np.ndarray], rho: np.ndarray,
+                       j: int) -> np.ndarray:
     """``f(rho + e_j) + f(rho - e_j) - 2 f(rho)``: twice the rho_j^2 coefficient of a matrix
     function quadratic in rho (exact up to round-off)."""
     e = np.zeros_like(rho)
@@ -475,10 +476,14 @@ def _check_affine(model: AffineModel, gen: Generator) -> dict[str, Any]:
                 raise GainFileError(f"generator {name!r}: the pole-region LMI (4.66) does "
                                     f"not hold at rho = {v.tolist()} (max eigenvalue {rm:.3e})")
     mid = 0.5 * (model.rho_min + model.rho_max)
+    def brl(r: np.ndarray) -> np.ndarray:
+        return lmi_matrix(model, gen, r)
+
+    def region_at(Lr: np.ndarray, Mr: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+        return lambda r: region_matrix(model, gen, r, Lr, Mr)
+
+    fns = [brl, *(region_at(Lr, Mr) for Lr, Mr in gen.region)]
     for j in range(model.d):
-        fns = [lambda r: lmi_matrix(model, gen, r)]
-        fns += [lambda r, Lr=Lr, Mr=Mr: region_matrix(model, gen, r, Lr, Mr)
-                for Lr, Mr in gen.region]
         for f in fns:
             cmin = float(np.linalg.eigvalsh(_second_difference(f, mid, j)).min())
             convex_min.append(cmin)
