@@ -20,6 +20,7 @@ from fd_monitor.core.qb import (
     stress_runs,
 )
 from fd_monitor.core.simulator import Trajectory
+from fd_monitor.design.qb import design_qb
 from fd_monitor.errors import GainFileError
 from fd_monitor.gains import load_gains
 from fd_monitor.system import load_system
@@ -51,13 +52,11 @@ def _independent_sampled_matrices(pwa):
     return out
 
 
-def test_shipped_sampled_design_satisfies_the_discrete_lmi(pwa, sampled):
-    """The discrete QB LMI at the returned point, rebuilt here from the plant file (not from
-    the designer's model): Schur form of V(e+) - (1-beta)V(e) - sum alpha_j w_j^2 + (sum alpha
-    - beta) < 0, plus sum alpha <= beta, 0 < beta < 1, P > 0, A_d - L C Schur."""
-    res = sampled.results
-    assert res["time"] == "discrete" and res["sample_time"] == pwa.sample_time
-    P, L, alpha, beta = gains_matrices(pwa, res)
+def _assert_discrete_qb(pwa, P, L, alpha, beta):
+    """The discrete QB condition at (P, L, alpha, beta), with the sampled matrices rebuilt
+    here from the plant file (not from the designer's model): the quadratic form of
+    V(e+) - (1-beta)V(e) - sum alpha_j w_j^2 (before the Schur complement) negative definite,
+    sum alpha <= beta, 0 < beta < 1, P > 0, A_d - L C Schur."""
     assert 0 < beta < 1 and np.all(alpha > 0) and alpha.sum() <= beta
     assert np.linalg.eigvalsh(P)[0] > 0
     for i, (Ad, Dd, C, E) in enumerate(_independent_sampled_matrices(pwa)):
@@ -67,6 +66,19 @@ def test_shipped_sampled_design_satisfies_the_discrete_lmi(pwa, sampled):
                       [G.T @ P @ Phi, G.T @ P @ G - np.diag(alpha)]])
         assert np.linalg.eigvalsh(0.5 * (M + M.T))[-1] < 0
         assert np.abs(np.linalg.eigvals(Phi)).max() < 1
+
+
+def test_designer_returns_a_point_where_the_discrete_lmi_holds(pwa):
+    d = design_qb(pwa, sampled=True)
+    assert d.model.time == "discrete" and max(d.lmi_max_eig) < 0
+    _assert_discrete_qb(pwa, d.P, d.L, d.alpha, d.beta)
+
+
+def test_shipped_sampled_design_satisfies_the_discrete_lmi(pwa, sampled):
+    res = sampled.results
+    assert res["time"] == "discrete" and res["sample_time"] == pwa.sample_time
+    P, L, alpha, beta = gains_matrices(pwa, res)
+    _assert_discrete_qb(pwa, P, L, alpha, beta)
     # the bound recorded is the ellipsoid's
     assert res["rho_max"] == pytest.approx(1 / np.sqrt(np.linalg.eigvalsh(P)[0]), rel=1e-9)
     assert "discrete-time QB" in res["guarantee"]
