@@ -45,7 +45,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from fd_monitor.core.batch import BatchResult
-from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.plant import SampledPlant, zoh
 from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.errors import DesignError, GainFileError
 from fd_monitor.system import System
@@ -56,12 +56,18 @@ __all__ = [
     "QBDetector",
     "check_certificate",
     "default_fault_states",
+    "ellipsoid_bound",
+    "gains_model",
+    "guarantee",
     "lmi_blocks",
     "observer_matrices",
     "qb_bounds",
     "qb_model",
     "run_batch",
+    "sampled_model",
     "spectral_abscissa",
+    "stress_runs",
+    "STRESS_POLICIES",
     "unobservable_unstable",
 ]
 
@@ -121,8 +127,12 @@ class QBModel:
         return int(self.D.shape[2])
 
 
-def qb_model(system: System) -> QBModel:
+def qb_model(system: System, time: str | None = None) -> QBModel:
     """Put the plant's modes in the paper's form with ``|w_j| <= 1``.
+
+    ``time="discrete"`` for a continuous-time plant gives the *sampled* model instead, the
+    exact map between samples that the simulator and the runtime see (see
+    :func:`sampled_model`); ``None`` (default) keeps the plant's own time domain.
 
     Disturbance ``w_j`` with bound ``wbar_j`` becomes ``wbar_j * w~_j``; measurement noise
     ``|v_i| <= vbar_i > 0`` becomes an extra channel with ``D`` column 0 and ``E`` column
@@ -143,7 +153,18 @@ def qb_model(system: System) -> QBModel:
     if len(times) != 1:
         raise DesignError(f"plant {system.name}: modes mix continuous and discrete time; the "
                           f"QB design needs one time domain for all modes")
-    time = times.pop()
+    time_ = times.pop()
+    if time is not None and time not in ("continuous", "discrete"):
+        raise DesignError(f"time: expected 'continuous' or 'discrete', got {time!r}")
+    if time == "continuous" and time_ == "discrete":
+        raise DesignError(f"plant {system.name}: modes are discrete time; a continuous-time QB "
+                          f"design needs continuous-time modes")
+    if time == "discrete" and time_ == "continuous":
+        return sampled_model(system, _qb_model(system, time_))
+    return _qb_model(system, time_)
+
+
+def _qb_model(system: System, time: str) -> QBModel:
     n, ny = system.n, system.ny
     wbar = np.asarray(system.disturbance_bound, dtype=float)
     vbar = np.asarray(system.measurement_noise, dtype=float)
@@ -170,6 +191,55 @@ def qb_model(system: System) -> QBModel:
                    np.array([m.C for m in system.modes], dtype=float), np.array(Ds),
                    np.array(Es), np.array([m.offset for m in system.modes], dtype=float),
                    w_names)
+
+
+def sampled_model(system: System, model: QBModel) -> QBModel:
+    """The exact sampled model of a continuous-time QB model (what runs at the samples).
+
+    Over one sample ``[t_k, t_k + Ts)`` the simulator (and a zero-order-hold plant) holds u, the
+    disturbance w and the affine term, adds the modelling uncertainty ``eta_k`` once per sample
+    and measures ``y_k = C x_k + E w_k + v_k``. So, exactly (Van Loan), ::
+
+        x_{k+1} = Ad_i x_k + Bd_i u_k + cd_i + Dd_i w_k,   y_k = C_i x_k + E_i w_k,
+        Ad_i = e^{A_i Ts},  [Bd_i Dd_i^w cd_i] = int_0^Ts e^{A_i s} ds [B_i D_i^w c_i],
+
+    with the unit-bounded channels of :func:`qb_model`: disturbance columns ZOH-discretised,
+    measurement-noise columns unchanged (D part zero), uncertainty columns ``ubar_j e_j``
+    (an increment per sample, not a rate). The disturbance is *held* over the sample, as the
+    simulator holds it; one that varies inside the sample (``|w(t)| <= 1`` only) reaches a
+    set larger by a term of order ``Ts^2 |A D| / 2``, which this model does not cover.
+
+    Parameters
+    ----------
+    system : System
+        The plant (its ``sample_time`` is Ts, s).
+    model : QBModel
+        ``qb_model(system)`` in continuous time.
+
+    Returns
+    -------
+    QBModel
+        ``time == "discrete"``, same channels and names.
+    """
+    dt = system.sample_time
+    nw = len(system.disturbances)
+    wbar = np.asarray(system.disturbance_bound, dtype=float)
+    A, B, D, off = [], [], [], []
+    for i, m in enumerate(system.modes):
+        assert m.A is not None
+        nu = m.B.shape[1]
+        G = np.column_stack([m.B, m.D * wbar, m.offset[:, None]])
+        Ad, Gd = zoh(np.asarray(m.A, dtype=float), G, dt)
+        Dd = model.D[i].copy()
+        Dd[:, :nw] = Gd[:, nu:nu + nw]
+        # uncertainty channels: continuous columns are ubar/Ts e_j; per sample it is ubar e_j
+        Dd[:, nw:] = model.D[i][:, nw:] * dt
+        A.append(Ad)
+        B.append(Gd[:, :nu])
+        D.append(Dd)
+        off.append(Gd[:, nu + nw])
+    return QBModel("discrete", model.mode_names, np.array(A), np.array(B).reshape(model.B.shape),
+                   model.C, np.array(D), model.E, np.array(off), model.w_names)
 
 
 def unobservable_unstable(A: np.ndarray, C: np.ndarray, time: str,
@@ -335,10 +405,74 @@ def gains_matrices(system: System, results: Mapping[str, Any]) -> tuple[
     return P, np.array(Ls), alpha, float(results["beta"])
 
 
+def gains_model(system: System, results: Mapping[str, Any]) -> QBModel:
+    """The model a QB gain file was designed for: the plant's own time domain, or the sampled
+    model (:func:`sampled_model`) when a continuous plant's file says ``time: discrete``.
+
+    Raises
+    ------
+    GainFileError
+        Nonlinear modes, or a continuous design for a discrete-time plant.
+    """
+    try:
+        return qb_model(system, results.get("time"))
+    except DesignError as exc:
+        raise GainFileError(f"results.time: {exc}") from None
+
+
+def guarantee(results: Mapping[str, Any], system: System) -> str:
+    """One line: what a QB gain file guarantees for the sampled runtime, and where.
+
+    A ``time: discrete`` design is proven for what runs (the error at the samples, eq. (6),
+    (8), (11) at every sample after the transient, with w held over the sample); a continuous
+    design is the paper's guarantee for the continuous-time observer (13a), which the runtime
+    only approximates by its ZOH discretisation.
+    """
+    if results.get("time") == "discrete":
+        how = ("sampled (exact ZOH, w held over the sample)"
+               if any(m.time == "continuous" for m in system.modes) else "discrete-time plant")
+        return (f"discrete-time QB, {how}: e_k'P e_k <= 1 + (1-beta)^k (V_0 - 1)+ at every "
+                f"sample while the estimated mode is the plant's")
+    return ("continuous-time QB (paper eq. 4-7): proven for the continuous observer; the "
+            "sampled runtime runs its ZOH discretisation, not covered by the proof")
+
+
+def ellipsoid_bound(V0: float | np.ndarray, beta: float, k: np.ndarray | int,
+                    time: str, dt: float) -> np.ndarray:
+    """Guaranteed ``V(e) = e'Pe`` after ``k`` samples from ``V(e_0) = V0`` (matched modes).
+
+    Discrete time: the LMI gives ``V_{k+1} <= (1-beta) V_k + beta`` (module docstring), so
+    ``V_k <= 1 + (1-beta)^k max(V0 - 1, 0)``. Continuous time (eq. 7, S-procedure):
+    ``dV/dt <= -beta (V - 1)``, so ``V(t) <= 1 + e^{-beta t} max(V0 - 1, 0)``, t = k dt.
+    The discrete-time analogue of eq. (5); after the transient it is eq. (6).
+
+    Parameters
+    ----------
+    V0 : float or numpy.ndarray
+        Initial value(s) of e'Pe.
+    beta : float
+    k : int or numpy.ndarray
+        Sample index(es).
+    time : str
+        ``"discrete"`` or ``"continuous"``.
+    dt : float
+        Sample time, s (continuous only).
+
+    Returns
+    -------
+    numpy.ndarray
+        Broadcast of V0 against k.
+    """
+    kk = np.asarray(k, dtype=float)
+    decay = (1.0 - beta) ** kk if time == "discrete" else np.exp(-beta * kk * dt)
+    return 1.0 + decay * np.maximum(np.asarray(V0, dtype=float) - 1.0, 0.0)
+
+
 def check_certificate(system: System, gains: Any) -> None:
     """Re-verify a QB gain file against ``system`` (what the loader calls).
 
-    Recomputes from P, L_i, alpha, beta and the plant: P symmetric positive definite, alpha > 0,
+    Recomputes from P, L_i, alpha, beta and the plant (its sampled model for a ``time:
+    discrete`` design of a continuous plant): P symmetric positive definite, alpha > 0,
     beta > 0 (< 1 in discrete time), (7b)/(14b) ``sum alpha <= beta``, every LMI (7a)/(14a) (or
     the discrete counterpart) negative definite, every ``A_i - L_i C_i`` Hurwitz (Schur), and
     the recorded bounds and certificate equal to their recomputation.
@@ -354,14 +488,8 @@ def check_certificate(system: System, gains: Any) -> None:
     GainFileError
         Naming the condition that fails.
     """
-    try:
-        model = qb_model(system)
-    except DesignError as exc:
-        raise GainFileError(str(exc)) from None
     res, cert = gains.results, gains.certificate
-    if res.get("time", model.time) != model.time:
-        raise GainFileError(f"results.time: designed in {res.get('time')} time, the plant's "
-                            f"modes are {model.time}")
+    model = gains_model(system, res)
     P, L, alpha, beta = gains_matrices(system, res)
     if alpha.shape != (model.q,):
         raise GainFileError(f"results.alpha: expected {model.q} multipliers "
@@ -481,7 +609,7 @@ class QBObserver:
                  mode0: int | None = None, L: np.ndarray | None = None,
                  matrices: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.system = system
-        self.model = qb_model(system)
+        self.model = gains_model(system, gains.results) if gains is not None else qb_model(system)
         if matrices is None:
             if L is None:
                 L = gains_matrices(system, gains.results)[1]
@@ -658,7 +786,7 @@ def run_batch(system: System, gains: Any, traj: Any, *, rho: float = 1.0,
         (N, K, n_channels) the unscaled bounds (``alarm = residual > rho * threshold``;
         ``extra["threshold_scalable"]`` is True); ``x_hat`` (N, K, n); ``mode_hat`` (N, K).
     """
-    model = qb_model(system)
+    model = gains_model(system, gains.results)
     if estimator == "qb":
         L = gains_matrices(system, gains.results)[1]
         Phi, Gam = observer_matrices(model, L, system.sample_time)
@@ -709,3 +837,95 @@ def summary_bounds(gains: Any, names: Sequence[str]) -> dict[str, float]:
     """Per-state guaranteed bounds of a gain file as a name -> value mapping (for reports)."""
     comp = np.asarray(gains.results["component_bound"], dtype=float)
     return {n: float(c) for n, c in zip(names, comp)}
+
+
+#: Disturbance policies of :func:`stress_runs`.
+STRESS_POLICIES = ("uniform", "extreme", "held", "adversarial")
+
+
+def stress_runs(system: System, gains: Any, policy: str, n_runs: int, n_samples: int,
+                seed: int = 0, hold_prob: float = 0.002) -> dict[str, np.ndarray]:
+    """Fault-free sampled runs of an autonomous plant under extreme disturbance policies.
+
+    The plant is the exact sampled plant (:class:`~fd_monitor.core.plant.SampledPlant`,
+    ``y_k = C x_k + E w_k``, w held over each sample), started from the plant file's initial
+    state, with the unit-bounded disturbance ``w_k`` (the plant's w times its bound) drawn by
+    ``policy``:
+
+    * ``uniform``: uniform in the box, redrawn every sample (the simulator's default);
+    * ``extreme``: a random vertex of the box every sample;
+    * ``held``: a random vertex held, switched to another random vertex with probability
+      ``hold_prob`` per sample (slow switching lets the state settle at the box's extremes);
+    * ``adversarial``: the vertex that maximises ``V(e_{k+1}) = e_{k+1}'P e_{k+1}`` of the
+      gain file's observer as it runs (true next state minus the runtime's next estimate,
+      for every vertex), greedy.
+
+    Parameters
+    ----------
+    system : System
+        Autonomous plant (no inputs) with linear modes.
+    gains : GainFile
+        QB gain file (its observer is the one attacked by ``adversarial``).
+    policy : str
+        One of :data:`STRESS_POLICIES`.
+    n_runs, n_samples : int
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``x`` (N, K, n) true states, ``y`` (N, K, ny), ``u`` (N, K, 0), ``mode`` (N, K) true
+        modes, ``w`` (N, K, nw) unit-bounded disturbances.
+    """
+    if policy not in STRESS_POLICIES:
+        raise ValueError(f"policy: expected one of {STRESS_POLICIES}, got {policy!r}")
+    if system.nu:
+        raise ValueError(f"stress_runs: plant {system.name} has inputs; only autonomous plants")
+    model = gains_model(system, gains.results)
+    P, L, _, _ = gains_matrices(system, gains.results)
+    Phi, Gam = observer_matrices(model, L, system.sample_time)
+    plant = SampledPlant(system)
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    N, K, n, nw = n_runs, n_samples, system.n, len(system.disturbances)
+    wbar = np.asarray(system.disturbance_bound, dtype=float)
+    verts = np.array(np.meshgrid(*([[-1.0, 1.0]] * nw), indexing="ij")).reshape(nw, -1).T
+    x = np.tile(system.initial_state, (N, 1)).astype(float)
+    q = np.full(N, system.initial_mode, dtype=int)
+    xh, qh = np.zeros((N, n)), q.copy()
+    u0 = np.zeros((N, 0))
+    held = verts[rng.integers(len(verts), size=N)]
+    out = {"x": np.empty((N, K, n)), "y": np.empty((N, K, system.ny)),
+           "u": np.empty((N, K, 0)), "mode": np.empty((N, K), dtype=int),
+           "w": np.empty((N, K, nw))}
+    nv = len(verts)
+    for k in range(K):
+        if policy == "uniform":
+            w = rng.uniform(-1.0, 1.0, size=(N, nw))
+        elif policy == "extreme":
+            w = verts[rng.integers(len(verts), size=N)]
+        elif policy == "held":
+            sw = rng.random(N) < hold_prob
+            held[sw] = verts[rng.integers(len(verts), size=int(sw.sum()))]
+            w = held
+        else:
+            # every run x every vertex: next true state minus next estimate (the runtime's map)
+            wv = np.tile(verts, (N, 1)) * wbar
+            qv, xv = np.repeat(q, nv), np.repeat(x, nv, axis=0)
+            yv = plant.output(qv, xv, wv)
+            zv = np.concatenate([yv, np.ones((N * nv, 1))], axis=1)
+            qhv = np.repeat(qh, nv)
+            ev = (plant.step(qv, xv, np.zeros((N * nv, 0)), wv)
+                  - np.einsum("nij,nj->ni", Phi[qhv], np.repeat(xh, nv, axis=0))
+                  - np.einsum("nij,nj->ni", Gam[qhv], zv))
+            Vv = np.einsum("ni,ij,nj->n", ev, P, ev).reshape(N, nv)
+            w = verts[Vv.argmax(axis=1)]
+        y = plant.output(q, x, w * wbar)
+        out["x"][:, k], out["y"][:, k], out["mode"][:, k], out["w"][:, k] = x, y, q, w
+        z = np.concatenate([y, np.ones((N, 1))], axis=1)
+        xh_next = np.einsum("nij,nj->ni", Phi[qh], xh) + np.einsum("nij,nj->ni", Gam[qh], z)
+        qh = plant.next_mode(qh, xh_next, u0, "autonomous")
+        xh = xh_next
+        x_next = plant.step(q, x, u0, w * wbar)
+        q = plant.next_mode(q, x_next, u0, "autonomous")
+        x = x_next
+    return out

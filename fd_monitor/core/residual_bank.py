@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -93,6 +93,8 @@ class AffineModel:
     rho_names : tuple of str
     scheduling : dict or None
         ``{map, params}``: how an LPV bank computes ``rho`` from ``y`` when it is not given.
+    rate_min, rate_max : numpy.ndarray or None
+        (d,) bounds of ``d rho / dt``, 1/s (thesis 6.52): only for affine Lyapunov functions.
     """
 
     A0: np.ndarray
@@ -104,6 +106,8 @@ class AffineModel:
     rho_max: np.ndarray
     rho_names: tuple[str, ...] = ()
     scheduling: Mapping[str, Any] | None = None
+    rate_min: np.ndarray | None = None
+    rate_max: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -141,7 +145,9 @@ class AffineModel:
         rmax = np.asarray(m.get("rho_max", np.zeros(d)), dtype=float).reshape(d)
         names = tuple(str(s) for s in (m.get("rho_names") or []))
         sched = m.get("scheduling") or None
-        return cls(A0, A_rho, B0, B_rho, C, rmin, rmax, names, sched)
+        rates = [None if m.get(k) is None else np.asarray(m[k], dtype=float).reshape(d)
+                 for k in ("rate_min", "rate_max")]
+        return cls(A0, A_rho, B0, B_rho, C, rmin, rmax, names, sched, rates[0], rates[1])
 
 
 def vertices(rho_min: np.ndarray, rho_max: np.ndarray) -> list[np.ndarray]:
@@ -184,6 +190,13 @@ class Generator:
         Squared attenuation bounds ``{nuisance, disturbance, noise}`` (4.22).
     region : list of (numpy.ndarray, numpy.ndarray)
         LMI-region characteristic matrices ``(Lr, Mr)`` (2.26), possibly empty.
+    P_rho : numpy.ndarray
+        (d, n, n) affine parts of ``P(rho) = P + sum rho_j P_j`` (thesis 6.54, affine
+        quadratic stability); empty (0, n, n) for a common P.
+    K_rho : numpy.ndarray
+        (d + 1, n, p) with an affine P: ``K(rho) = K_0 + sum rho_j K_j`` (times the projection
+        ``I - C V (C V)^+``), the gain being ``L(rho) = L0 + sum rho_j L_j + P(rho)^-1
+        K(rho)``; empty otherwise.
     """
 
     fault: str
@@ -200,12 +213,31 @@ class Generator:
     P: np.ndarray
     gamma2: Mapping[str, float]
     region: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    P_rho: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    K_rho: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+
+    @property
+    def affine(self) -> bool:
+        """True for an affine Lyapunov function ``P(rho)`` (thesis 6.4)."""
+        return self.P_rho.shape[0] > 0
+
+    def Pm(self, rho: np.ndarray | None = None) -> np.ndarray:
+        """(n, n) ``P(rho) = P + sum rho_j P_j`` (P for a common Lyapunov matrix)."""
+        if rho is None or not self.affine:
+            return self.P
+        return self.P + np.tensordot(np.asarray(rho, dtype=float), self.P_rho, axes=1)
 
     def L(self, rho: np.ndarray | None = None) -> np.ndarray:
-        """(n, p) gain ``L(rho) = L0 + sum rho_j L_j`` (6.10)."""
-        if rho is None or self.L_rho.shape[0] == 0:
+        """(n, p) gain ``L(rho) = L0 + sum rho_j L_j`` (6.10); with an affine P(rho) plus
+        ``P(rho)^-1 K(rho)`` (6.67: ``K(rho) = P(rho) Lbar(rho)`` affine)."""
+        if not self.affine and (rho is None or self.L_rho.shape[0] == 0):
             return self.L0
-        return self.L0 + np.tensordot(np.asarray(rho, dtype=float), self.L_rho, axes=1)
+        r = np.zeros(self.P_rho.shape[0]) if rho is None else np.asarray(rho, dtype=float)
+        L = self.L0 + np.tensordot(r, self.L_rho, axes=1)
+        if self.affine:
+            K = self.K_rho[0] + np.tensordot(r, self.K_rho[1:], axes=1)
+            L = L + np.linalg.solve(self.Pm(r), K)
+        return L
 
     @classmethod
     def from_results(cls, g: Mapping[str, Any], kind: str, n: int, p: int) -> Generator:
@@ -226,7 +258,8 @@ class Generator:
                    np.asarray(g["H"], dtype=float).reshape(p, p),
                    np.asarray(g["L0"], dtype=float).reshape(n, p),
                    _stack(g.get("L_rho"), (n, p)),
-                   np.atleast_2d(np.asarray(g["P"], dtype=float)), g2, region)
+                   np.atleast_2d(np.asarray(g["P"], dtype=float)), g2, region,
+                   _stack(g.get("P_rho"), (n, n)), _stack(g.get("K_rho"), (n, p)))
 
 
 def _results(gains: Any) -> Mapping[str, Any]:
@@ -248,8 +281,12 @@ def parse_bank(results: Mapping[str, Any]) -> tuple[str, AffineModel, list[Gener
 # LMIs evaluated with numpy (the designer's independent check and the loader's)
 
 
-def lmi_matrix(model: AffineModel, gen: Generator, rho: np.ndarray) -> np.ndarray:
+def lmi_matrix(model: AffineModel, gen: Generator, rho: np.ndarray,
+               rho_dot: np.ndarray | None = None) -> np.ndarray:
     """The bounded-real LMI matrix of a generator at the parameter value ``rho``.
+
+    With an affine Lyapunov function (thesis 6.4) P is ``P(rho)`` and the (1,1) block gets
+    ``+ sum rho_dot_j P_j`` (dP/dt, 6.56, 6.66), ``rho_dot`` a rate (default zero).
 
     ``lti`` / ``lpv`` (thesis 4.20/4.23 with the affine gain of 6.40, one joint LMI with a
     bound per input group)::
@@ -292,7 +329,7 @@ def lmi_matrix(model: AffineModel, gen: Generator, rho: np.ndarray) -> np.ndarra
         M[2 * n:, 2 * n:] = -g * np.eye(m + p)
         return np.triu(M) + np.triu(M, 1).T
     L = gen.L(rho)
-    P = gen.P
+    P = gen.Pm(rho)
     Acl = A - L @ C
     m, nw, nn = gen.Fhat.shape[1], gen.Dw.shape[1], gen.Dn.shape[1]
     n, p = model.n, C.shape[0]
@@ -303,7 +340,9 @@ def lmi_matrix(model: AffineModel, gen: Generator, rho: np.ndarray) -> np.ndarra
                           np.full(nw, gen.gamma2.get("disturbance", 0.0)),
                           np.full(nn, gen.gamma2.get("noise", 0.0))])
     HW = H @ Wout
-    top = np.hstack([Acl.T @ P + P @ Acl + HC.T @ HC, P @ Bcl + HC.T @ HW])
+    dP = (np.tensordot(np.asarray(rho_dot, dtype=float), gen.P_rho, axes=1)
+          if gen.affine and rho_dot is not None else 0.0)
+    top = np.hstack([Acl.T @ P + P @ Acl + dP + HC.T @ HC, P @ Bcl + HC.T @ HW])
     bot = np.hstack([(P @ Bcl + HC.T @ HW).T, HW.T @ HW - np.diag(gam)])
     M = np.vstack([top, bot])
     return 0.5 * (M + M.T)
@@ -320,7 +359,7 @@ def region_matrix(model: AffineModel, gen: Generator, rho: np.ndarray,
         P = gen.P[n:, n:]
         Acl = model.A0 - gen.L0 @ model.C
     else:
-        P = gen.P
+        P = gen.Pm(rho)
         Acl = model.A(rho) - gen.L(rho) @ model.C
     PA = P @ Acl
     M = np.kron(Lr, P) + np.kron(Mr, PA) + np.kron(Mr.T, PA.T)
@@ -338,6 +377,8 @@ def check_generator(model: AffineModel, gen: Generator) -> dict[str, Any]:
     """
     name = gen.fault
     verts = vertices(model.rho_min, model.rho_max)
+    if gen.affine:
+        return _check_affine(model, gen)
     p_min = float(np.linalg.eigvalsh(0.5 * (gen.P + gen.P.T)).min())
     if not p_min > 0:
         raise GainFileError(f"generator {name!r}: P is not positive definite "
@@ -377,6 +418,86 @@ def check_generator(model: AffineModel, gen: Generator) -> dict[str, Any]:
         raise GainFileError(f"generator {name!r}: H is not an orthogonal projection (4.55)")
     return {"lmi_max_eig": lmi_max, "p_min_eig": p_min, "closed_loop_max_real": cl_max,
             "eigvec_residual": eig_res, "region_max_eig": reg_max}
+
+
+def _second_difference(f: Callable[[np.ndarray], np.ndarray], rho: np.ndarray,
+                       j: int) -> np.ndarray:
+    """``f(rho + e_j) + f(rho - e_j) - 2 f(rho)``: twice the rho_j^2 coefficient of a matrix
+    function quadratic in rho (exact up to round-off)."""
+    e = np.zeros_like(rho)
+    e[j] = 1.0
+    return f(rho + e) + f(rho - e) - 2.0 * f(rho)
+
+
+def _check_affine(model: AffineModel, gen: Generator) -> dict[str, Any]:
+    """Certificate of a generator with an affine Lyapunov function ``P(rho)`` (thesis 6.4).
+
+    Checks, from the stored numbers alone: ``P(v) > 0`` at every vertex v (then on the box,
+    P being affine); the bounded-real LMI (4.23 with ``P(rho)`` and ``dP/dt = sum rho_dot_j
+    P_j``, thesis 6.66) negative definite at every (vertex, rate vertex); multi-convexity
+    (its second derivative along each rho_j, twice the rho_j^2 coefficient, positive
+    semidefinite, as (6.63)/(6.66) require), so negativity at the vertices implies it on
+    the whole box; the same for the pole-region LMI; A(v) - L(v) C Hurwitz and the
+    eigenvector constraint at every vertex.
+    """
+    name = gen.fault
+    if model.rate_min is None or model.rate_max is None:
+        raise GainFileError(f"generator {name!r}: affine P(rho) without rate bounds "
+                            f"(results.model.rate_min / rate_max)")
+    verts = vertices(model.rho_min, model.rho_max)
+    rates = vertices(model.rate_min, model.rate_max)
+    scale = max(1.0, float(np.abs(gen.P).max()))
+    p_min = min(float(np.linalg.eigvalsh(gen.Pm(v)).min()) for v in verts)
+    if not p_min > 0:
+        raise GainFileError(f"generator {name!r}: P(rho) is not positive definite at a vertex "
+                            f"(min eigenvalue {p_min:.3e})")
+    lmi_max, cl_max, reg_max, convex_min = [], [], [], []
+    eig_res = 0.0
+    for v in verts:
+        lm = max(float(np.linalg.eigvalsh(lmi_matrix(model, gen, v, k)).max()) for k in rates)
+        lmi_max.append(lm)
+        if not lm < 0:
+            raise GainFileError(f"generator {name!r}: the bounded-real LMI (6.66) does not "
+                                f"hold at rho = {v.tolist()} (max eigenvalue {lm:.3e} >= 0)")
+        Acl = model.A(v) - gen.L(v) @ model.C
+        cl = float(np.linalg.eigvals(Acl).real.max())
+        cl_max.append(cl)
+        if not cl < 0:
+            raise GainFileError(f"generator {name!r}: A - L C is not Hurwitz at rho = "
+                                f"{v.tolist()} (max real part {cl:.3e})")
+        if np.isfinite(gen.lam) and gen.V.shape[1]:
+            res = np.linalg.norm(Acl @ gen.V - gen.lam * gen.V)
+            eig_res = max(eig_res, float(res / ((np.linalg.norm(model.A(v)) + abs(gen.lam))
+                                                * np.linalg.norm(gen.V))))
+        for Lr, Mr in gen.region:
+            rm = float(np.linalg.eigvalsh(region_matrix(model, gen, v, Lr, Mr)).max())
+            reg_max.append(rm)
+            if rm > 1e-9 * scale:
+                raise GainFileError(f"generator {name!r}: the pole-region LMI (4.66) does "
+                                    f"not hold at rho = {v.tolist()} (max eigenvalue {rm:.3e})")
+    mid = 0.5 * (model.rho_min + model.rho_max)
+    def brl(r: np.ndarray) -> np.ndarray:
+        return lmi_matrix(model, gen, r)
+
+    def region_at(Lr: np.ndarray, Mr: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+        return lambda r: region_matrix(model, gen, r, Lr, Mr)
+
+    fns = [brl, *(region_at(Lr, Mr) for Lr, Mr in gen.region)]
+    for j in range(model.d):
+        for f in fns:
+            cmin = float(np.linalg.eigvalsh(_second_difference(f, mid, j)).min())
+            convex_min.append(cmin)
+            if cmin < -1e-7 * scale:
+                raise GainFileError(f"generator {name!r}: multi-convexity fails along "
+                                    f"{model.rho_names[j] if model.rho_names else j} "
+                                    f"(second derivative min eigenvalue {cmin:.3e} < 0)")
+    if eig_res > EIGVEC_RTOL:
+        raise GainFileError(f"generator {name!r}: the eigenvector constraint (4.37) "
+                            f"(A - L C) V = lambda V does not hold (relative residual "
+                            f"{eig_res:.3e})")
+    return {"lmi_max_eig": lmi_max, "p_min_eig": p_min, "closed_loop_max_real": cl_max,
+            "eigvec_residual": eig_res, "region_max_eig": reg_max,
+            "multiconvex_min_eig": convex_min}
 
 
 def check_certificate(system: System, gains: Any) -> dict[str, Any]:

@@ -41,6 +41,17 @@ Design file section (``config/systems/<plant>.design.yaml``)::
       scheduling: {map: three_tank_sqrt, params: {...}}   # rho from y at run time
       thresholds: {method: bound, levels: {nuisance: 1.0, disturbance: 0.0, noise: 0.0},
                    margin: 3.0}      # or {method: monte_carlo, scenario, runs, settle, margin}
+      lyapunov: common               # lpv: common P (6.40) | affine P(rho) (6.4, 6.66)
+      rate: {min: [-1.0], max: [1.0]}   # bounds of d rho/dt, 1/s (6.52; lyapunov: affine)
+
+Affine quadratic stability (thesis 6.4, ``lyapunov: affine``): ``P(rho) = P_0 + sum rho_j
+P_j`` and ``K(rho) = P(rho) Lbar(rho) = K_0 + sum rho_j K_j``, so the gain is ``L(rho) =
+(A(rho) - lambda I) V (C V)^+ + P(rho)^-1 K(rho) (I - C V (C V)^+)``. The bounded-real LMI
+gets ``dP/dt = sum rho_dot_j P_j`` and is imposed at every (vertex, rate vertex); it is
+quadratic in rho, so multi-convexity (its rho_j^2 coefficient positive semidefinite: ``He(P_j
+Abar_j) >= 0`` and ``P_j A_j V (C V)^+ Wout = 0``; for the pole region ``Mr (x) P_j Abar_j +
+Mr' (x) (P_j Abar_j)' >= 0``) extends the vertex conditions to the box (6.63). ``P_j = 0``
+is the common-P design, so the affine optimum is never worse.
 """
 
 from __future__ import annotations
@@ -85,7 +96,7 @@ __all__ = ["BankSpec", "FaultDir", "add_arguments", "design", "parse_spec", "run
 EPS = 1e-6  # strictness margin of every LMI (M <= -EPS I, P >= EPS I)
 _SECTION_KEYS = {"kind", "faults", "directions", "weights", "lambda_grid", "lambda", "noise",
                  "region", "compare_pure", "parameters", "A_rho", "B_rho", "model",
-                 "scheduling", "thresholds", "description"}
+                 "scheduling", "thresholds", "description", "lyapunov", "rate"}
 
 
 @dataclass(frozen=True)
@@ -136,6 +147,7 @@ class BankSpec:
     origin: str
     sha256: str
     extra: dict[str, Any] = field(default_factory=dict)
+    lyapunov: str = "common"
 
 
 # --------------------------------------------------------------------------------------
@@ -231,7 +243,25 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
         if s.get("map") not in SCHEDULING_MAPS:
             ctx.fail("scheduling.map", f"one of {sorted(SCHEDULING_MAPS)}", s.get("map"))
         sched = {"map": s["map"], "params": dict(s.get("params") or {})}
-    model = AffineModel(A0, A_rho, B0, B_rho, C, rmin, rmax, names, sched)
+    lyap = section.get("lyapunov", "common")
+    if lyap not in ("common", "affine"):
+        ctx.fail("lyapunov", "common or affine", lyap)
+    rate_min = rate_max = None
+    if lyap == "affine":
+        if kind != "lpv":
+            ctx.fail("lyapunov", "affine only for kind lpv (thesis 6.4: rho and its rate "
+                     "measured)", lyap)
+        if "rate" not in section:
+            ctx.fail("rate", "{min, max} bounds of d rho/dt (6.52), needed by lyapunov: "
+                     "affine (missing key)", show=False)
+        rt = ctx.mapping("rate", section["rate"], {"min", "max"})
+        rate_min = ctx.vector("rate.min", rt.get("min"), d)
+        rate_max = ctx.vector("rate.max", rt.get("max"), d)
+        if np.any(rate_max < rate_min):
+            ctx.fail("rate.max", "max >= min for every parameter", rt.get("max"))
+    elif "rate" in section:
+        ctx.fail("rate", "rate bounds only with lyapunov: affine", show=False)
+    model = AffineModel(A0, A_rho, B0, B_rho, C, rmin, rmax, names, sched, rate_min, rate_max)
 
     # fault directions
     dirs_raw = ctx.mapping("directions", section.get("directions") or {})
@@ -311,7 +341,7 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
     if th.get("method", "none") not in ("none", "bound", "monte_carlo"):
         ctx.fail("thresholds.method", "none, bound or monte_carlo", th.get("method"))
     return BankSpec(str(kind), model, faults, [f.name for f in faults], weights, grid, fixed,
-                    Dw, Ew, Dn, region, region_spec, cp_, th, origin, sha)
+                    Dw, Ew, Dn, region, region_spec, cp_, th, origin, sha, lyapunov=str(lyap))
 
 
 def _with_k(faults: list[FaultDir], A: np.ndarray, C: np.ndarray, origin: str,
@@ -455,6 +485,11 @@ class _Problem:
         d = m.d if spec.kind == "lpv" else 0
         P = cp.Variable((n, n), symmetric=True)
         Ks = [cp.Variable((n, p)) for _ in range(d + 1)]
+        affine = sc and spec.lyapunov == "affine" and d > 0
+        Pj = [cp.Variable((n, n), symmetric=True) for _ in range(d)] if affine else []
+        self.Pj = Pj
+        rates = (vertices(m.rate_min, m.rate_max)
+                 if affine and m.rate_min is not None and m.rate_max is not None else [None])
         groups = {"nuisance": gd.Fhat.shape[1], "disturbance": spec.Dw.shape[1],
                   "noise": spec.Dn.shape[1]}
         gv = {k: cp.Variable(nonneg=True) for k, c in groups.items() if c > 0}
@@ -469,24 +504,47 @@ class _Problem:
         for v in verts:
             Av = m.A(v)
             Kv = Ks[0] + sum(float(v[j]) * Ks[j + 1] for j in range(d)) if d else Ks[0]
+            Pv = P + sum(float(v[j]) * Pj[j] for j in range(d)) if affine else P
             if sc:
-                PAcl = P @ (Av - Av @ V @ CVp @ C) + lam * (P @ (V @ CVp @ C)) - Kv @ (Pi @ C)
-                PL = P @ (Av @ V @ CVp) - lam * (P @ (V @ CVp)) + Kv @ Pi
+                PAcl = Pv @ (Av - Av @ V @ CVp @ C) + lam * (Pv @ (V @ CVp @ C)) \
+                    - Kv @ (Pi @ C)
+                PL = Pv @ (Av @ V @ CVp) - lam * (Pv @ (V @ CVp)) + Kv @ Pi
             else:
                 PAcl = P @ Av - Kv @ C
                 PL = Kv
-            top = PAcl + PAcl.T + HC.T @ HC
-            if ncol:
-                PB = P @ W - PL @ Wout if np.any(Wout) else P @ W
-                off = PB + HC.T @ HW
-                M = cp.bmat([[top, off], [off.T, HW.T @ HW - Gam]])
-            else:
-                M = top
-            cons.append(0.5 * (M + M.T) << -EPS * np.eye(M.shape[0]))
+            for k in rates:
+                top = PAcl + PAcl.T + HC.T @ HC
+                if k is not None:
+                    top = top + sum(float(k[j]) * Pj[j] for j in range(d))
+                if ncol:
+                    PB = Pv @ W - PL @ Wout if np.any(Wout) else Pv @ W
+                    off = PB + HC.T @ HW
+                    M = cp.bmat([[top, off], [off.T, HW.T @ HW - Gam]])
+                else:
+                    M = top
+                cons.append(0.5 * (M + M.T) << -EPS * np.eye(M.shape[0]))
             for Lr, Mr in spec.region:
-                RM = _region_lmi(Lr, Mr, P, PAcl, n)
+                RM = _region_lmi(Lr, Mr, Pv, PAcl, n)
                 cons.append(0.5 * (RM + RM.T) << -EPS * np.eye(RM.shape[0]))
-        cons.append(P >> EPS * np.eye(n))
+            if affine:
+                cons.append(Pv >> EPS * np.eye(n))
+        if affine:
+            # multi-convexity (6.63): the rho_j^2 coefficient of each LMI is PSD
+            for j in range(d):
+                Aj = m.A_rho[j]
+                X = Pj[j] @ (Aj - Aj @ V @ CVp @ C)
+                cons.append(0.5 * (X + X.T) >> 0)
+                if ncol and np.any(Wout):
+                    cons.append(Pj[j] @ (Aj @ V @ CVp @ Wout) == 0)
+                for Lr, Mr in spec.region:
+                    if np.allclose(np.diag(Mr), 0.0):
+                        # [[0, X], [X', 0]]-type blocks are PSD only for X = 0
+                        cons.append(X == 0)
+                    else:
+                        RX = _region_lmi(np.zeros_like(Lr), Mr, np.zeros((n, n)), X, n)
+                        cons.append(0.5 * (RX + RX.T) >> 0)
+        else:
+            cons.append(P >> EPS * np.eye(n))
         w = spec.weights
         wk = {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
         obj = sum(wk[k] * gv[k] for k in gv) if gv else cp.Constant(0.0)
@@ -522,6 +580,18 @@ class _Problem:
                 L0 = Lbar
             P = np.block([[np.asarray(self.P1.value), np.zeros((n, n))], [np.zeros((n, n)), P2]])
             L_rho = np.zeros((0, n, p))
+        elif self.Pj:
+            # affine P(rho): L(rho) = (A(rho) - lam I) V (CV)^+ + P(rho)^-1 K(rho) Pi
+            P = np.asarray(self.P.value)
+            P_rho = np.array([0.5 * (np.asarray(Q.value) + np.asarray(Q.value).T)
+                              for Q in self.Pj])
+            K_rho = np.array([np.asarray(K.value) @ gd.Pi for K in self.Ks])
+            L0 = (m.A0 - lam * np.eye(n)) @ gd.V @ gd.CVp
+            L_rho = np.array([m.A_rho[j] @ gd.V @ gd.CVp for j in range(m.d)])
+            P = 0.5 * (P + P.T)
+            return Generator(gd.fault.name, self.spec.kind, lam, gd.V, gd.Fhat, self.spec.Dw,
+                             self.spec.Ew, self.spec.Dn, gd.H, L0, L_rho, P, self.gamma2(),
+                             tuple(self.spec.region), P_rho, K_rho)
         else:
             P = np.asarray(self.P.value)
             Lb = [np.linalg.solve(P, np.asarray(K.value)) for K in self.Ks]
@@ -620,10 +690,13 @@ def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
 
 
 def _gen_to_plain(g: Generator) -> dict[str, Any]:
-    return {"fault": g.fault, "lambda": None if not np.isfinite(g.lam) else g.lam,
-            "V": g.V, "Fhat": g.Fhat, "Dw": g.Dw, "Ew": g.Ew, "Dn": g.Dn, "H": g.H,
-            "L0": g.L0, "L_rho": g.L_rho, "P": g.P, "gamma2": dict(g.gamma2),
-            "region": [{"L": Lr, "M": Mr} for Lr, Mr in g.region]}
+    out = {"fault": g.fault, "lambda": None if not np.isfinite(g.lam) else g.lam,
+           "V": g.V, "Fhat": g.Fhat, "Dw": g.Dw, "Ew": g.Ew, "Dn": g.Dn, "H": g.H,
+           "L0": g.L0, "L_rho": g.L_rho, "P": g.P, "gamma2": dict(g.gamma2),
+           "region": [{"L": Lr, "M": Mr} for Lr, Mr in g.region]}
+    if g.affine:
+        out["P_rho"], out["K_rho"] = g.P_rho, g.K_rho
+    return out
 
 
 def dc_gains(model: AffineModel, gen: Generator, faults: Sequence[FaultDir],
@@ -665,7 +738,10 @@ def design(system: System, section: Mapping[str, Any], origin: str = "<dict>",
         "model": {"A0": spec.model.A0, "A_rho": spec.model.A_rho, "B0": spec.model.B0,
                   "B_rho": spec.model.B_rho, "C": spec.model.C,
                   "rho_names": list(spec.model.rho_names), "rho_min": spec.model.rho_min,
-                  "rho_max": spec.model.rho_max, "scheduling": spec.model.scheduling},
+                  "rho_max": spec.model.rho_max, "scheduling": spec.model.scheduling,
+                  **({"rate_min": spec.model.rate_min, "rate_max": spec.model.rate_max}
+                     if spec.lyapunov == "affine" else {})},
+        **({"lyapunov": "affine"} if spec.lyapunov == "affine" else {}),
         "generators": [dict(_gen_to_plain(g), k=o["k"], mu=o["mu"],
                             sensitivity=o["sensitivity"], mu_grid=o["mu_grid"])
                        for g, o in zip(gens, outs)],
@@ -690,7 +766,11 @@ def design(system: System, section: Mapping[str, Any], origin: str = "<dict>",
     parameters = {"kind": spec.kind, "faults": spec.generators, "weights": spec.weights,
                   "lambda_grid": spec.grid, "lambda": spec.fixed_lambda,
                   "region": spec.region_spec, "noise": bool(spec.Dn.shape[1]),
-                  "compare_pure": spec.compare_pure, "design_file": spec.origin,
+                  "compare_pure": spec.compare_pure,
+                  **({"lyapunov": "affine", "rate": {"min": spec.model.rate_min,
+                                                     "max": spec.model.rate_max}}
+                     if spec.lyapunov == "affine" else {}),
+                  "design_file": spec.origin,
                   "design_file_sha256": spec.sha256, "thresholds": dict(spec.thresholds),
                   "lmi_margin": EPS}
     certificate = {o["gen"].fault: o["cert"] for o in outs}
@@ -755,6 +835,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also design the pure attenuation generators (4.24)")
     parser.add_argument("--plot", metavar="DIR", default=None,
                         help="write singular-value and mu(lambda) plots into DIR")
+    parser.add_argument("--lyapunov", choices=("common", "affine"), default=None,
+                        help="lpv banks: common P (6.40) or affine P(rho) (6.4, needs rate "
+                             "bounds: design file 'rate' or --rate); default from the design "
+                             "file, else common")
+    parser.add_argument("--rate", default=None, metavar="R1,R2,...",
+                        help="with --lyapunov affine: |d rho_j/dt| <= R_j, 1/s (overrides the "
+                             "design file's rate)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -773,6 +860,15 @@ def run(args: argparse.Namespace) -> int:
                                   "num": int(args.grid[2])}
     if args.compare_pure:
         section["compare_pure"] = True
+    if args.lyapunov is not None:
+        section["lyapunov"] = args.lyapunov
+    if args.rate is not None:
+        try:
+            r = [abs(float(v)) for v in args.rate.split(",") if v.strip()]
+        except ValueError:
+            raise DesignError(f"--rate: expected comma-separated numbers, got "
+                              f"{args.rate!r}") from None
+        section["rate"] = {"min": [-v for v in r], "max": r}
     out = design(system, section, origin, sha)
     path = Path(args.output) if args.output else default_gain_path(system.name, "hinf_sc")
     save_gains(path, "hinf_sc", system, out["parameters"], out["results"], out["certificate"],

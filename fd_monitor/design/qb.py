@@ -78,6 +78,7 @@ from scipy.optimize import minimize_scalar
 from fd_monitor.core.qb import (
     QBModel,
     default_fault_states,
+    guarantee,
     lmi_blocks,
     qb_bounds,
     qb_model,
@@ -330,7 +331,7 @@ def _fail_search(system: System, search: list[tuple[float, float, str]]) -> Desi
 
 
 def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6,
-              xatol: float = _XATOL) -> QBDesign:
+              xatol: float = _XATOL, sampled: bool = False) -> QBDesign:
     """Design the QB (hybrid) Luenberger observer of ``system``.
 
     Parameters
@@ -344,6 +345,11 @@ def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6
         Strictness margin of the LMIs at the returned point.
     xatol : float
         Tolerance of the Brent search in log(beta).
+    sampled : bool
+        Design for the sampled plant (what the runtime runs): a continuous plant is
+        discretised exactly at its sample time (:func:`fd_monitor.core.qb.sampled_model`, ZOH,
+        w held over the sample) and the discrete-time LMI is solved, so the guarantee holds at
+        the samples. Plants given in discrete time are designed in discrete time anyway.
 
     Returns
     -------
@@ -355,7 +361,7 @@ def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6
         Nonlinear modes, a mode that is not detectable (named), infeasible LMIs, a solver
         failure (with its status and what to try), or a result that fails verification.
     """
-    model = qb_model(system)
+    model = qb_model(system, "discrete" if sampled else None)
     # cvxpy canonicalises P @ A_i (P symmetric n x n) through a coefficient matrix of about
     # (n (n + 1) / 2)^2 floats (an n = 500 plant asked for 125 GB and aborted): refuse before
     # allocating, with the size it would need.
@@ -518,7 +524,7 @@ def write_gain_file(path: str | Path, system: System, d: QBDesign,
                     fault_states: tuple[str, ...], parameters: dict[str, Any]) -> Path:
     """Write ``d`` as a QB gain file (results + certificate the loader re-verifies)."""
     idx = [system.states.index(s) for s in fault_states]
-    results = {
+    results: dict[str, Any] = {
         "time": d.model.time,
         "modes": list(system.mode_names),
         "L": {name: d.L[i] for i, name in enumerate(system.mode_names)},
@@ -534,6 +540,10 @@ def write_gain_file(path: str | Path, system: System, d: QBDesign,
         "fault_states": list(fault_states),
         "fault_nominal": system.initial_state[idx],
     }
+    if d.model.time == "discrete" and any(m.time == "continuous" for m in system.modes):
+        results["discretisation"] = "exact ZOH at sample_time (u, w, offset held over the sample)"
+        results["sample_time"] = system.sample_time
+    results["guarantee"] = guarantee(results, system)
     cert = {
         "lmi": "(14a)-(14b)" if d.model.time == "continuous" else "discrete-time QB LMI",
         "lmi_max_eig": d.lmi_max_eig,
@@ -551,6 +561,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "beta that minimises rho_max)")
     parser.add_argument("--margin", type=float, default=1e-6,
                         help="strictness margin of the LMIs (default 1e-6)")
+    parser.add_argument("--sampled", action="store_true",
+                        help="design for the sampled plant the runtime runs (exact ZOH at the "
+                             "plant's sample time, discrete-time QB LMI; gain file time: "
+                             "discrete); default: the plant's own time domain")
     parser.add_argument("--fault-states", default=None, metavar="S1,S2",
                         help="states that model faults, monitored by the detector (default: "
                              "state_jump targets and states constant in every mode)")
@@ -570,17 +584,21 @@ def run(args: argparse.Namespace) -> int:
                               f"({', '.join(system.states)})")
     else:
         fs = default_fault_states(system)
-    d = design_qb(system, args.beta, margin=args.margin)
-    out = Path(args.output) if args.output else default_gain_path(system.name, "qb")
+    d = design_qb(system, args.beta, margin=args.margin, sampled=args.sampled)
+    out = (Path(args.output) if args.output
+           else default_gain_path(system.name, "qb_sampled" if args.sampled else "qb"))
     params = {"beta": "search" if args.beta is None else args.beta, "margin": args.margin,
               "search": ("reduced LMIs (Y eliminated), max lambda_min(P): log grid + bounded "
                          f"Brent in log(beta), xatol {_XATOL}"),
               "tie_break": ("P, alpha from step 5 with inner margin k x margin (k = 10, 100, "
                             "1000); minimum |(P L_i)_i|_F s.t. the LMIs with margin"),
               "fault_states": list(fs)}
+    if args.sampled:
+        params["sampled"] = True
     write_gain_file(out, system, d, fs, params)
     summary: dict[str, Any] = {
         "gain_file": str(out), "plant": system.name, "time": d.model.time,
+        "guarantee": guarantee({"time": d.model.time}, system),
         "beta": d.beta, "rho_max": d.rho_max, "lambda_min": d.bounds["lambda_min"],
         "alpha": np.round(d.alpha, 6).tolist(),
         "component_bound": dict(zip(system.states, np.round(d.bounds["component_bound"], 6)
