@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 from scipy.linalg import expm
 
 from fd_monitor.core.qb import (
@@ -22,7 +23,7 @@ from fd_monitor.core.qb import (
 from fd_monitor.core.simulator import Trajectory
 from fd_monitor.design.qb import design_qb
 from fd_monitor.errors import GainFileError
-from fd_monitor.gains import load_gains
+from fd_monitor.gains import load_gains, write_gain_doc
 from fd_monitor.system import load_system
 
 K = 6000           # 60 s per run
@@ -88,6 +89,11 @@ def test_sampled_design_is_refused_when_edited(pwa, sampled, tmp_path):
     text = open(sampled.path, encoding="utf-8").read()
     bad = tmp_path / "bad.yaml"
     bad.write_text(text.replace("time: discrete", "time: continuous"))
+    with pytest.raises(GainFileError, match=r"results\.time changed"):
+        load_gains(bad, pwa)
+    # Re-written with a fresh digest, the certificate itself still refuses the claim.
+    doc = yaml.safe_load(bad.read_text(encoding="utf-8"))
+    write_gain_doc(bad, doc)
     with pytest.raises(GainFileError, match="certificate"):
         load_gains(bad, pwa)
 
