@@ -50,6 +50,7 @@ setup(
         "pyyaml",
         "rosbags",
         "mcap",
+        "zstandard",  # bags.py compresses chunks itself (also a dependency of mcap)
         "mcap-ros2-support",
         "matplotlib",
     ],

@@ -210,6 +210,7 @@ class BagWriter:
         rec = RecordBuilder()
         Header(profile="ros2", library="fd_monitor").write(rec)
         self._emit(MCAP_MAGIC + rec.end())
+        self._out.flush()  # an MCAP file from the start, even if the writer dies at once
 
     def _emit(self, data: bytes) -> None:
         assert self._out is not None, "bag already closed"

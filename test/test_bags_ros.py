@@ -98,3 +98,49 @@ def test_replay_and_record_errors_are_one_line(tmp_path, sim_bag):
         assert r.returncode == 2, (args, r.stdout, r.stderr)
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and match in lines[0], (args, r.stderr)
+
+
+def test_record_killed_with_sigkill_loses_at_most_the_last_second(tmp_path):
+    """Issue 12: `record` SIGKILLed during a steady 100 Hz /plant/y (after >= 5 s). The bag
+    (no metadata.yaml, no footer) reads, holds every sample from the first on, and its last
+    message arrived at most 1 s before the kill; `bag recover` turns it into a complete bag
+    with the same messages."""
+    import time
+
+    from fd_monitor.bags import BagDamageWarning, read_raw
+
+    rate = 100.0          # plant_sim at rate_factor 10: 10 x 10 Hz
+    bag = tmp_path / "rec"
+    with Proc(["record", "/plant/y", "-o", str(bag)]) as rec, \
+            Proc(["run", "plant_sim", "--ros-args", "-p", "rate_factor:=10.0",
+                  "-p", "keep_going:=true", "-p", "min_subscribers_y:=1"]) as sim:
+        # Bounded wait on the bag itself (read while being written): 5 s of samples.
+        deadline = time.monotonic() + 60.0
+        n = 0
+        while n < 5 * rate and time.monotonic() < deadline:
+            assert rec.p.poll() is None and sim.p.poll() is None, rec.output() + sim.output()
+            time.sleep(0.2)
+            if bag.is_dir() and any(bag.glob("*.mcap")):
+                n = sum(1 for _ in read_raw(bag, damage=[]))
+        assert n >= 5 * rate, rec.output()
+        killed_ns = time.time_ns()
+        rec.signal(signal.SIGKILL)
+        assert rec.wait(20) == -signal.SIGKILL
+    assert not (bag / "metadata.yaml").exists()
+    damage: list = []
+    got = [t for _, _, t, _ in read_raw(bag, damage=damage)]
+    assert [str(d) for d in damage if "did not close" not in str(d)] == []
+    with pytest.warns(BagDamageWarning, match="did not close"):
+        y = read_bag(bag, ["/plant/y"])["/plant/y"]
+    assert len(got) == len(y) >= 5 * rate
+    np.testing.assert_array_equal(y.stamps, np.arange(len(y)))   # nothing lost before
+    gap = (killed_ns - int(y.receive_ns[-1])) * 1e-9
+    steady = (int(y.receive_ns[-1]) - int(y.receive_ns[0])) * 1e-9 / (len(y) - 1)
+    assert steady < 1.5 / rate, f"publication not steady: {steady * 1e3:.1f} ms per sample"
+    assert gap <= 1.0, f"the last {gap:.2f} s before the kill are missing"
+    out = run_cli(["bag", "recover", str(bag), "--json"])
+    assert out.returncode == 0, out.stderr
+    fixed = read_bag(tmp_path / "rec_recovered", ["/plant/y"])["/plant/y"]
+    np.testing.assert_array_equal(fixed.values, y.values)
+    assert (tmp_path / "rec_recovered" / "metadata.yaml").is_file()
+    print(f"SIGKILL after {len(y)} samples in the bag; last one {gap:.2f} s before the kill")
