@@ -26,6 +26,29 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 from test_fuzz import TARGETS, outcome  # noqa: E402
 
 
+def fuzz(name: str, examples: int) -> tuple[dict[str, int], dict[str, str], float]:
+    """Run one target; (outcome counts, crash kind -> first example, seconds)."""
+    strategy, target = TARGETS[name]
+    counts = {"ok": 0, "error": 0, "crash": 0}
+    seen: dict[str, str] = {}
+
+    @settings(max_examples=examples, deadline=None, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(strategy)
+    def run(value: Any) -> None:
+        try:
+            counts[outcome(target, value)] += 1
+        except Exception as exc:  # noqa: BLE001 - a crash is what we count
+            counts["crash"] += 1
+            tb = traceback.extract_tb(exc.__traceback__)[-1]
+            key = f"{type(exc).__name__} at {Path(tb.filename).name}:{tb.lineno}"
+            seen.setdefault(key, f"{exc!s:.200} <- {value!r:.300}")
+
+    t0 = time.perf_counter()
+    run()
+    return counts, seen, time.perf_counter() - t0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--examples", type=int, default=2000, help="examples per target (2000)")
@@ -34,29 +57,12 @@ def main() -> int:
     print(f"{'target':<20} {'examples':>8} {'ok':>7} {'refused':>8} {'crashes':>8} {'s':>7}")
     total = crashes_total = 0
     for name in args.only or list(TARGETS):
-        strategy, target = TARGETS[name]
-        counts = {"ok": 0, "error": 0, "crash": 0}
-        seen: dict[str, str] = {}
-
-        @settings(max_examples=args.examples, deadline=None, database=None,
-                  suppress_health_check=list(HealthCheck))
-        @given(strategy)
-        def run(value: Any, _t: Any = target, _c: dict = counts, _s: dict = seen) -> None:
-            try:
-                _c[outcome(_t, value)] += 1
-            except Exception as exc:  # noqa: BLE001 - a crash is what we count
-                _c["crash"] += 1
-                tb = traceback.extract_tb(exc.__traceback__)[-1]
-                key = f"{type(exc).__name__} at {Path(tb.filename).name}:{tb.lineno}"
-                _s.setdefault(key, f"{exc!s:.200} <- {value!r:.300}")
-
-        t0 = time.perf_counter()
-        run()
+        counts, seen, secs = fuzz(name, args.examples)
         n = sum(counts.values())
         total += n
         crashes_total += counts["crash"]
         print(f"{name:<20} {n:>8} {counts['ok']:>7} {counts['error']:>8} "
-              f"{counts['crash']:>8} {time.perf_counter() - t0:>7.1f}", flush=True)
+              f"{counts['crash']:>8} {secs:>7.1f}", flush=True)
         for key, example in seen.items():
             print(f"    crash {key}: {example}")
     print(f"{'total':<20} {total:>8} {'':>7} {'':>8} {crashes_total:>8}")
