@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import bisect
 import contextlib
+import itertools
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -159,7 +160,7 @@ def _bag_errors(bag: str | Path) -> Iterator[None]:
         yield
     except FdMonitorError:
         raise
-    except Exception as exc:  # noqa: BLE001 - the boundary to untrusted bytes
+    except Exception as exc:
         raise BagError(f"{bag}: unreadable bag data ({type(exc).__name__}: "
                        f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from None
 
@@ -185,7 +186,7 @@ def _gaps(ks: Sequence[int], rejected: Sequence[int]) -> list[tuple[int, int]]:
     nor in the sorted ``rejected``; computed per gap, never per stamp (stamps may be 2^53
     apart)."""
     out: list[tuple[int, int]] = []
-    for a, b in zip(ks, ks[1:]):
+    for a, b in itertools.pairwise(ks):
         lo = a + 1
         i = bisect.bisect_left(rejected, lo)
         while lo < b:

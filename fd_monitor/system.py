@@ -547,7 +547,7 @@ def parse_yaml_text(raw: bytes | str, origin: str, error: type[Exception] = Syst
         text = raw
     try:
         _check_structure(text, origin, error)
-        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+        return yaml.load(text, Loader=_StrictLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

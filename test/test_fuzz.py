@@ -222,7 +222,7 @@ def outcome(target: Callable[[Any], Any], value: Any) -> str:
         target(value)
     except FdMonitorError as exc:
         msg = str(exc)
-        assert msg and "\n" not in msg.strip(), f"not a one-line message: {msg!r}"
+        assert msg and len(msg.splitlines()) == 1, f"not a one-line message: {msg!r}"
         return "error"
     return "ok"
 
