@@ -181,7 +181,8 @@ def test_cli_json(tmp_path, repo):
     assert [g["lambda"] for g in doc["generators"]] == [-1.0, -1.0]
     assert all("mu" in g for g in doc["generators"])
     res = subprocess.run([sys.executable, "-m", "fd_monitor", "design", "hinf_sc",
-                          "thesis_4_7", "-o", str(out), "--grid", "-10", "-0.1", "6"],
+                          "thesis_4_7", "-o", str(out), "--force", "--grid", "-10", "-0.1",
+                          "6"],
                          capture_output=True, text=True, cwd=repo, timeout=120)
     assert res.returncode == 0, res.stderr
     # The mu(lambda) table of eq. (4.35) over the grid, one column per generator.
@@ -189,7 +190,7 @@ def test_cli_json(tmp_path, repo):
     assert [float(r.split()[0]) for r in table] == pytest.approx(np.linspace(-10, -0.1, 6))
     assert all(float(v) > 0 for r in table for v in r.split()[1:3])
     res = subprocess.run([sys.executable, "-m", "fd_monitor", "design", "hinf_sc",
-                          "thesis_4_7", "-o", str(out), "--lambda", "1"],
+                          "thesis_4_7", "-o", str(out), "--force", "--lambda", "1"],
                          capture_output=True, text=True, cwd=repo, timeout=120)
     assert res.returncode == 2 and "--lambda: expected a number < 0" in res.stderr
 
