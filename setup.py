@@ -61,7 +61,7 @@ setup(
             "ros-jazzy-diagnostic-msgs",
             "ros-jazzy-rmw-fastrtps-cpp",
         ],
-        "dev": ["pytest", "ruff", "mypy", "types-PyYAML", "setuptools>=70", "wheel",
+        "dev": ["pytest", "hypothesis", "ruff", "mypy", "types-PyYAML", "setuptools>=70", "wheel",
                 "colcon-core", "colcon-ros", "colcon-python-setup-py"],
     },
     zip_safe=True,

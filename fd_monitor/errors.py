@@ -21,8 +21,17 @@ __all__ = [
 ]
 
 
+#: Every character str.splitlines() breaks on -> its escaped form.
+_LINE_BREAKS = {ord(c): c.encode("unicode_escape").decode() for c in
+                "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"}
+
+
 class FdMonitorError(Exception):
     """Base class of every error fd_monitor raises on purpose."""
+
+    def __str__(self) -> str:
+        # One line whatever a file put into a key or value the message quotes.
+        return super().__str__().translate(_LINE_BREAKS)
 
 
 class SystemFileError(FdMonitorError, ValueError):

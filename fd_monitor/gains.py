@@ -320,7 +320,7 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
         raise GainFileError(f"{path}: format_version: expected {FORMAT_VERSION}, got "
                             f"{raw['format_version']!r}")
     method = raw["method"]
-    if method not in CERTIFICATE_CHECKS:
+    if not isinstance(method, str) or method not in CERTIFICATE_CHECKS:
         raise GainFileError(f"{path}: method: expected one of {sorted(CERTIFICATE_CHECKS)}, "
                             f"got {method!r}")
     sys_info = raw["system"]

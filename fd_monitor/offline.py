@@ -22,8 +22,11 @@ Nothing here imports rclpy (the message decoding is the nodes' pure conversion f
 
 from __future__ import annotations
 
+import bisect
+import contextlib
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,24 +96,36 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
         stamp -> u (nu,), stamp -> y (ny,), the report.
     """
     from fd_monitor.bags import FLOAT64_MULTI_ARRAY, read_messages
-    from fd_monitor.nodes.conversions import decode
 
     rep = InputReport()
     streams: dict[str, dict[int, np.ndarray]] = {"/plant/u": {}, "/plant/y": {}}
     labels = {"/plant/u": tuple(system.inputs), "/plant/y": tuple(system.outputs)}
     top: dict[str, int] = {}
     topics = ["/plant/y"] + (["/plant/u"] if system.nu else [])
-    try:
-        from fd_monitor.bags import bag_topics
+    from fd_monitor.bags import bag_topics
 
+    with _bag_errors(bag):
         present = bag_topics(bag)
-    except BagError:
-        raise
     missing = [t for t in topics if t not in present]
     if missing:
         raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
                        f"{', '.join(sorted(present)) or 'none'})")
-    for topic, _t, msg in read_messages(bag, topics, msgtype=FLOAT64_MULTI_ARRAY):
+    for t in topics:
+        if present[t][0] != FLOAT64_MULTI_ARRAY:
+            raise BagError(f"{bag}: {t} is recorded as {present[t][0]}, expected "
+                           f"{FLOAT64_MULTI_ARRAY}")
+    with _bag_errors(bag):
+        _read_streams(read_messages(bag, topics, msgtype=FLOAT64_MULTI_ARRAY), labels, streams, top, rep)
+    return _after_read(system, streams, rep)
+
+
+def _read_streams(messages: Any, labels: dict[str, tuple[str, ...]],
+                  streams: dict[str, dict[int, np.ndarray]], top: dict[str, int],
+                  rep: InputReport) -> None:
+    """The message loop of :func:`read_inputs`."""
+    from fd_monitor.nodes.conversions import decode
+
+    for topic, _t, msg in messages:
         raw_stamp: int | None = None
         try:
             if int(msg.layout.data_offset) == 1 and len(msg.data):
@@ -135,19 +150,51 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
                                "message": f"{topic} stamp {k} after stamp {top[topic]}"})
         top[topic] = max(top.get(topic, k), k)
         seen[k] = d.values
+
+
+@contextlib.contextmanager
+def _bag_errors(bag: str | Path) -> Iterator[None]:
+    """Turn the bag decoders' own errors (zstd, lz4, CDR, struct, rosbags) on corrupted
+    bytes into one :class:`BagError` naming the bag: they are no stable API to list."""
+    try:
+        yield
+    except FdMonitorError:
+        raise
+    except Exception as exc:
+        raise BagError(f"{bag}: unreadable bag data ({type(exc).__name__}: "
+                       f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from None
+
+
+def _after_read(system: Any, streams: dict[str, dict[int, np.ndarray]], rep: InputReport
+                ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], InputReport]:
+    """The end of :func:`read_inputs`: the (u, y) pairs and the missing stamps."""
     us, ys = streams["/plant/u"], streams["/plant/y"]
     if not system.nu:
         us = {k: np.zeros(0) for k in ys}
     ks = sorted(set(us) & set(ys))
-    rejected = {e["sample"] for e in rep.errors}
+    rejected = sorted({e["sample"] for e in rep.errors if isinstance(e["sample"], int)})
     if ks:
-        have = set(ks)
-        hole = [k for k in range(ks[0], ks[-1] + 1) if k not in have and k not in rejected]
-        for a, b in stamp_runs(hole):
+        for a, b in _gaps(ks, rejected):
             rep.errors.append({"kind": "missing", "topic": "/plant/u,/plant/y",
                                "sample": [a, b], "message": f"no message for stamps {a}..{b} "
                                f"({b - a + 1} samples)"})
     return us, ys, rep
+
+
+def _gaps(ks: Sequence[int], rejected: Sequence[int]) -> list[tuple[int, int]]:
+    """Inclusive runs of stamps between the sorted valid stamps ``ks`` that are neither valid
+    nor in the sorted ``rejected``; computed per gap, never per stamp (stamps may be 2^53
+    apart)."""
+    out: list[tuple[int, int]] = []
+    for a, b in itertools.pairwise(ks):
+        lo = a + 1
+        i = bisect.bisect_left(rejected, lo)
+        while lo < b:
+            r = rejected[i] if i < len(rejected) and rejected[i] < b else b
+            if r > lo:
+                out.append((lo, r - 1))
+            lo, i = r + 1, i + 1
+    return out
 
 
 def stamp_runs(ks: Sequence[int]) -> list[tuple[int, int]]:
@@ -284,7 +331,8 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     us, ys, rep = read_inputs(bag, system)
     truth = None
     try:
-        truth = read_bag(bag, ["/plant/truth"])["/plant/truth"]
+        with _bag_errors(bag):
+            truth = read_bag(bag, ["/plant/truth"])["/plant/truth"]
     except BagError:
         truth = None
     ks = sorted(set(us) & set(ys))

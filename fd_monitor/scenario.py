@@ -217,10 +217,13 @@ def load_scenario(source: str | Path, system: System | None = None) -> Scenario:
 def check_horizon(system: System, duration: float, what: str,
                   error: type[Exception] = ScenarioError, runs: int = 1) -> int:
     """Samples of a run of ``duration`` s; refuse, before allocating, a horizon whose
-    per-sample arrays (state, inputs, outputs, truth, estimates: ~8 rows of the widest
-    vector, float64, per run) would not fit in memory. Returns the sample count."""
+    per-sample arrays would not fit in memory. Returns the sample count.
+
+    Estimate: per sample and run, the simulated record (mode, state, inputs, outputs,
+    faults) and about three times as much again for the monitor's per-sample outputs
+    (residuals, thresholds, estimates), float64."""
     n = duration / system.sample_time
-    width = 8 * (system.n + system.nu + system.ny + len(system.faults) + 1)
+    width = 4 * (system.n + system.nu + system.ny + len(system.faults) + 1)
     require_memory(8.0 * width * n * max(runs, 1),
                    f"{what} {duration:g} s at {system.sample_time:g} s per sample "
                    f"({n:.3g} samples)", error)

@@ -17,7 +17,7 @@ from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.errors import DesignError, GainFileError
-from fd_monitor.gains import load_gains, save_gains, write_gain_doc
+from fd_monitor.gains import load_gains, save_gains
 from fd_monitor.scenario import load_scenario
 from fd_monitor.system import load_system, parse_system
 
@@ -92,7 +92,7 @@ def test_gain_file_round_trip_and_tamper(system, bank, tmp_path):
     assert gf.certificate_status == "verified"
     doc = yaml.safe_load(p.read_text())
     doc["results"]["generators"][0]["L0"][0][0] += 5.0
-    write_gain_doc(tmp_path / "bad.yaml", doc)  # re-digested: the LMI check refuses it
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(doc))
     with pytest.raises(GainFileError, match=r"certificate does not hold"):
         load_gains(tmp_path / "bad.yaml", system)
     with pytest.raises(GainFileError):
@@ -181,7 +181,7 @@ def test_cli_json(tmp_path, repo):
     assert [g["lambda"] for g in doc["generators"]] == [-1.0, -1.0]
     assert all("mu" in g for g in doc["generators"])
     res = subprocess.run([sys.executable, "-m", "fd_monitor", "design", "hinf_sc",
-                          "thesis_4_7", "-o", str(tmp_path / "g2.yaml"), "--grid", "-10", "-0.1",
+                          "thesis_4_7", "-o", str(out), "--force", "--grid", "-10", "-0.1",
                           "6"],
                          capture_output=True, text=True, cwd=repo, timeout=120)
     assert res.returncode == 0, res.stderr
@@ -190,7 +190,7 @@ def test_cli_json(tmp_path, repo):
     assert [float(r.split()[0]) for r in table] == pytest.approx(np.linspace(-10, -0.1, 6))
     assert all(float(v) > 0 for r in table for v in r.split()[1:3])
     res = subprocess.run([sys.executable, "-m", "fd_monitor", "design", "hinf_sc",
-                          "thesis_4_7", "-o", str(tmp_path / "g3.yaml"), "--lambda", "1"],
+                          "thesis_4_7", "-o", str(out), "--force", "--lambda", "1"],
                          capture_output=True, text=True, cwd=repo, timeout=120)
     assert res.returncode == 2 and "--lambda: expected a number < 0" in res.stderr
 

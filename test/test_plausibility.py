@@ -88,7 +88,7 @@ def test_prediction_test_factor_on_the_noise_bound():
     pred = np.array([0.4, 0.2, 0.3])
     p.check(0, np.zeros(3), pred + 0.0099, pred)
     with pytest.raises(MessageError, match=r"h1 = .* away from its prediction.*implausible"):
-        p.check(0, np.zeros(3), pred + np.array([0.0101, 0.0, 0.0]), pred)
+        p.check(0, np.zeros(3), pred + np.array([0.0101, 0, 0]), pred)
     # The stated factor: 1000 noise bounds (1 m for three_tank), far beyond the 1 cm faults.
     assert PREDICTION_FACTOR == 1000.0
     assert np.all(Plausibility(sys_).tolerance == 1.0)

@@ -17,9 +17,9 @@ bad-input path). Two tests:
    measurement-noise bound (skipped where ``vbar_i = 0``).
 
 ``PREDICTION_FACTOR = 1000``: for ``three_tank`` (``vbar = 1 mm``) a jump of 1 m away from
-the prediction, the whole height of a tank. The largest fault of the bag library is a 10 mm
-sensor bias (10 noise bounds), so every fault there is 100 times inside the limit and is
-detected, never refused as implausible: a fault is a change the monitor must see, an
+the prediction, the whole height of a tank. The largest fault of the bag library is a 30 mm
+sensor bias (30 noise bounds), so every fault there is more than 30 times inside the limit and
+is detected, never refused as implausible: a fault is a change the monitor must see, an
 implausible value is one no plant can produce.
 """
 
