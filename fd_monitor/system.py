@@ -426,6 +426,9 @@ def read_yaml(path: Path, error: type[Exception] = SystemFileError) -> Any:
         raise error(f"{path}: file not found") from None
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset "
+                    f"{exc.start})") from None
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
