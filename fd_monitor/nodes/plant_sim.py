@@ -11,10 +11,10 @@ a batch of one run), stamped and labelled Float64MultiArray messages (see
 
 Pacing: ``rate_factor`` times the sample rate (1.0 = real time, 100.0 = a hundred times
 faster; a timer ticks once per sample, at most every millisecond), or ``0.0`` = as fast
-as the subscribers keep up without loss (wait for ``min_subscribers_*`` matched subscriptions, then pace by acknowledgements every
-``ack_window`` samples; see :mod:`fd_monitor.nodes.common`). The node ends after the
-scenario's samples (or ``duration``), once every sample is acknowledged, unless
-``keep_going`` is true.
+as the subscribers keep up without loss (wait for ``min_subscribers_*`` matched
+subscriptions, then pace by acknowledgements every ``ack_window`` samples; see
+:mod:`fd_monitor.nodes.common`). The node ends after the scenario's samples (or
+``duration``), once every sample is acknowledged, unless ``keep_going`` is true.
 """
 
 from __future__ import annotations
