@@ -21,6 +21,12 @@ exec((here / "fd_monitor" / "executables.py").read_text(), _ns)
 EXECUTABLES: dict[str, str] = _ns["EXECUTABLES"]
 
 
+# Dependencies with a rosdep key are in package.xml too (test/test_packaging.py compares);
+# the others are listed once, in requirements.txt (pip, in a ROS 2 workspace).
+PIP_ONLY = [ln.strip() for ln in (here / "requirements.txt").read_text().splitlines()
+            if ln.strip() and not ln.startswith("#")]
+
+
 def data_tree(src: str, dest: str) -> list[tuple[str, list[str]]]:
     """(install dir, files) pairs for every file below ``src``, kept in the same layout."""
     out: dict[str, list[str]] = {}
@@ -37,22 +43,18 @@ setup(
     packages=find_packages(exclude=["test", "test.*", "benchmarks"]),
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
-        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name, ["package.xml", "requirements.txt"]),
         ("lib/" + package_name, sorted(f"launchers/{n}" for n in EXECUTABLES)),
         *data_tree("config", f"share/{package_name}/config"),
+        *data_tree("bags", f"share/{package_name}/bags"),
     ],
     install_requires=[
         "setuptools",
         "numpy",
         "scipy",
-        "cvxpy",
-        "clarabel",
         "pyyaml",
-        "rosbags",
-        "mcap",
-        "zstandard",  # bags.py compresses chunks itself (also a dependency of mcap)
-        "mcap-ros2-support",
         "matplotlib",
+        *PIP_ONLY,
     ],
     extras_require={
         "ros": [
@@ -60,9 +62,12 @@ setup(
             "ros-jazzy-std-msgs",
             "ros-jazzy-diagnostic-msgs",
             "ros-jazzy-rmw-fastrtps-cpp",
+            "ros-jazzy-rcl-interfaces",
+            "ros-jazzy-lifecycle-msgs",
+            "ros-jazzy-std-srvs",
         ],
         "dev": ["pytest", "hypothesis", "ruff", "mypy", "types-PyYAML", "setuptools>=70", "wheel",
-                "colcon-core", "colcon-ros", "colcon-python-setup-py"],
+                "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-bash"],
     },
     zip_safe=True,
     maintainer="fd_monitor developers",

@@ -193,13 +193,15 @@ class Library:
 
 
 def default_library() -> Path:
-    """``bags/library.yaml`` of the source checkout."""
-    from fd_monitor.paths import repo_root
+    """``bags/library.yaml`` beside the shipped ``config/``: of the source checkout, or
+    ``share/fd_monitor/bags`` of a pip or colcon install."""
+    from fd_monitor.paths import config_dirs
 
-    root = repo_root()
-    if root is None:
-        raise LibraryError("no source checkout: give the path of a library.yaml")
-    return root / "bags" / "library.yaml"
+    for d in config_dirs():
+        if (d.parent / "bags" / "library.yaml").is_file():
+            return d.parent / "bags" / "library.yaml"
+    raise LibraryError("no bag library found (bags/library.yaml): give the path of a "
+                       "library.yaml")
 
 
 def _fail(origin: Any, key: str, expected: str, got: Any = None) -> None:

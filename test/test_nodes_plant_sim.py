@@ -81,6 +81,42 @@ def test_plant_sim_in_process_paced_with_diagnostics():
         col.node.destroy_node()
 
 
+
+@pytest.mark.parametrize("rate_factor, period", [(5.0, 0.02), (0.0, 0.001), (1.0e6, 0.001)])
+def test_plant_sim_timer_ticks_once_per_sample(rate_factor, period):
+    """Paced: one timer tick per sample (not a 1 ms poll); flat out keeps the 1 ms tick."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.core.simulator import PlantSimulator
+    from fd_monitor.nodes.plant_sim import PlantSimNode
+
+    class Counting(PlantSimNode):
+        running_ticks = 0
+
+        def _on_tick(self) -> None:
+            if self._t0 is not None and not self.done.done():
+                self.running_ticks += 1
+            super()._on_tick()
+
+    with ros_context() as ctx:
+        node = Counting(PlantSimulator(load_scenario("three_tank_bias_h1"), [2]), context=ctx,
+                        parameter_overrides=[Parameter("rate_factor", value=rate_factor),
+                                             Parameter("duration", value=2.0)])
+        assert node.tick_period == pytest.approx(period)
+        assert node._timer.timer_period_ns == round(period * 1e9)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        assert spin_until(ex, lambda: node.done.done(), 30.0)
+        assert node.exit_code == 0 and node.published == 20
+        if rate_factor == 5.0:
+            # 20 samples over 0.4 s: about 19 more ticks (fewer if ticks came late and
+            # caught up), where the former 1 ms poll ticked about 400 times.
+            assert node.running_ticks <= 22
+        ex.shutdown()
+        node.destroy_node()
+
+
 def test_plant_sim_keep_going_stops_cleanly_on_sigterm():
     from rclpy.executors import SingleThreadedExecutor
 

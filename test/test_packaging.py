@@ -18,6 +18,51 @@ import pytest
 
 from fd_monitor.executables import EXECUTABLES
 
+REPO = Path(__file__).resolve().parent.parent
+
+#: PyPI name -> rosdep key, for the setup.py dependencies that have one.
+ROSDEP_KEYS = {"setuptools": "python3-setuptools", "numpy": "python3-numpy",
+               "scipy": "python3-scipy", "pyyaml": "python3-yaml",
+               "matplotlib": "python3-matplotlib"}
+
+
+def _setup_kwargs() -> dict:
+    """The keywords setup.py passes to ``setuptools.setup`` (run without installing)."""
+    import runpy
+
+    import setuptools
+
+    seen: dict = {}
+    real = setuptools.setup
+    setuptools.setup = lambda **kw: seen.update(kw)  # type: ignore[assignment]
+    try:
+        runpy.run_path(str(REPO / "setup.py"), run_name="__main__")
+    finally:
+        setuptools.setup = real
+    return seen
+
+
+def test_package_xml_setup_py_and_requirements_agree() -> None:
+    """Every runtime dependency is declared for rosdep (package.xml) or pip
+    (requirements.txt), and setup.py installs exactly the same set."""
+    import xml.etree.ElementTree as ET
+
+    kw = _setup_kwargs()
+    exec_depends = {e.text for e in ET.parse(REPO / "package.xml").getroot()
+                    .iter("exec_depend")}
+    requirements = [ln.strip() for ln in (REPO / "requirements.txt").read_text().splitlines()
+                    if ln.strip() and not ln.startswith("#")]
+    from_setup_ros = {w.removeprefix("ros-jazzy-").replace("-", "_")
+                      for w in kw["extras_require"]["ros"]}
+    pip_only = [d for d in kw["install_requires"] if d not in ROSDEP_KEYS]
+    from_setup_rosdep = {ROSDEP_KEYS[d] for d in kw["install_requires"] if d in ROSDEP_KEYS}
+    assert exec_depends == from_setup_ros | from_setup_rosdep
+    assert pip_only == requirements
+    # The ROS packages the code imports are all declared.
+    for pkg in ("rclpy", "std_msgs", "diagnostic_msgs", "rcl_interfaces"):
+        assert pkg in exec_depends, pkg
+
+
 pytestmark = pytest.mark.slow
 
 
@@ -26,6 +71,15 @@ def _check_layout(prefix: Path) -> None:
     assert (prefix / "share/fd_monitor/package.xml").is_file()
     for plant in ("three_tank", "pwa_cascade"):
         assert (prefix / f"share/fd_monitor/config/systems/{plant}.yaml").is_file()
+    share = prefix / "share/fd_monitor"
+    assert (share / "requirements.txt").is_file()
+    # Every params file and every bag of the library, in the same layout as the checkout.
+    for params in sorted((REPO / "config").glob("*.yaml")):
+        assert (share / "config" / params.name).is_file(), params.name
+    bags = [p.relative_to(REPO) for p in (REPO / "bags").rglob("*") if p.is_file()]
+    assert any(p.suffix == ".mcap" for p in bags)
+    for rel in bags:
+        assert (share / rel).is_file(), rel
     for exe in EXECUTABLES:
         launcher = prefix / "lib/fd_monitor" / exe
         assert launcher.is_file(), exe
@@ -59,7 +113,7 @@ def test_pip_install_layout_and_launchers(repo: Path, tmp_path: Path) -> None:
     prefix = tmp_path / "prefix"
     build = tmp_path / "src"
     shutil.copytree(repo, build, ignore=shutil.ignore_patterns(
-        ".venv", ".git", "build", "install", "log", "*.egg-info", "__pycache__", "bags"))
+        ".venv", ".git", "build", "install", "log", "*.egg-info", "__pycache__"))
     # --ignore-installed: without it pip uninstalls the venv's own (editable) fd_monitor.
     out = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
                           "--no-build-isolation", "--ignore-installed", "--prefix", str(prefix),
@@ -78,7 +132,7 @@ def test_colcon_build_installs_an_ament_python_package(repo: Path, tmp_path: Pat
                     "installs colcon-core, colcon-ros, colcon-python-setup-py)")
     src = tmp_path / "ws/src/fd_monitor"
     shutil.copytree(repo, src, ignore=shutil.ignore_patterns(
-        ".venv", ".git", "build", "install", "log", "*.egg-info", "__pycache__", "bags"))
+        ".venv", ".git", "build", "install", "log", "*.egg-info", "__pycache__"))
     ws = tmp_path / "ws"
     out = subprocess.run([str(colcon), "build", "--base-paths", "src"], cwd=ws,
                          capture_output=True, text=True, timeout=600)

@@ -37,6 +37,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fd_monitor.errors import FdMonitorError
+from fd_monitor.nodes.ros_args import init_ros, shown_params_file
 
 __all__ = [
     "OK", "WARN", "ERROR", "STALE", "LEVEL_NAMES",
@@ -381,7 +382,7 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
     config : str, optional
         Parameter file stem under ``config/``; default ``prog``.
     """
-    cfg = f"config/{config or prog}.yaml"
+    cfg = shown_params_file(config or prog)
     lines = [f"usage: {prog} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file {cfg}] "
              f"[-r FROM:=TO ...]]", ""]
     lines.append(usages[0].summary if len(usages) == 1 else
@@ -391,7 +392,9 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
               f"  {prog} --ros-args --params-file {cfg}",
               f"  python -m fd_monitor run {prog} --ros-args --params-file {cfg} "
               f"-p NAME:=VALUE",
-              "Doubles are typed: write 1.0, not 1. Topics are remappable (-r /plant/y:=/x/y)."]
+              "Doubles are typed: write 1.0, not 1. Topics are remappable (-r /plant/y:=/x/y).",
+              "A relative --params-file that is not found from the current directory is "
+              "looked up in the installed config/ folder."]
     for u in usages:
         if len(usages) > 1:
             lines += ["", f"-- {u.summary}"]
@@ -429,7 +432,11 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
         sys.stdout.write(usage_text(prog, usage))
         return 0
     use_dds_profile()
-    rclpy.init(args=None if args is None else list(args))
+    try:
+        init_ros(args)
+    except FdMonitorError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     nodes: list[Node] = []
     try:
         made = factory()

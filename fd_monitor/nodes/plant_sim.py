@@ -10,11 +10,11 @@ a batch of one run), stamped and labelled Float64MultiArray messages (see
   signals): for evaluation only.
 
 Pacing: ``rate_factor`` times the sample rate (1.0 = real time, 100.0 = a hundred times
-faster), or ``0.0`` = as fast as the subscribers keep up without loss (wait for
-``min_subscribers_*`` matched subscriptions, then pace by acknowledgements every
-``ack_window`` samples; see :mod:`fd_monitor.nodes.common`). The node ends after the
-scenario's samples (or ``duration``), once every sample is acknowledged, unless
-``keep_going`` is true.
+faster; a timer ticks once per sample, at most every millisecond), or ``0.0`` = as fast
+as the subscribers keep up without loss (wait for ``min_subscribers_*`` matched
+subscriptions, then pace by acknowledgements every ``ack_window`` samples; see
+:mod:`fd_monitor.nodes.common`). The node ends after the scenario's samples (or
+``duration``), once every sample is acknowledged, unless ``keep_going`` is true.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ PARAMS = (
           high=3600.0),
 )
 
-_TICK = 0.001  # s: timer period of the publishing loop (bursts catch up on late ticks)
+_FLAT_OUT_TICK = 0.001  # s: timer period flat out (rate_factor 0.0), and the shortest one
 
 
 USAGE = NodeUsage(
@@ -141,7 +141,10 @@ class PlantSimNode(Node):
         self.diag.add("simulation")
         self.diag.update("simulation", OK, "waiting for subscribers",
                          {"scenario": sc.name, "samples": self.n_samples})
-        self._timer = self.create_timer(_TICK, self._on_tick)
+        #: s between ticks: one sample per tick when paced (late ticks catch up in bursts).
+        self.tick_period = (max(self.dt / p.rate_factor, _FLAT_OUT_TICK) if p.rate_factor > 0
+                            else _FLAT_OUT_TICK)
+        self._timer = self.create_timer(self.tick_period, self._on_tick)
         self.get_logger().info(
             f"scenario {sc.name} ({sys_.name}), seed {simulator.seeds[0]}, "
             f"{self.n_samples} samples of {self.dt:g} s, rate_factor {p.rate_factor:g}")
@@ -165,7 +168,9 @@ class PlantSimNode(Node):
         end = None if self.params.keep_going else self.n_samples
         rate = self.params.rate_factor
         if rate > 0:
-            due = math.floor((now - self._t0) * rate / self.dt) + 1
+            # Sample k is due at t0 + k dt / rate; rounding to the nearest tick keeps one
+            # sample per tick when a tick comes a little earlier than the first one did.
+            due = math.floor((now - self._t0) * rate / self.dt + 0.5) + 1
         else:
             due = self.published + self._pacer.window
         if end is not None:

@@ -1,0 +1,111 @@
+"""ROS arguments of the node executables: ``--params-file`` found and checked before rcl sees it.
+
+rcl reads ``--ros-args --params-file FILE`` inside ``rclpy.init``: a missing file ends in an
+``RCLError`` traceback, and a file that is not UTF-8 makes its YAML parser loop for ever. So
+every ``--params-file`` is resolved and read here first:
+
+- a path that exists (relative to the current directory, or absolute) is used as given;
+- a relative path that does not exist is looked up in the shipped ``config/`` folders
+  (:func:`fd_monitor.paths.config_dirs`: the source checkout, ``share/fd_monitor/config`` of a
+  pip or colcon install), with a leading ``config/`` dropped, so the command printed by
+  ``--help`` (``--params-file config/detector.yaml``) works from any directory, e.g. the
+  root of a colcon workspace;
+- the file must be UTF-8 YAML with a mapping at the top (node name -> ``ros__parameters``).
+
+Anything else is one line (:class:`~fd_monitor.errors.FdMonitorError`); the executable prints
+``<prog>: error: ...`` and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import rclpy
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+from fd_monitor.errors import FdMonitorError
+from fd_monitor.paths import config_dirs
+from fd_monitor.system import read_yaml
+
+__all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file"]
+
+
+def find_params_file(name: str) -> Path:
+    """The parameter file ``name`` refers to (see the module docstring); checked readable.
+
+    Raises
+    ------
+    FdMonitorError
+        Not found (naming where it was looked for), not UTF-8, not YAML, or not a mapping.
+    """
+    p = Path(name)
+    found: Path | None = p if p.is_file() else None
+    dirs = config_dirs()
+    if found is None and not p.is_absolute():
+        rel = Path(*p.parts[1:]) if len(p.parts) > 1 and p.parts[0] == "config" else p
+        found = next((d / rel for d in dirs if (d / rel).is_file()), None)
+    if found is None:
+        where = "" if p.is_absolute() else (
+            f" (looked in {Path.cwd()}" + "".join(f", {d}" for d in dirs) + ")")
+        raise FdMonitorError(f"--params-file {name}: file not found{where}")
+    data = read_yaml(found, FdMonitorError)
+    if not isinstance(data, dict):
+        raise FdMonitorError(f"{found}: not a ROS 2 parameter file: expected a mapping "
+                             f"'<node name>: {{ros__parameters: {{...}}}}' at the top, got "
+                             f"{type(data).__name__}")
+    return found
+
+
+def resolve_params_files(args: Sequence[str]) -> list[str]:
+    """``args`` with every ``--params-file`` inside ``--ros-args`` resolved and checked."""
+    out = list(args)
+    in_ros = False
+    i = 0
+    while i < len(out):
+        a = out[i]
+        if a == "--ros-args":
+            in_ros = True
+        elif a == "--":
+            in_ros = False
+        elif in_ros and a == "--params-file":
+            if i + 1 >= len(out):
+                raise FdMonitorError("--params-file: expected a file name after it")
+            out[i + 1] = str(find_params_file(out[i + 1]))
+            i += 1
+        i += 1
+    return out
+
+
+def init_ros(args: Sequence[str] | None = None) -> None:
+    """``rclpy.init`` on ``args`` (default ``sys.argv``) with checked ``--params-file``.
+
+    Raises
+    ------
+    FdMonitorError
+        A bad ``--params-file``, or any ROS argument rcl refuses (its message, first part).
+    """
+    argv = resolve_params_files(sys.argv if args is None else args)
+    try:
+        rclpy.init(args=argv)
+    except _rclpy.RCLError as exc:
+        # rcl appends ", at <source file>:<line>" frames: keep the message only.
+        msg = str(exc).split(", at /")[0].replace("\n", " ")
+        raise FdMonitorError(f"bad ROS arguments: {msg}") from None
+
+
+def shown_params_file(stem: str) -> str:
+    """The parameter file ``config/<stem>.yaml`` as ``--help`` shows it.
+
+    ``config/<stem>.yaml`` when that path works from the current directory (a source
+    checkout), else the installed file (e.g. ``<ws>/install/fd_monitor/share/fd_monitor/
+    config/detector.yaml``), else ``config/<stem>.yaml``.
+    """
+    rel = Path("config") / f"{stem}.yaml"
+    if rel.is_file():
+        return str(rel)
+    for d in config_dirs():
+        if (d / rel.name).is_file():
+            return str(d / rel.name)
+    return str(rel)
