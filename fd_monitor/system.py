@@ -62,6 +62,10 @@ Schema (``format_version: 1``)::
         - {name: rho1, min: -1.0, max: 1.0, measured: true}   # measured: false = uncertain
     # and in a linear mode:  A_rho: [A_1, ..., A_d] (d x n x n), B_rho (d x n x nu)
     # so that A(rho) = A + sum_j rho_j A_j, B(rho) = B + sum_j rho_j B_j (thesis 5.2, 6.5).
+    envelope:                         # optional: the declared operating envelope (the
+      states: {x1: [0.0, 1.0], ...}   # region a `thresholds` design certifies and the
+      inputs: {u1: [-1.0, 1.0], ...}  # runtime checks); every state and input needs a
+      modes: {safe: {states: {x2: [0.0, 0.4]}}}   # range; `modes` narrows them per mode
 
 The optional keys ``switching``, ``lpv``, ``A_rho``, ``B_rho`` and a process fault's ``E`` or
 per-mode ``F`` enter the plant's canonical form (its SHA-256) only when they are given, so
@@ -97,6 +101,7 @@ from fd_monitor.paths import find_config_file
 
 __all__ = [
     "Condition",
+    "Envelope",
     "FaultChannel",
     "Guard",
     "LPVParameter",
@@ -115,7 +120,7 @@ _FAULT_KINDS = ("sensor_bias", "actuator", "state_jump", "process", "parameter")
 _TOP_KEYS = {
     "format_version", "name", "description", "time", "sample_time", "states", "inputs",
     "outputs", "disturbances", "bounds", "shared", "modes", "guards", "faults", "initial",
-    "switching", "lpv",
+    "switching", "lpv", "envelope",
 }
 _MODE_KEYS = {
     "dynamics", "time", "A", "B", "C", "D", "E", "offset", "uncertainty", "model", "params",
@@ -306,6 +311,24 @@ class Mode:
 
 
 @dataclass(frozen=True)
+class Envelope:
+    """Declared operating envelope: a box of states and inputs per mode (physical limits).
+
+    Attributes
+    ----------
+    state_lo, state_hi : numpy.ndarray
+        (s, n) state ranges per mode, state units.
+    input_lo, input_hi : numpy.ndarray
+        (s, nu) input ranges per mode, input units.
+    """
+
+    state_lo: np.ndarray
+    state_hi: np.ndarray
+    input_lo: np.ndarray
+    input_hi: np.ndarray
+
+
+@dataclass(frozen=True)
 class System:
     """A validated plant description (a hybrid automaton).
 
@@ -335,6 +358,10 @@ class System:
         ``guards`` (mode changes by the guards only) or ``arbitrary`` (any mode sequence).
     lpv : tuple of LPVParameter
         Parameters of an LPV plant (empty for other plants).
+    envelope : Envelope or None
+        The declared operating envelope (``envelope`` key), when given. Not part of the
+        canonical form: it states where the monitor must work, not how the plant behaves
+        (a gain file stores the envelope it certifies).
     """
 
     name: str
@@ -356,6 +383,7 @@ class System:
     sha256: str
     switching: str = "guards"
     lpv: tuple[LPVParameter, ...] = ()
+    envelope: Envelope | None = None
 
     @property
     def n_rho(self) -> int:
@@ -819,9 +847,56 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                            switching if "switching" in data else None,
                            lpv if "lpv" in data else None)
     digest = hashlib.sha256(canonical.encode()).hexdigest()
+    env = _parse_envelope(ctx, data["envelope"], states, inputs, modes) \
+        if data.get("envelope") is not None else None
     return System(name, description, ts, states, inputs, outputs, dists, tuple(modes),
                   tuple(guards), tuple(faults), wbar, vbar, q0, x0, origin, canonical, digest,
-                  str(switching), lpv)
+                  str(switching), lpv, env)
+
+
+def _parse_envelope(ctx: _Ctx, data: Any, states: Sequence[str], inputs: Sequence[str],
+                    modes: Sequence[Mode]) -> Envelope:
+    """``envelope: {states: {x: [lo, hi]}, inputs: {u: [lo, hi]}, modes: {m: {...}}}``.
+
+    Every state and input needs a range; ``modes`` narrows them per mode (optional).
+    """
+    env = _mapping(ctx, "envelope", data)
+    _check_keys(ctx, "envelope", env, {"states", "inputs", "modes"})
+
+    def ranges(key: str, spec: Any, names: Sequence[str], lo: np.ndarray, hi: np.ndarray,
+               complete: bool) -> None:
+        spec = _mapping(ctx, key, spec if spec is not None else {})
+        _check_keys(ctx, key, spec, set(names))
+        for i, nm in enumerate(names):
+            if nm not in spec:
+                if complete:
+                    ctx.fail(f"{key}.{nm}", "a range [lo, hi] (missing key)", show_got=False)
+                continue
+            v = spec[nm]
+            if not isinstance(v, list) or len(v) != 2:
+                ctx.fail(f"{key}.{nm}", "a range [lo, hi]", v)
+            a = _number(ctx, f"{key}.{nm}[0]", v[0])
+            b = _number(ctx, f"{key}.{nm}[1]", v[1])
+            if not a <= b:
+                ctx.fail(f"{key}.{nm}", "a range [lo, hi] with lo <= hi", v)
+            lo[..., i], hi[..., i] = a, b
+
+    s, n, nu = len(modes), len(states), len(inputs)
+    x_lo, x_hi = np.zeros((s, n)), np.zeros((s, n))
+    u_lo, u_hi = np.zeros((s, nu)), np.zeros((s, nu))
+    ranges("envelope.states", env.get("states"), states, x_lo, x_hi, True)
+    ranges("envelope.inputs", env.get("inputs"), inputs, u_lo, u_hi, nu > 0)
+    per_mode = _mapping(ctx, "envelope.modes", env.get("modes") or {})
+    names = [m.name for m in modes]
+    _check_keys(ctx, "envelope.modes", per_mode, set(names))
+    for mname, spec in per_mode.items():
+        q = names.index(mname)
+        key = f"envelope.modes.{mname}"
+        spec = _mapping(ctx, key, spec)
+        _check_keys(ctx, key, spec, {"states", "inputs"})
+        ranges(f"{key}.states", spec.get("states"), states, x_lo[q], x_hi[q], False)
+        ranges(f"{key}.inputs", spec.get("inputs"), inputs, u_lo[q], u_hi[q], False)
+    return Envelope(x_lo, x_hi, u_lo, u_hi)
 
 
 def _parse_lpv(ctx: _Ctx, data: Mapping[str, Any]) -> tuple[LPVParameter, ...]:
