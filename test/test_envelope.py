@@ -148,3 +148,29 @@ def test_analyze_marks_alarms_outside_the_certified_region(ref, outside):
     ep = doc["alarms"][0]
     assert ep["outside_certified_region"] is outside
     assert ("h1 above by" in ep["outside_detail"]) is outside
+
+
+@pytest.mark.slow
+def test_no_false_alarm_over_the_envelope_at_noise_bounds():
+    """50 fault-free runs at set points spread over the declared envelope, noise and
+    uncertainty at their bounds (``extreme``): the envelope design raises no alarm, and the
+    runs stay inside its certified region (benchmarks/campaign_envelope.py: the full table)."""
+    import importlib.util
+
+    from fd_monitor.core.monitor import run_batch
+    from fd_monitor.core.simulator import simulate_batch
+
+    spec = importlib.util.spec_from_file_location(
+        "campaign_envelope", Path(__file__).parents[1] / "benchmarks" / "campaign_envelope.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    system = load_system("three_tank")
+    gf = load_gains("three_tank_envelope", system)
+    region = CertifiedRegion.from_results(system, gf.results)
+    for i in range(10):
+        sc = mod.envelope_scenario(system, 40 + i, duration=200.0)
+        assert sc.noise_distribution == "extreme"
+        tr = simulate_batch(sc, [100 * i + j for j in range(5)])
+        res = run_batch(system, gf, tr, keep=("x_hat", "mode"))
+        assert not res.alarm.any(), f"false alarm at set point {i}"
+        assert not np.any(region.excess(res.mode_hat, res.x_hat, tr.u))
