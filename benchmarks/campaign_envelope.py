@@ -92,7 +92,7 @@ def detection(system: System, gains: dict[str, Any], runs: int, seed0: int
     k0 = round(FAULT_TIME / system.sample_time)
     out: dict[str, dict[str, dict[float, tuple[float, float]]]] = {
         n: {o: {} for o in system.outputs} for n in gains}
-    for s_i, sensor in enumerate(system.outputs):
+    for sensor in system.outputs:
         ch = [f.name for f in system.faults].index(f"bias_{sensor}")
         for mag in MAGNITUDES:
             det = {n: [] for n in gains}

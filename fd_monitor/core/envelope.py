@@ -84,8 +84,8 @@ class CertifiedRegion:
             arrs.append(a)
         if np.any(arrs[0] > arrs[1]) or np.any(arrs[2] > arrs[3]):
             raise GainFileError("results.envelope: expected lo <= hi")
-        return cls(str(env.get("source", "declared")), *arrs,
-                   names=(*system.states, *system.inputs))
+        return cls(str(env.get("source", "declared")), arrs[0], arrs[1], arrs[2], arrs[3],
+                   (*system.states, *system.inputs))
 
     def excess(self, q: int | np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Signed distance outside the box of mode q: 0 inside, > 0 above, < 0 below.
