@@ -3,18 +3,12 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from ros_util import Collector, ros_context, spin_until
 
 pytestmark = pytest.mark.ros
-
-
-def plain(values):
-    from std_msgs.msg import Float64MultiArray
-
-    m = Float64MultiArray()
-    m.data = [float(v) for v in values]
-    return m
 
 
 def test_observer_warns_outside_certified_region():
@@ -24,10 +18,14 @@ def test_observer_warns_outside_certified_region():
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.nodes.common import OK, WARN, data_pub_qos
-    from fd_monitor.nodes.observer import ObserverNode
+    from fd_monitor.nodes.conversions import to_msg
+    from fd_monitor.system import load_system
+    from fd_monitor.nodes.monitor import make_nodes
 
+    system = load_system("three_tank")
     with ros_context() as ctx:
-        node = ObserverNode(context=ctx, parameter_overrides=[
+        # the whole chain: the observer joins the estimator's and AGEI's feedback per sample
+        nodes = make_nodes(context=ctx, parameter_overrides=[
             Parameter("gains", value="three_tank_envelope"),
             Parameter("diagnostics_period", value=0.2)])
         col = Collector(ctx, ["/fd/state_estimate"], diagnostics=True)
@@ -35,29 +33,38 @@ def test_observer_warns_outside_certified_region():
         pub = {t: drv.create_publisher(Float64MultiArray, t, data_pub_qos())
                for t in ("/plant/u", "/plant/y")}
         ex = SingleThreadedExecutor(context=ctx)
-        for n in (node, col.node, drv):
+        for n in (*nodes, col.node, drv):
             ex.add_node(n)
-        assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 1, 10.0)
+        assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 2, 10.0)
 
         def estimate(level, text):
             return any(s.level == level and text in s.message
                        for s in col.statuses("observer: estimate"))
 
+        k = 0
+
+        def feed(y, until, timeout=10.0):
+            # stamped samples, one per spin, until the status shows up (bounded)
+            nonlocal k
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline and not until():
+                pub["/plant/u"].publish(to_msg(system.inputs, k, [5e-5, 5e-5, 0.0]))
+                pub["/plant/y"].publish(to_msg(system.outputs, k, y))
+                k += 1
+                ex.spin_once(timeout_sec=0.05)
+            return until()
+
         # inside the envelope (levels <= 0.7 m): OK
-        for _ in range(5):
-            pub["/plant/u"].publish(plain([5e-5, 5e-5, 0.0]))
-            pub["/plant/y"].publish(plain([0.40, 0.20, 0.30]))
-        assert spin_until(ex, lambda: estimate(OK, "mode closed_dry"), 10.0)
+        assert feed([0.40, 0.20, 0.30], lambda: estimate(OK, "mode closed_dry"))
         assert not estimate(WARN, "outside certified region")
         # h1 at 0.8 m: WARN naming the variable and the excess
-        for _ in range(5):
-            pub["/plant/u"].publish(plain([5e-5, 5e-5, 0.0]))
-            pub["/plant/y"].publish(plain([0.80, 0.20, 0.30]))
-        assert spin_until(ex, lambda: estimate(WARN, "outside certified region: h1 above by"),
-                          10.0), [s.message for s in col.statuses("observer: estimate")][-3:]
+        assert feed([0.80, 0.20, 0.30],
+                    lambda: estimate(WARN, "outside certified region: h1 above by")), \
+            [s.message for s in col.statuses("observer: estimate")][-3:]
         st = [s for s in col.statuses("observer: estimate") if s.level == WARN][-1]
         vals = {kv.key: kv.value for kv in st.values}
         assert vals["outside_certified_region"].startswith("h1 above by 0.0")
-        node.destroy_node()
+        for n in nodes:
+            n.destroy_node()
         col.node.destroy_node()
         drv.destroy_node()
