@@ -19,8 +19,8 @@ def test_observer_warns_outside_certified_region():
 
     from fd_monitor.nodes.common import OK, WARN, data_pub_qos
     from fd_monitor.nodes.conversions import to_msg
-    from fd_monitor.system import load_system
     from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.system import load_system
 
     system = load_system("three_tank")
     with ros_context() as ctx:
