@@ -245,6 +245,11 @@ class BagRun:
     qb : dict
         QB only: ``V`` (K,) e' P e with the true state (NaN without truth), ``error`` (K, n),
         ``component_bound`` (n,).
+    outside : numpy.ndarray or None
+        (K, n + nu) excess of x^ and u over the gain file's certified region (0 inside);
+        None when the gain file has no region.
+    region_names : tuple of str
+        Names of the columns of ``outside`` (states, then inputs).
     """
 
     bag: str
@@ -264,6 +269,8 @@ class BagRun:
     inputs: InputReport
     transient: float = 0.0
     qb: dict[str, Any] = field(default_factory=dict)
+    outside: np.ndarray | None = None
+    region_names: tuple[str, ...] = ()
 
     @property
     def t(self) -> np.ndarray:
@@ -367,6 +374,8 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
     alarm, iso = np.zeros((K, ny), bool), np.zeros((K, ny), bool)
     sh = np.zeros((K, ny))
     mode = np.zeros(K, int)
+    region = mon.gains.region
+    outside = None if region is None else np.zeros((K, system.n + system.nu))
     prev: int | None = None
     keep: list[int] = []
     for j, k in enumerate(ks):
@@ -383,6 +392,8 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
         keep.append(j)
         sig[j], thr[j], alarm[j] = o.detector.residual, o.detector.threshold, o.detector.alarm
         sh[j], iso[j], mode[j] = o.estimator.sigma_hat, o.estimator.isolated, o.mode
+        if outside is not None:
+            outside[j] = o.outside
         prev = k
     sig, thr, alarm, iso, sh, mode = (a[keep] for a in (sig, thr, alarm, iso, sh, mode))
     unit = _units(system)
@@ -390,7 +401,8 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
             "channels": tuple(system.outputs),
             "units": (unit,) * ny, "signal": sig, "threshold": thr, "alarm": alarm,
             "mode_hat": mode, "estimate": {o: sh[:, i] for i, o in enumerate(system.outputs)},
-            "isolated": iso}
+            "isolated": iso, "outside": outside,
+            "region_names": () if region is None else region.names}
 
 
 def _run_qb(system: Any, gf: Any, ks: list[int], us: dict, ys: dict, rep: InputReport,

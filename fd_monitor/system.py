@@ -65,6 +65,10 @@ Schema (``format_version: 1``)::
     limits:                           # optional: the physical range of what is measured
       outputs: {y1: [-1.0, 1.0]}      # [min, max] per output (any subset), output units
       inputs: {u1: [0.0, 2.0]}        # [min, max] per input (any subset)
+    envelope:                         # optional: the declared operating envelope (the
+      states: {x1: [0.0, 1.0], ...}   # region a `thresholds` design certifies and the
+      inputs: {u1: [-1.0, 1.0], ...}  # runtime checks); every state and input needs a
+      modes: {safe: {states: {x2: [0.0, 0.4]}}}   # range; `modes` narrows them per mode
 
 ``limits`` say what a sensor or an actuator command can physically read: a sample outside
 them is implausible and refused where samples enter the runtime
@@ -106,6 +110,7 @@ from fd_monitor.paths import find_config_file
 
 __all__ = [
     "Condition",
+    "Envelope",
     "FaultChannel",
     "Guard",
     "LPVParameter",
@@ -127,7 +132,7 @@ _FAULT_KINDS = ("sensor_bias", "actuator", "state_jump", "process", "parameter")
 _TOP_KEYS = {
     "format_version", "name", "description", "time", "sample_time", "states", "inputs",
     "outputs", "disturbances", "bounds", "shared", "modes", "guards", "faults", "initial",
-    "switching", "lpv", "limits",
+    "switching", "lpv", "limits", "envelope",
 }
 _MODE_KEYS = {
     "dynamics", "time", "A", "B", "C", "D", "E", "offset", "uncertainty", "model", "params",
@@ -318,6 +323,24 @@ class Mode:
 
 
 @dataclass(frozen=True)
+class Envelope:
+    """Declared operating envelope: a box of states and inputs per mode (physical limits).
+
+    Attributes
+    ----------
+    state_lo, state_hi : numpy.ndarray
+        (s, n) state ranges per mode, state units.
+    input_lo, input_hi : numpy.ndarray
+        (s, nu) input ranges per mode, input units.
+    """
+
+    state_lo: np.ndarray
+    state_hi: np.ndarray
+    input_lo: np.ndarray
+    input_hi: np.ndarray
+
+
+@dataclass(frozen=True)
 class System:
     """A validated plant description (a hybrid automaton).
 
@@ -350,6 +373,10 @@ class System:
     output_limits, input_limits : numpy.ndarray
         (ny, 2) and (nu, 2) ``[min, max]`` physical range of each output and input (the
         ``limits`` key; +-MAX_MAGNITUDE where the file gives none).
+    envelope : Envelope or None
+        The declared operating envelope (``envelope`` key), when given. Not part of the
+        canonical form: it states where the monitor must work, not how the plant behaves
+        (a gain file stores the envelope it certifies).
     """
 
     name: str
@@ -373,6 +400,7 @@ class System:
     lpv: tuple[LPVParameter, ...] = ()
     output_limits: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     input_limits: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    envelope: Envelope | None = None
 
     @property
     def n_rho(self) -> int:
@@ -1001,9 +1029,11 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
                            lpv if "lpv" in data else None)
     digest = hashlib.sha256(canonical.encode()).hexdigest()
     ylim, ulim = _parse_limits(ctx, data, outputs, inputs)
+    env = _parse_envelope(ctx, data["envelope"], states, inputs, modes) \
+        if data.get("envelope") is not None else None
     return System(name, description, ts, states, inputs, outputs, dists, tuple(modes),
                   tuple(guards), tuple(faults), wbar, vbar, q0, x0, origin, canonical, digest,
-                  str(switching), lpv, ylim, ulim)
+                  str(switching), lpv, ylim, ulim, env)
 
 
 def _parse_limits(ctx: _Ctx, data: Mapping[str, Any], outputs: Sequence[str],
@@ -1028,6 +1058,51 @@ def _parse_limits(ctx: _Ctx, data: Mapping[str, Any], outputs: Sequence[str],
             arr[list(names).index(ch)] = (lo, hi)
         out.append(arr)
     return out[0], out[1]
+
+
+def _parse_envelope(ctx: _Ctx, data: Any, states: Sequence[str], inputs: Sequence[str],
+                    modes: Sequence[Mode]) -> Envelope:
+    """``envelope: {states: {x: [lo, hi]}, inputs: {u: [lo, hi]}, modes: {m: {...}}}``.
+
+    Every state and input needs a range; ``modes`` narrows them per mode (optional).
+    """
+    env = _mapping(ctx, "envelope", data)
+    _check_keys(ctx, "envelope", env, {"states", "inputs", "modes"})
+
+    def ranges(key: str, spec: Any, names: Sequence[str], lo: np.ndarray, hi: np.ndarray,
+               complete: bool) -> None:
+        spec = _mapping(ctx, key, spec if spec is not None else {})
+        _check_keys(ctx, key, spec, set(names))
+        for i, nm in enumerate(names):
+            if nm not in spec:
+                if complete:
+                    ctx.fail(f"{key}.{nm}", "a range [lo, hi] (missing key)", show_got=False)
+                continue
+            v = spec[nm]
+            if not isinstance(v, list) or len(v) != 2:
+                ctx.fail(f"{key}.{nm}", "a range [lo, hi]", v)
+            a = _number(ctx, f"{key}.{nm}[0]", v[0])
+            b = _number(ctx, f"{key}.{nm}[1]", v[1])
+            if not a <= b:
+                ctx.fail(f"{key}.{nm}", "a range [lo, hi] with lo <= hi", v)
+            lo[..., i], hi[..., i] = a, b
+
+    s, n, nu = len(modes), len(states), len(inputs)
+    x_lo, x_hi = np.zeros((s, n)), np.zeros((s, n))
+    u_lo, u_hi = np.zeros((s, nu)), np.zeros((s, nu))
+    ranges("envelope.states", env.get("states"), states, x_lo, x_hi, True)
+    ranges("envelope.inputs", env.get("inputs"), inputs, u_lo, u_hi, nu > 0)
+    per_mode = _mapping(ctx, "envelope.modes", env.get("modes") or {})
+    names = [m.name for m in modes]
+    _check_keys(ctx, "envelope.modes", per_mode, set(names))
+    for mname, spec in per_mode.items():
+        q = names.index(mname)
+        key = f"envelope.modes.{mname}"
+        spec = _mapping(ctx, key, spec)
+        _check_keys(ctx, key, spec, {"states", "inputs"})
+        ranges(f"{key}.states", spec.get("states"), states, x_lo[q], x_hi[q], False)
+        ranges(f"{key}.inputs", spec.get("inputs"), inputs, u_lo[q], u_hi[q], False)
+    return Envelope(x_lo, x_hi, u_lo, u_hi)
 
 
 def _parse_lpv(ctx: _Ctx, data: Mapping[str, Any]) -> tuple[LPVParameter, ...]:

@@ -9,6 +9,11 @@ runs the core :class:`~fd_monitor.core.monitor.Monitor` over every sample (no RO
   truth, the true ones;
 * isolated sensors and the final bias estimate sigma^.
 
+An alarm episode during which the estimated state or an input left the gain file's certified
+region (``results.envelope``) is marked ``outside_certified_region: true`` with
+``outside_detail`` (which variable, by how much); the alarm is raised all the same, it is just
+not covered by the design's guarantee.
+
 The JSON (``--json``) has at least ``alarms`` (list of ``{channel, first_sample, time}``),
 ``isolated`` (channel names) and ``bias_estimate`` (``{channel: value}``).
 
@@ -26,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.core.envelope import describe_excess
 from fd_monitor.errors import BagError, GainFileError
 from fd_monitor.offline import (
     BagRun,
@@ -101,9 +107,16 @@ def analyze_run(run: BagRun) -> dict[str, Any]:
     alarms = []
     for i, name in enumerate(run.channels):
         for a, b in _episodes(run.alarm[:, i]):
-            alarms.append({"channel": name, "first_sample": int(k[a]),
-                           "time": float(k[a] * dt), "last_sample": int(k[b]),
-                           "samples": int(b - a + 1)})
+            ep: dict[str, Any] = {"channel": name, "first_sample": int(k[a]),
+                                  "time": float(k[a] * dt), "last_sample": int(k[b]),
+                                  "samples": int(b - a + 1)}
+            if run.outside is not None:
+                # alarms are raised everywhere, but guaranteed only inside the region
+                part = run.outside[a:b + 1]
+                worst = part[np.argmax(np.abs(part).max(axis=1))]
+                ep["outside_certified_region"] = bool(np.any(part != 0.0))
+                ep["outside_detail"] = describe_excess(run.region_names, worst)
+            alarms.append(ep)
     alarms.sort(key=lambda e: (e["first_sample"], e["channel"]))
     names = system.mode_names
     true_mode = None
@@ -218,6 +231,12 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
             "method": gains.method, "agei": agei, **analyze_run(run)}
 
 
+def _region_cell(a: dict[str, Any]) -> str:
+    if "outside_certified_region" not in a:
+        return "n/a (no region in gain file)"
+    return f"OUTSIDE: {a['outside_detail']}" if a["outside_certified_region"] else "inside"
+
+
 def run(args: argparse.Namespace) -> int:
     """Analyse and print."""
     doc = analyze_bag(args.bag, args.gains, args.system, agei=not args.no_agei)
@@ -232,8 +251,9 @@ def run(args: argparse.Namespace) -> int:
     print()
     if doc["alarms"]:
         print_table([(a["channel"], a["first_sample"], f"{a['time']:.1f}", a["last_sample"],
-                      a["samples"]) for a in doc["alarms"]],
-                    header=("channel", "first_sample", "time_s", "last_sample", "samples"),
+                      a["samples"], _region_cell(a)) for a in doc["alarms"]],
+                    header=("channel", "first_sample", "time_s", "last_sample", "samples",
+                            "certified_region"),
                     title="alarms")
     else:
         print("alarms: none")

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.models import get_model
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
@@ -89,6 +90,10 @@ class ObserverOutput:
         (n,) x^_k, state units (batch: (N, n)).
     y_tilde : numpy.ndarray
         (ny,) y~_k = y_k - sigma^_k, output units (batch: (N, ny)).
+    outside : numpy.ndarray or None
+        (n + nu,) how far x^_k and u_k are outside the gain file's certified region of q^_k
+        (:meth:`~fd_monitor.core.envelope.CertifiedRegion.excess`: 0 inside, signed); None
+        without a region (single stream only).
 
     ``/fd/state_estimate`` layout (Float64MultiArray, data[0] = k, then): ``mode``, ``x_hat``
     (state names), ``y_tilde`` (labels ``y~<name>``); see :meth:`payload`.
@@ -98,6 +103,7 @@ class ObserverOutput:
     mode: int | np.ndarray
     x_hat: np.ndarray
     y_tilde: np.ndarray
+    outside: np.ndarray | None = None
 
     def payload(self, system: System) -> tuple[tuple[str, ...], np.ndarray]:
         """Labels and values for ``/fd/state_estimate`` (single stream)."""
@@ -118,11 +124,14 @@ class HybridObserver:
         None: single stream (1-D arrays); N: N runs in lock step ((N, .) arrays).
     initial_mode : int, optional
         q^_0; default the plant's initial mode.
+    region : CertifiedRegion, optional
+        The gain file's certified region: :attr:`ObserverOutput.outside` is filled from it.
     """
 
     def __init__(self, system: System, *, batch: int | None = None,
-                 initial_mode: int | None = None) -> None:
+                 initial_mode: int | None = None, region: CertifiedRegion | None = None) -> None:
         self.system = system
+        self.region = region
         self.plant = SampledPlant(system)
         self.f = ModeDynamics(system)
         self.batch = batch
@@ -207,6 +216,8 @@ class HybridObserver:
             q, x, yt = self.step_batch(k, np.asarray(u, float)[None], np.asarray(y, float)[None],
                                        np.asarray(sigma_hat, float)[None],
                                        np.array([int(np.asarray(trigger))]))
-            return ObserverOutput(k, int(q[0]), x[0].copy(), yt[0].copy())
+            out = None if self.region is None else self.region.excess(int(q[0]), x[0],
+                                                                       np.asarray(u, float))
+            return ObserverOutput(k, int(q[0]), x[0].copy(), yt[0].copy(), out)
         q, x, yt = self.step_batch(k, u, y, sigma_hat, np.asarray(trigger, dtype=int))
         return ObserverOutput(k, q, x.copy(), yt)

@@ -143,6 +143,11 @@ class MonitorOutput:
         return self.detector.alarm
 
     @property
+    def outside(self) -> np.ndarray | None:
+        """(n + nu,) excess of x^_k, u_k over the certified region (None: no region)."""
+        return self.observer.outside
+
+    @property
     def mode(self) -> int:
         """q^_k."""
         return int(np.asarray(self.observer.mode))
@@ -170,7 +175,7 @@ class Monitor:
     def __init__(self, system: System, gains: Any, agei: bool = True) -> None:
         self.system = system
         self.gains: DiagnosisGains = as_gains(system, gains)
-        self.observer = HybridObserver(system)
+        self.observer = HybridObserver(system, region=self.gains.region)
         self.detector = ResidualDetector(system, self.gains)
         self.agei = Agei(system, self.gains, enabled=agei)
         self.estimator = BiasEstimator(system, self.gains)

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.filters import FilterSpec, impulse_response
 from fd_monitor.errors import GainFileError
 from fd_monitor.system import System
@@ -133,6 +134,8 @@ class DiagnosisGains:
         alpha in (0, 1) of the delayed pre-detection observer.
     presmoother_delay : int
         D, samples (> the filter memory).
+    region : CertifiedRegion or None
+        Where the bounds hold (``results.envelope``); None for files without it.
     """
 
     filter: FilterSpec
@@ -155,6 +158,7 @@ class DiagnosisGains:
     estimator_init: str = "presmoother"
     presmoother_gain: float = 0.02
     presmoother_delay: int = 1
+    region: CertifiedRegion | None = None
 
     @property
     def noise_term(self) -> np.ndarray:
@@ -245,6 +249,7 @@ class DiagnosisGains:
             estimator_init=str(est.get("init", "measurement")),
             presmoother_gain=float(est.get("presmoother_gain", 0.02)),
             presmoother_delay=int(est.get("presmoother_delay", 1)),
+            region=CertifiedRegion.from_results(system, results),
         )
 
 

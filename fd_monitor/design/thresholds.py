@@ -86,6 +86,7 @@ from fd_monitor.core.filters import (
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.core.thresholds import DEFAULT_DELTA, estimator_error_matrix, noise_l1_bound
+from fd_monitor.design.envelope import jacobian_centre, remainder_bound
 from fd_monitor.errors import DesignError
 from fd_monitor.gains import save_gains
 from fd_monitor.paths import config_dirs, default_gain_path
@@ -153,6 +154,42 @@ def _region(system: System, scenarios: Sequence[str], seeds: int) -> dict[str, A
             "scenarios": used}
 
 
+def _declared_region(system: System, rng: np.random.Generator, M: int) -> dict[str, Any]:
+    """Uniform samples of every mode's declared box (the AGEI band and reach use them)."""
+    env = system.envelope
+    assert env is not None
+    s = len(system.modes)
+    X = np.concatenate([rng.uniform(env.state_lo[q], env.state_hi[q], (M, system.n))
+                        for q in range(s)])
+    U = np.concatenate([rng.uniform(env.input_lo[q], env.input_hi[q], (M, system.nu))
+                        for q in range(s)])
+    return {"x": X, "u": U, "q": np.repeat(np.arange(s), M), "scenarios": []}
+
+
+def _certified_region(system: System, reg: dict[str, Any], tube: float,
+                      source: str) -> dict[str, Any]:
+    """Per-mode boxes the gain file certifies: the declared ones, or the bounding box of the
+    design runs widened by ``tube`` (the region the sampled bounds were taken over)."""
+    if source == "declared":
+        env = system.envelope
+        assert env is not None
+        return {"source": "declared", "state_lo": env.state_lo, "state_hi": env.state_hi,
+                "input_lo": env.input_lo, "input_hi": env.input_hi}
+    s = len(system.modes)
+    out = {"source": "scenarios", "state_lo": np.zeros((s, system.n)),
+           "state_hi": np.zeros((s, system.n)), "input_lo": np.zeros((s, system.nu)),
+           "input_hi": np.zeros((s, system.nu))}
+    for q in range(s):
+        sel = reg["q"] == q
+        if not np.any(sel):
+            sel = np.ones_like(sel)
+        out["state_lo"][q] = reg["x"][sel].min(axis=0) - tube
+        out["state_hi"][q] = reg["x"][sel].max(axis=0) + tube
+        out["input_lo"][q] = reg["u"][sel].min(axis=0)
+        out["input_hi"][q] = reg["u"][sel].max(axis=0)
+    return out
+
+
 def _sample(rng: np.random.Generator, reg: dict[str, Any], system: System, q: int, M: int,
             tube: float) -> tuple[np.ndarray, np.ndarray]:
     sel = np.nonzero(reg["q"] == q)[0]
@@ -177,7 +214,8 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
                       kappa: float = 0.25, max_window: float = 2.0,
                       delta: float = DEFAULT_DELTA, gamma: float = 0.02, lam: float = 1e-3,
                       alpha: float = 0.02, init: str = "presmoother",
-                      M_sigma: float | None = None, isolation_factor: float = 1.0
+                      M_sigma: float | None = None, isolation_factor: float = 1.0,
+                      envelope: str = "scenarios", box_width: float = 0.01
                       ) -> dict[str, Any]:
     """Design everything; return ``{parameters, results, certificate, summary}``.
 
@@ -209,6 +247,12 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         Projection radius; default 100 max(v_bar).
     isolation_factor : float
         Isolation threshold = factor x the l1 noise bound of sigma~.
+    envelope : str
+        ``scenarios`` (the region of the simulated design runs, bounds sampled) or
+        ``declared`` (the plant file's ``envelope``: rho_bar bounded over it, see
+        :mod:`fd_monitor.design.envelope`; ``scenarios``, ``seeds`` and ``tube`` unused).
+    box_width : float
+        ``declared``: side of the grid boxes of the interval bound, state units.
     """
     t0 = time.perf_counter()
     n, ny, s = system.n, system.ny, len(system.modes)
@@ -220,10 +264,20 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
     if not np.all(v_bar > 0):
         raise DesignError(f"{system.name}: bounds.measurement_noise must be > 0 for every output")
     eta_bar = np.array([m.uncertainty for m in system.modes], dtype=float)
-    tube = float(20.0 * v_bar.max() if tube is None else tube)
-    scen = list(scenarios) if scenarios else default_scenarios(system)
-    reg = _region(system, scen, seeds)
     rng = np.random.default_rng(mc_seed)
+    if envelope == "declared":
+        if system.envelope is None:
+            raise DesignError(f"{system.source}: --envelope declared needs an 'envelope:' "
+                              f"section in the plant file (state and input ranges)")
+        tube = 0.0
+        reg = _declared_region(system, rng, min(mc_samples, 50000))
+    elif envelope == "scenarios":
+        tube = float(20.0 * v_bar.max() if tube is None else tube)
+        scen = list(scenarios) if scenarios else default_scenarios(system)
+        reg = _region(system, scen, seeds)
+    else:
+        raise DesignError(f"--envelope: expected scenarios or declared, got {envelope!r}")
+    region = _certified_region(system, reg, tube, envelope)
 
     # ---- linear parts and remainders per mode (Monte Carlo, Assumption 4)
     A = np.zeros((s, n, n))
@@ -237,6 +291,21 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         d = plant.step(qq, x + v, u) - plant.step(qq, x, u)
         rho_bar[q] = (1.0 + mc_margin) * np.abs(d - v @ A[q].T).max(axis=0)
         sep_bar[q] = (1.0 + mc_margin) * np.abs(d).max(axis=0)
+    how: list[dict[str, Any]] = [{"method": "sampled", "samples": mc_samples,
+                                  "margin": mc_margin}] * s
+    if envelope == "declared":
+        # a bound over the declared boxes; A_q the centre of the hull of the Jacobian
+        # enclosures (minimises max |J - A_q| entrywise), the mode's own matrix if linear
+        how = []
+        for q in range(s):
+            lo, hi = region["state_lo"][q], region["state_hi"][q]
+            ulo, uhi = region["input_lo"][q], region["input_hi"][q]
+            A[q] = jacobian_centre(system, plant, q, lo, hi, ulo, uhi, v_bar, box_width,
+                                   A[q])
+            rho_bar[q], h_q = remainder_bound(system, plant, q, A[q], lo, hi, ulo, uhi,
+                                              v_bar, box_width=box_width,
+                                              samples=mc_samples, margin=mc_margin, rng=rng)
+            how.append({"mode": system.modes[q].name, **h_q})
     b = eta_bar + rho_bar
 
     # ---- filter
@@ -306,6 +375,10 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
                 if np.all(np.any(mu >= 2.0 * rb[affected], axis=1)):
                     d_rec = float(dist)
                     break
+            if d_rec is None and envelope == "declared":
+                # the event never stands out of the noise in the envelope: AGEI stays in
+                # its expecting phase past the guard, r_bar_star covers the whole reach
+                d_rec = math.inf
             if d_rec is None:
                 raise DesignError(f"guard {g.name!r}: the mode mismatch never exceeds twice "
                                   f"the nominal threshold within 10 state units")
@@ -336,9 +409,13 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         })
 
     # ---- estimator (eq. 23-26): diagonal gains, certified on every mode's Jacobian
-    Js = np.array([_jacobian(plant, q, *[a.mean(axis=0) for a in
-                                          _sample(rng, reg, system, q, 2000, tube)])
-                   for q in range(s)])
+    # declared: the mean Jacobian over the envelope (its centre, three equal levels, is where
+    # the Torricelli flows are singular)
+    Js = np.array([np.mean([_jacobian(plant, q, x, u) for x, u in
+                            zip(*_sample(rng, reg, system, q, 200, 0.0))], axis=0)
+                   for q in range(s)]) if envelope == "declared" else np.array(
+        [_jacobian(plant, q, *[a.mean(axis=0) for a in _sample(rng, reg, system, q, 2000, tube)])
+         for q in range(s)])
     Lam = lam * np.eye(n)
     Gam = gamma * np.eye(n)
     D = int(2 * hold + 2)
@@ -403,6 +480,9 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         "noise_l1": noise_l1, "eta_bar": eta_bar, "remainder_bar": rho_bar,
         "r_bar": r_bar, "r_bar_separate": r_sep,
         "agei": {"delta": float(delta), "rows": rows},
+        "envelope": {**region, "remainder": how,
+                     "mismatch": {"method": "sampled", "samples": mc_samples,
+                                  "margin": mc_margin}},
         "estimator": {"Lambda": Lam, "Gamma": Gam, "M_sigma": M_sig,
                       "isolation_threshold": isolation_factor * iso_bound,
                       "isolation_delay": int(settle), "init": init,
@@ -422,6 +502,7 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
                    "Lambda Schur", "Gamma SPD", "estimator error dynamics Schur per mode"],
     }
     parameters = {
+        "envelope": envelope, "box_width": box_width if envelope == "declared" else None,
         "scenarios": reg["scenarios"], "seeds_per_scenario": seeds, "tube": tube,
         "mc_samples": mc_samples, "mc_margin": mc_margin, "mc_seed": mc_seed,
         "filter": filter_kind, "length": None if filter_kind != "fir" else int(length or 0),
@@ -441,6 +522,9 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         "isolation_threshold": (isolation_factor * iso_bound).tolist(),
         "isolation_delay": int(settle), "estimator_spectral_radius": max(radii),
         "uncertainty_drift_bound": eta_drift.tolist(),
+        "envelope": envelope,
+        "remainder_bar": {m: rho_bar[q].tolist() for q, m in enumerate(system.mode_names)},
+        "remainder_method": sorted({h["method"] for h in how}),
         "design_time_s": elapsed,
     }
     return {"parameters": parameters, "results": results, "certificate": certificate,
@@ -479,6 +563,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default="presmoother",
                         help="estimator initial state at detection (default presmoother; "
                              "measurement = the paper's x^s = y)")
+    parser.add_argument("--envelope", choices=("scenarios", "declared"), default="scenarios",
+                        help="region to certify: the simulated design scenarios (sampled "
+                             "bounds) or the plant file's declared envelope (rho_bar a bound "
+                             "over it)")
+    parser.add_argument("--box-width", type=float, default=0.01,
+                        help="--envelope declared: side of the interval-arithmetic boxes, "
+                             "state units (default 0.01)")
     parser.add_argument("--m-sigma", type=float, default=None,
                         help="projection radius M_sigma (default 100 v_bar)")
 
@@ -495,7 +586,8 @@ def run(args: argparse.Namespace) -> int:
                           mc_seed=args.mc_seed, filter_kind=args.filter, length=args.length,
                           pole=args.pole, max_window=args.max_window, delta=args.delta,
                           gamma=args.gamma, lam=args.lam, alpha=args.alpha, init=args.init,
-                          M_sigma=args.m_sigma)
+                          M_sigma=args.m_sigma, envelope=args.envelope,
+                          box_width=args.box_width)
     out = Path(args.output) if args.output else default_gain_path(system.name, "thresholds")
     save_gains(out, "thresholds", system, d["parameters"], d["results"], d["certificate"],
                d["solver"])

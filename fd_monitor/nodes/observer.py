@@ -22,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.core.envelope import CertifiedRegion, describe_excess
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver
 from fd_monitor.core.qb import QBObserver
-from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
+from fd_monitor.nodes.common import OK, WARN, NodeUsage, Param, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 
 __all__ = ["ObserverNode", "USAGE", "bias_labels", "main"]
@@ -44,7 +45,8 @@ USAGE = NodeUsage(
                 ("/fd/guard_event", "AGEI trigger for k (stamped k)")),
     publishes=(("/fd/state_estimate", "mode, x^_k, y~_k, restart (1: first sample, or "
                 "first after a hole) (stamp k)"),
-               ("/diagnostics", "input and estimate status")))
+               ("/diagnostics", "input and estimate status (WARN 'outside certified "
+                "region' when x^ or u leave the gain file's certified envelope)")))
 
 
 def bias_labels(system: Any) -> tuple[str, ...]:
@@ -73,6 +75,8 @@ class ObserverNode(FdNode):
                  qos=None, node_name: str = "observer", **kwargs: Any) -> None:
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
         self.observer: Any = observer
+        self._outside: np.ndarray | None = None
+        self._was_outside = False
         self.pub = self.publisher("/fd/state_estimate")
         self.diag.add("estimate", self.params.stale_timeout)
         self.start_runtime()
@@ -80,7 +84,8 @@ class ObserverNode(FdNode):
     def _start_hybrid(self) -> None:
         s = self.system
         if self.observer is None:
-            self.observer = HybridObserver(s)
+            self.observer = HybridObserver(
+                s, region=CertifiedRegion.from_results(s, self.gain_file.results))
         blab = bias_labels(s)
         self.start_inputs([
             Input("u", "/plant/u", s.inputs, plain_ok=True),
@@ -112,6 +117,7 @@ class ObserverNode(FdNode):
                                                                      np.ndarray]:
         out = self.observer.step(k, inputs["u"], inputs["y"], inputs["sigma"][:self.system.ny],
                                  int(inputs["guard"][0]))
+        self._outside = out.outside
         return int(out.mode), np.ravel(out.x_hat), np.ravel(out.y_tilde)
 
     def _step_qb(self, k: int, inputs: dict[str, Any]) -> tuple[int, np.ndarray, np.ndarray]:
@@ -126,8 +132,19 @@ class ObserverNode(FdNode):
                            np.concatenate([[float(mode)], x_hat, y_t,
                                            [float(self.restarting)]]))
         name = self.system.mode_names[mode]
-        self.diag.update("estimate", OK, f"mode {name}",
-                         {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()})
+        values = {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()}
+        out = self._outside if self._step == self._step_hybrid else None
+        if out is not None and np.any(out != 0.0):
+            # alarms still count; the thresholds are just not guaranteed out there
+            detail = describe_excess((*self.system.states, *self.system.inputs), out)
+            if not self._was_outside:
+                self.get_logger().warning(f"sample {k}: outside certified region: {detail}")
+            self._was_outside = True
+            self.diag.update("estimate", WARN, f"outside certified region: {detail}",
+                             {**values, "outside_certified_region": detail})
+        else:
+            self._was_outside = False
+            self.diag.update("estimate", OK, f"mode {name}", values)
 
     @property
     def labels(self) -> tuple[str, ...]:
