@@ -59,6 +59,8 @@ setup(
             "ros-jazzy-std-msgs",
             "ros-jazzy-diagnostic-msgs",
             "ros-jazzy-rmw-fastrtps-cpp",
+            "ros-jazzy-std-srvs",
+            "ros-jazzy-lifecycle-msgs",
         ],
         "dev": ["pytest", "ruff", "mypy", "types-PyYAML", "setuptools>=70", "wheel",
                 "colcon-core", "colcon-ros", "colcon-python-setup-py"],

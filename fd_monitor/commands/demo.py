@@ -151,7 +151,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     try:
         for n in FD_NODES:
-            procs.start(n, ["run", n, "--ros-args", "-p", f"gains:={gains}"])
+            # The distributed layout: the detector alone, fed by the observer process.
+            procs.start(n, ["run", n, "--ros-args", "-p", f"gains:={gains}",
+                            *(["-p", "layout:=chain"] if n == "detector" else [])])
         until = [a for t in TOPICS for a in ("--until", f"{t}={K}")]
         rec = procs.start("record", ["record", *TOPICS, "/diagnostics", "-o", str(bag),
                                      *until])

@@ -145,7 +145,7 @@ class DataInput:
         Serialized messages (record).
     """
 
-    def __init__(self, node: Node, msg_type: Any, topic: str, callback: Callable[[Any], None],
+    def __init__(self, node: Node, msg_type: Any, topic: str, callback: Callable[..., None],
                  report: Callable[[str], None], raw: bool = False) -> None:
         self.node, self.msg_type, self.topic = node, msg_type, topic
         self.callback, self.report, self.raw = callback, report, raw

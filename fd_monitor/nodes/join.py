@@ -276,7 +276,8 @@ class StampJoin:
     def _next_entry(self, now: float) -> Sample | None:
         # Stalled: no progress for restart_after s and nothing complete in the window.
         if (self._held_t and not self._complete_since
-                and now - self._progress >= self.restart_after and any(self.held[j].keys() >= set(self.required) for j in self.held)):
+                and now - self._progress >= self.restart_after
+                and any(self.held[j].keys() >= set(self.required) for j in self.held)):
             self._adopt()
         k = self.k_next
         if k is None:
