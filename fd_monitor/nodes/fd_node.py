@@ -184,6 +184,7 @@ class FdNode(LifecycleNode):
         self.active = False
         self.configured = False
         self._error: FdMonitorError | None = None
+        self._autostarting = False
         self._entities: list[Any] = []
         from std_srvs.srv import Trigger
 
@@ -197,7 +198,11 @@ class FdNode(LifecycleNode):
     def start(self) -> None:
         """Configure and activate (autostart); raise the configure error, if any."""
         self._error = None
-        self.trigger_configure()
+        self._autostarting = True
+        try:
+            self.trigger_configure()
+        finally:
+            self._autostarting = False
         if self._error is not None:
             raise self._error
         if not self.configured:
@@ -211,7 +216,8 @@ class FdNode(LifecycleNode):
         except FdMonitorError as exc:
             self._error = exc
             self._destroy_entities()
-            self.get_logger().error(f"configure failed: {exc}")
+            if not self._autostarting:           # else start() raises: one line from main
+                self.get_logger().error(f"configure failed: {exc}")
             return TransitionCallbackReturn.FAILURE
         self.configured = True
         return TransitionCallbackReturn.SUCCESS
@@ -604,24 +610,21 @@ class _TopicOrder:
     """Per-topic duplicate and out-of-order report, as :func:`fd_monitor.offline.read_inputs`
     reports them (a duplicate is dropped, the first kept; out of order is only reported).
 
-    Only the last :attr:`MEMORY` stamps count for duplicates, and out of order is one line per
-    step back: a source that restarts its stamps lower is one report here, and the join
-    turns it into a new run (not thousands of duplicates).
+    A duplicate here is the same stamp twice in a row; out of order is one line per step
+    back. A stamp seen earlier goes on to the join, which keeps the first of a pending one and
+    holds a processed one: dropped if the stream goes on, a new run if it stopped (a source
+    that restarted, a second bag) -- not thousands of duplicates.
     """
-
-    MEMORY = 64
 
     def __init__(self, topic: str) -> None:
         self.topic = topic
         self.last: int | None = None
-        self._recent: deque[int] = deque(maxlen=self.MEMORY)
 
     def check(self, k: int) -> tuple[str | None, bool]:
         """Record stamp k: (one-line report or None, True when k is a duplicate)."""
-        if k in self._recent:
-            return f"{self.topic} stamp {k}: duplicate (first kept)", True
-        self._recent.append(k)
         last, self.last = self.last, k
+        if k == last:
+            return f"{self.topic} stamp {k}: duplicate (first kept)", True
         if last is not None and k < last:
             return f"{self.topic} stamp {k} after stamp {last}: out of order", False
         return None, False
