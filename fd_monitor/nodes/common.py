@@ -536,7 +536,10 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
               f"  {prog} --ros-args --params-file {cfg}",
               f"  python -m fd_monitor run {prog} --ros-args --params-file {cfg} "
               f"-p NAME:=VALUE",
-              "Doubles are typed: write 1.0, not 1. Topics are remappable (-r /plant/y:=/x/y)."]
+              "Doubles are typed: write 1.0, not 1. Topics are relative: -r __ns:=/robot1 moves "
+              "them all (/diagnostics stays); -r plant/y:=x/y remaps one.",
+              "Lifecycle nodes (autostart true by default); ~/reset (std_srvs/Trigger) starts "
+              "a new run."]
     for u in usages:
         if len(usages) > 1:
             lines += ["", f"-- {u.summary}"]
