@@ -188,3 +188,27 @@ def test_reset_forgets_everything():
     assert j.k_next is None and j.pending == {}
     feed(j, 0)
     assert release(j) == [(0, True, None, FB0)]
+
+
+def test_lost_feedback_is_a_restart_after_the_timeout_not_a_stall():
+    """A burst that overflowed a publisher's history lost fb_1: without a timeout the join
+    would wait for it forever (and buffer everything after it)."""
+    j = entry(gap_timeout=1.0)
+    feed(j, 0)
+    release(j)
+    feed(j, 1, now=1.0)
+    feed(j, 2, now=1.0)
+    assert release(j, 1.5) == []                        # fb_1 may still come
+    out = list(j.ready(2.0))
+    assert [(s.k, s.restart, s.feedback_lost) for s in out] == [(1, True, True)]
+    j.put("fb", 2, "fb2")
+    assert release(j, 2.0) == [(2, False, None, "fb2")]
+
+
+def test_downstream_lost_feedback_restarts_after_restart_after():
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0)
+    j.put("est", 0, "e0", 0.0, restart=True)
+    release(j)
+    j.put("est", 1, "e1", 1.0)
+    assert release(j, 1.5) == []
+    assert [(s.k, s.restart, s.feedback_lost) for s in j.ready(2.0)] == [(1, True, True)]

@@ -417,11 +417,10 @@ class FdNode(LifecycleNode):
             self.subscribe(inp.topic, self._callback(inp))
         if self._held:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
-        if not seq:
-            # A hole or a new run must be declared even when no further message arrives.
-            period = min(0.25, max(0.01, min(gap_timeout or 1.0,
-                                             self.params.restart_after) / 4))
-            self._entities.append(self.create_timer(period, self._on_gap_timer))
+        # A hole, lost feedback or a new run must be declared even when no further message
+        # arrives.
+        period = min(0.25, max(0.01, min(gap_timeout or 1.0, self.params.restart_after) / 4))
+        self._entities.append(self.create_timer(period, self._on_gap_timer))
 
     def _callback(self, inp: Input) -> Callable[[Any, Any], None]:
         stamper = self._stamper
@@ -576,6 +575,10 @@ class FdNode(LifecycleNode):
             old, count = s.new_run
             self._warn(f"new run: the stream restarted at stamp {s.k} (the old one stopped "
                        f"before {old}; {count} messages held meanwhile); fresh state")
+        elif s.feedback_lost:
+            self.holes += 1
+            self._warn(f"feedback for sample {s.k} did not come in time (lost on the way?): "
+                       f"restarted at {s.k} (fresh state, feedback at initial values)")
         elif s.hole is not None:
             self.holes += 1
             a, b = s.hole

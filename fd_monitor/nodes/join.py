@@ -61,6 +61,9 @@ class Sample:
     new_run : (int, int) or None
         First sample of a new run adopted from held stamps: (the old stream's next stamp,
         messages held meanwhile).
+    feedback_lost : bool
+        A restart because the feedback for ``k`` did not come in time (lost on the way:
+        a burst overflowed a publisher's history); without it the join would wait forever.
     """
 
     k: int
@@ -68,6 +71,7 @@ class Sample:
     restart: bool
     hole: tuple[int, int] | None = None
     new_run: tuple[int, int] | None = None
+    feedback_lost: bool = False
 
 
 class StampJoin:
@@ -252,7 +256,8 @@ class StampJoin:
                 self._prune_held(now if self.sequence is None else now - self.restart_after)
             yield s
 
-    def _release(self, k: int, restart: bool, hole: tuple[int, int] | None) -> Sample:
+    def _release(self, k: int, restart: bool, hole: tuple[int, int] | None,
+                 lost: bool = False) -> Sample:
         if restart:
             # Only a jump can leave stamps below k (put refuses stamps below k_next).
             for j in [j for j in self.pending if j < k]:
@@ -266,7 +271,7 @@ class StampJoin:
         adopted, self._adopted = self._adopted, None
         # At a restart, feedback decided before the hole does not belong to this run.
         return Sample(k, {**slot, **self.feedback} if restart else slot, restart, hole,
-                      adopted)
+                      adopted, lost)
 
     def _forget(self, k: int) -> dict[str, Any]:
         self._complete_since.pop(k, None)
@@ -288,6 +293,8 @@ class StampJoin:
             slot = self.pending[k]
             if all(n in slot for n in self.feedback):
                 return self._release(k, False, None)
+            if self._feedback_overdue(k, now, self.gap_timeout):
+                return self._release(k, True, None, lost=True)
             return None                          # waiting for feedback, not a hole
         later = [j for j in self._complete_since if j > k]
         if not later:
@@ -313,11 +320,20 @@ class StampJoin:
             return None
         k = self.k_next
         restart = k is None or s in self._restart_at or s != k
+        lost = False
         if not restart and any(n not in slot for n in self.feedback):
-            return None
+            if not self._feedback_overdue(s, now, self.restart_after):
+                return None
+            restart = lost = True
         hole = (k, s - 1) if k is not None and s != k else None
         seq.popleft()
-        return self._release(s, restart, hole)
+        return self._release(s, restart, hole, lost)
+
+    def _feedback_overdue(self, k: int, now: float, timeout: float | None) -> bool:
+        """Sample k's required inputs have been here ``timeout`` s since the previous sample
+        was released (its feedback could not exist before), its feedback has not."""
+        t = self._complete_since.get(k)
+        return timeout is not None and t is not None and now - max(t, self._progress) >= timeout
 
     # -- queries -------------------------------------------------------------------------------
 
