@@ -120,3 +120,95 @@ def test_readable_stamp():
     assert readable_stamp(m) is None
     m.layout.data_offset = 0
     assert readable_stamp(m) is None
+
+
+def test_entry_stamp_beyond_the_horizon_is_held_and_forgotten_in_a_live_stream():
+    j = StampJoin(["u", "y"], gap_timeout=1.0, horizon=1000, restart_after=1.0)
+    feed(j, 0)
+    release(j)
+    note = j.put("u", 2**52, "u", 0.1)
+    assert "more than 1000 samples ahead" in note and "held" in note
+    assert j.put("y", 2**52, "y", 0.1) is None           # reported once per episode
+    for k in range(1, 20):
+        feed(j, k, now=0.1 + k)                            # the stream goes on
+        assert [s[0] for s in release(j, 0.1 + k)] == [k]
+    assert j.held == {}                                    # forgotten at the next progress
+    assert release(j, 100.0) == []                         # never a new run
+
+
+def test_entry_source_restarting_at_zero_is_a_new_run():
+    j = StampJoin(["u", "y"], gap_timeout=1.0, horizon=1000, restart_after=1.0)
+    for k in range(500):
+        feed(j, k, now=k * 0.001)
+        release(j, k * 0.001)
+    assert "below the stream (next is 500)" in j.put("u", 0, "u0", 1.0)
+    assert j.put("y", 0, "y0", 1.0) is None
+    feed(j, 1, now=1.1)
+    assert release(j, 1.2) == []                           # the old stream may go on
+    out = list(j.ready(1.6))                               # stalled 1.1 s: a new run
+    assert [(s.k, s.restart, s.new_run) for s in out] == [(0, True, (500, 4)),
+                                                          (1, False, None)]
+    feed(j, 2, now=1.7)                                     # and it goes on
+    assert [s[0] for s in release(j, 1.7)] == [2]
+
+
+def test_entry_stray_stamp_then_pause_then_good_samples():
+    """The 2**52 pair adopted after a pause; the good samples after it are a new run again."""
+    j = StampJoin(["u", "y"], gap_timeout=1.0, horizon=1000, restart_after=1.0)
+    feed(j, 0)
+    release(j)
+    for n in ("u", "y"):
+        j.put(n, 2**52, n, 0.5)
+    assert [s[0] for s in release(j, 2.0)] == [2**52]       # the stream stopped: adopted
+    for k in range(1, 6):
+        for n in ("u", "y"):
+            j.put(n, k, n, 3.0)
+    assert [(s[0], s[1]) for s in release(j, 3.0)] == [(1, True), (2, False), (3, False),
+                                                       (4, False), (5, False)]
+
+
+def test_downstream_restart_below_the_stream_adopts_held_inputs():
+    j = StampJoin(["est", "r"], sequence="est")
+    for k in range(10):
+        j.put("est", k, f"e{k}", restart=k == 0)
+        j.put("r", k, f"r{k}")
+    assert [s[0] for s in release(j)] == list(range(10))
+    assert j.put("r", 0, "new r0") is None                  # a new run's input, early
+    j.put("est", 0, "new e0", restart=True)
+    out = list(j.ready())
+    assert [(s.k, s.restart, s.inputs["r"]) for s in out] == [(0, True, "new r0")]
+    assert out[0].new_run == (10, 2)
+
+
+def test_reset_forgets_everything():
+    j = entry()
+    feed(j, 0)
+    release(j)
+    j.reset()
+    assert j.k_next is None and j.pending == {}
+    feed(j, 0)
+    assert release(j) == [(0, True, None, FB0)]
+
+
+def test_lost_feedback_is_a_restart_after_the_timeout_not_a_stall():
+    """A burst that overflowed a publisher's history lost fb_1: without a timeout the join
+    would wait for it forever (and buffer everything after it)."""
+    j = entry(gap_timeout=1.0)
+    feed(j, 0)
+    release(j)
+    feed(j, 1, now=1.0)
+    feed(j, 2, now=1.0)
+    assert release(j, 1.5) == []                        # fb_1 may still come
+    out = list(j.ready(2.0))
+    assert [(s.k, s.restart, s.feedback_lost) for s in out] == [(1, True, True)]
+    j.put("fb", 2, "fb2")
+    assert release(j, 2.0) == [(2, False, None, "fb2")]
+
+
+def test_downstream_lost_feedback_restarts_after_restart_after():
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0)
+    j.put("est", 0, "e0", 0.0, restart=True)
+    release(j)
+    j.put("est", 1, "e1", 1.0)
+    assert release(j, 1.5) == []
+    assert [(s.k, s.restart, s.feedback_lost) for s in j.ready(2.0)] == [(1, True, True)]

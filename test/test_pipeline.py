@@ -49,7 +49,8 @@ def test_distributed_chain_equals_offline_monitor(tmp_path, layout):
     simulate_to_bag(short_scenario(tmp_path), bag, seed=7)
     nodes = (["observer", "detector", "agei", "bias_estimator"] if layout == "four_processes"
              else ["monitor"])
-    procs = [Proc(["run", n]) for n in nodes]
+    procs = [Proc(["run", n, *(["--ros-args", "-p", "layout:=chain"] if n == "detector"
+                               else [])]) for n in nodes]
     until = [a for t in FD_TOPICS for a in ("--until", f"{t}={K}")]
     rec = Proc(["record", "/plant/u", "/plant/y", *FD_TOPICS, "-o", str(tmp_path / "rec"),
                 *until])

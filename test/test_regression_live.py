@@ -90,7 +90,10 @@ def test_live_nodes_match_expected(tmp_path, name, layout):
     n = len(offline.k)                             # valid samples
     nodes = ["monitor"] if layout == "monitor" else ["observer", "detector", "agei",
                                                      "bias_estimator"]
-    procs = [Proc(["run", x]) for x in nodes]
+    # Every bad-input line logged (not throttled): the log is compared with the offline
+    # reader's errors; the detector runs alone (chain layout) beside the other processes.
+    procs = [Proc(["run", x, "--ros-args", "-p", "log_throttle:=0.0",
+                   *(["-p", "layout:=chain"] if x == "detector" else [])]) for x in nodes]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
     # /plant/u and /plant/y have two subscribers: the observer and the bias estimator.

@@ -126,6 +126,40 @@ def _env(out: Path) -> dict[str, str]:
     return env
 
 
+#: Subscriptions per fd topic once the chain and record are up (consumers + record).
+GRAPH = {"/fd/state_estimate": 4, "/fd/residual": 2, "/fd/threshold": 2, "/fd/alarm": 2,
+         "/fd/guard_event": 3, "/fd/threshold_override": 2, "/fd/bias_estimate": 3}
+
+
+def _wait_for_graph(env: dict[str, str], timeout: float, procs: _Processes) -> bool:
+    """Poll the ROS graph (in the demo's domain) until every fd topic has its publisher and
+    its subscriptions; False on timeout or when a process failed."""
+    import rclpy
+    from rclpy.node import Node
+
+    keys = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
+    old = {k: os.environ.get(k) for k in keys}
+    os.environ.update({k: env[k] for k in keys})
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = Node("demo_graph", context=ctx)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and procs.failed() is None:
+            if all(node.count_publishers(t) >= 1 and node.count_subscribers(t) >= n
+                   for t, n in GRAPH.items()):
+                return True
+            time.sleep(0.05)  # polling the graph, not synchronising messages
+        return False
+    finally:
+        rclpy.try_shutdown(context=ctx)
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the demo and print its summary."""
     try:
@@ -151,10 +185,17 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     try:
         for n in FD_NODES:
-            procs.start(n, ["run", n, "--ros-args", "-p", f"gains:={gains}"])
+            # The distributed layout: the detector alone, fed by the observer process.
+            procs.start(n, ["run", n, "--ros-args", "-p", f"gains:={gains}",
+                            *(["-p", "layout:=chain"] if n == "detector" else [])])
         until = [a for t in TOPICS for a in ("--until", f"{t}={K}")]
         rec = procs.start("record", ["record", *TOPICS, "/diagnostics", "-o", str(bag),
                                      *until])
+        # Data topics are volatile: a subscriber matched late misses the first samples, so
+        # plant_sim starts only once the chain's and record's endpoints are in the graph.
+        if not _wait_for_graph(env, min(60.0, args.timeout), procs):
+            raise FdMonitorError(f"demo: the nodes did not all appear in the ROS graph (logs "
+                                 f"in {out / 'logs'})")
         # /plant/u, /plant/y: observer, bias_estimator, record; /plant/truth: record.
         procs.start("plant_sim", [
             "run", "plant_sim", "--ros-args", "-p", f"scenario:={sc.source}",

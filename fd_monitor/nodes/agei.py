@@ -46,11 +46,21 @@ class AgeiNode(FdNode):
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
+    outputs = ("fd/guard_event", "fd/threshold_override")
+
     def __init__(self, agei: Agei | None = None, system=None, gains=None, qos=None,
                  node_name: str = "agei", **kwargs: Any) -> None:
+        self._agei_arg = agei
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+
+    def setup(self) -> None:
+        """Publishers, AGEI and inputs (at configure)."""
         self.start_runtime()
-        self._start(agei)
+        self._start(self._agei_arg)
+
+    def build_core(self, gains: Any) -> None:
+        """A new AGEI for another gain file (runtime swap)."""
+        self.agei = Agei(self.system, as_gains(self.system, gains), enabled=self.params.enabled)
 
     runtimes: Mapping[str, str] = {"thresholds": "_thresholds_only"}
 
@@ -61,14 +71,14 @@ class AgeiNode(FdNode):
         s = self.system
         self.agei = (agei if agei is not None
                      else Agei(s, as_gains(s, self.gain_file), enabled=self.params.enabled))
-        self.pub_guard = self.publisher("/fd/guard_event")
-        self.pub_override = self.publisher("/fd/threshold_override")
+        self.pub_guard = self.publisher("fd/guard_event")
+        self.pub_override = self.publisher("fd/threshold_override")
         self.diag.add("tracker", self.params.stale_timeout)
         o = s.outputs
         self.start_inputs([
-            Input("est", "/fd/state_estimate", state_labels(s), sequence=True),
-            Input("residual", "/fd/residual", (*(f"r:{n}" for n in o), *(f"w:{n}" for n in o))),
-            Input("threshold", "/fd/threshold",
+            Input("est", "fd/state_estimate", state_labels(s), sequence=True),
+            Input("residual", "fd/residual", (*(f"r:{n}" for n in o), *(f"w:{n}" for n in o))),
+            Input("threshold", "fd/threshold",
                   (*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o))),
         ])
 

@@ -47,11 +47,23 @@ class BiasEstimatorNode(FdNode):
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
+    outputs = ("fd/bias_estimate",)
+
     def __init__(self, estimator: BiasEstimator | None = None, system=None, gains=None,
                  qos=None, node_name: str = "bias_estimator", **kwargs: Any) -> None:
+        self._estimator_arg = estimator
+        self._last_active = False
+        self._last_isolated: list[str] = []
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+
+    def setup(self) -> None:
+        """Publisher, estimator and inputs (at configure)."""
         self.start_runtime()
-        self._start(estimator)
+        self._start(self._estimator_arg)
+
+    def build_core(self, gains: Any) -> None:
+        """A new estimator for another gain file (runtime swap)."""
+        self.estimator = BiasEstimator(self.system, as_gains(self.system, gains))
 
     runtimes: Mapping[str, str] = {"thresholds": "_thresholds_only"}
 
@@ -62,19 +74,21 @@ class BiasEstimatorNode(FdNode):
         s = self.system
         self.estimator = (estimator if estimator is not None
                           else BiasEstimator(s, as_gains(s, self.gain_file)))
-        self.pub = self.publisher("/fd/bias_estimate")
-        self.diag.add("estimate", self.params.stale_timeout)
+        self.pub = self.publisher("fd/bias_estimate")
+        # A fault found stays visible (with its estimate) when the input stops.
+        self.diag.add("estimate", self.params.stale_timeout, keep_on_stale=True)
         self.start_inputs([
-            Input("u", "/plant/u", s.inputs, plain_ok=True),
-            Input("y", "/plant/y", s.outputs, plain_ok=True),
-            Input("est", "/fd/state_estimate", state_labels(s), sequence=True),
-            Input("alarm", "/fd/alarm", tuple(s.outputs)),
-            Input("guard", "/fd/guard_event", GUARD_LABELS, stamp_offset=-1),
+            Input("u", "plant/u", s.inputs, plain_ok=True, hold=True),
+            Input("y", "plant/y", s.outputs, plain_ok=True),
+            Input("est", "fd/state_estimate", state_labels(s), sequence=True),
+            Input("alarm", "fd/alarm", tuple(s.outputs)),
+            Input("guard", "fd/guard_event", GUARD_LABELS, stamp_offset=-1),
         ])
 
     def reset(self) -> None:
         """Back to inactive, sigma^ = 0 (Monitor.reset)."""
         self.estimator.reset()
+        self._last_active, self._last_isolated = False, []
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """u_k, y_k, q^_k, alarm_k, AGEI row at k -> sigma^_{k+1}, isolation flags."""
@@ -85,6 +99,15 @@ class BiasEstimatorNode(FdNode):
         labels, values = out.payload(s)
         self.publish_array(self.pub, labels, k + 1, values)
         isolated = [o for o, f in zip(s.outputs, out.isolated) if f]
+        log = self.get_logger()
+        if out.active and not self._last_active:
+            log.info(f"fault detected at sample {int(out.k_detect)}: estimating the sensor "
+                     f"bias")
+        if isolated != self._last_isolated:
+            est = ", ".join(f"{o} = {float(v):.4g}" for o, v in zip(s.outputs, out.sigma_hat))
+            log.info(f"sample {k}: isolated {', '.join(isolated) or 'nothing'} "
+                     f"(sigma_hat {est})")
+        self._last_active, self._last_isolated = bool(out.active), isolated
         if out.active:
             level, msg = WARN, (f"bias on {', '.join(isolated)}" if isolated
                                 else "estimating (fault detected)")

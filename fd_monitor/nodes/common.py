@@ -2,13 +2,17 @@
 
 QoS and the lossless data path
 ------------------------------
-Data topics (``/plant/*``, ``/fd/*``) are RELIABLE. Publishers keep the last
-``qos_depth`` samples with TRANSIENT_LOCAL durability (a subscriber that matches a little
-late still gets the first samples); subscribers are KEEP_ALL, so a sample acknowledged at
-the DDS level sits in the reader's queue until the Python callback takes it, however slow
-the callback is. Sources that can run flat out (``plant_sim`` with ``rate_factor: 0.0``,
-``replay``) wait until the expected subscribers are matched, then pace by acknowledgements:
-after every ``ack_window`` (< ``qos_depth``) samples they block in
+Data topics (``plant/*``, ``fd/*``, relative to the node's namespace) are RELIABLE and
+VOLATILE: publishers keep the last ``qos_depth`` samples for repairs only, a subscriber that
+joins late gets nothing old (as with ROS's default profile). Subscriptions are KEEP_ALL,
+RELIABLE, VOLATILE, so they meet ROS's default publishers (reliable, volatile) losslessly;
+when a best-effort publisher (the sensor-data profile) appears, the incompatible-QoS event
+names RELIABILITY and :class:`DataInput` re-creates the subscription as best effort (logged and
+reported on ``/diagnostics``), which meets both kinds. Every policy can be overridden per
+topic with ROS's ``qos_overrides.<topic>.subscription.<policy>`` parameters (then no
+automatic switch happens). Sources that run flat out (``plant_sim`` with ``rate_factor:
+0.0``, ``replay --rate 0``) wait until the expected subscribers are matched, then pace by
+acknowledgements: after every ``ack_window`` (< ``qos_depth``) samples they block in
 ``Publisher.wait_for_all_acked`` so no unacknowledged sample is ever overwritten in the
 writer's history. Together: no sample is lost, whatever the rate.
 
@@ -34,7 +38,14 @@ from rclpy.duration import Duration
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSPolicyKind,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from fd_monitor.errors import FdMonitorError
 from fd_monitor.nodes.ros_args import init_ros, shown_params_file
@@ -42,6 +53,7 @@ from fd_monitor.nodes.ros_args import init_ros, shown_params_file
 __all__ = [
     "OK", "WARN", "ERROR", "STALE", "LEVEL_NAMES",
     "AckPacer",
+    "DataInput",
     "Diagnostics",
     "NodeUsage",
     "Param",
@@ -66,32 +78,113 @@ LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
 DEFAULT_DEPTH = 1000
 
 
-def pub_events() -> dict[str, Any]:
-    """``create_publisher`` keywords without rclpy's default QoS-event handlers.
+def pub_events(incompatible: Callable[[Any], None] | None = None) -> dict[str, Any]:
+    """``create_publisher`` keywords: only the incompatible-QoS handler, if given.
 
-    Each handler is one more entity in every wait set the executor builds, and rebuilding
-    wait sets is most of a Python node's per-message cost.
+    rclpy's default handlers are off: each handler is one more entity in every wait set the
+    executor builds, and rebuilding wait sets is most of a Python node's per-message cost.
     """
-    return {"event_callbacks": PublisherEventCallbacks(use_default_callbacks=False)}
+    return {"event_callbacks": PublisherEventCallbacks(incompatible_qos=incompatible,
+                                                        use_default_callbacks=False)}
 
 
-def sub_events() -> dict[str, Any]:
-    """``create_subscription`` keywords without the default QoS-event handlers."""
-    return {"event_callbacks": SubscriptionEventCallbacks(use_default_callbacks=False)}
+def sub_events(incompatible: Callable[[Any], None] | None = None) -> dict[str, Any]:
+    """``create_subscription`` keywords: only the incompatible-QoS handler, if given."""
+    return {"event_callbacks": SubscriptionEventCallbacks(incompatible_qos=incompatible,
+                                                           use_default_callbacks=False)}
 
 
 def data_pub_qos(depth: int = DEFAULT_DEPTH) -> QoSProfile:
-    """Publisher QoS of the data path: reliable, transient local, keep last ``depth``."""
+    """Publisher QoS of the data path: reliable, volatile, keep last ``depth``."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(depth),
                       reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+                      durability=DurabilityPolicy.VOLATILE)
 
 
-def data_sub_qos() -> QoSProfile:
-    """Subscriber QoS of the data path: reliable, transient local, keep all (no drops)."""
-    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+def data_sub_qos(reliable: bool = True) -> QoSProfile:
+    """Subscriber QoS of the data path: volatile; reliable keep-all (no drops), or best effort
+    keep last :data:`DEFAULT_DEPTH` (meets best-effort publishers too)."""
+    if reliable:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEFAULT_DEPTH,
+                      reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def incompatible_text(topic: str, side: str, info: Any) -> str:
+    """One line for an incompatible-QoS event (``side``: "publisher" or "subscription")."""
+    try:
+        policy = QoSPolicyKind(int(info.last_policy_kind)).name
+    except ValueError:
+        policy = str(info.last_policy_kind)
+    other = "a subscription" if side == "publisher" else "a publisher"
+    return (f"{topic}: QoS incompatible with {other} (policy {policy}; "
+            f"{int(info.total_count)} so far): our {side} cannot talk to it")
+
+
+class DataInput:
+    """A data-path subscription that meets reliable and best-effort volatile publishers.
+
+    Starts reliable, keep-all (lossless with acknowledgement pacing). ``qos_overrides``
+    parameters (``qos_overrides.<topic>.subscription.reliability|history|depth``) apply at
+    creation. When a publisher is incompatible on RELIABILITY (a best-effort publisher) and
+    the user did not override the reliability, the subscription is re-created best effort;
+    every incompatibility is passed to ``report`` (one line naming topic and policy).
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    msg_type : type
+    topic : str
+        As given to ``create_subscription`` (relative names resolve in the namespace).
+    callback : callable
+    report : callable
+        Called with one line per incompatible-QoS event or switch.
+    raw : bool
+        Serialized messages (record).
+    """
+
+    def __init__(self, node: Node, msg_type: Any, topic: str, callback: Callable[..., None],
+                 report: Callable[[str], None], raw: bool = False) -> None:
+        self.node, self.msg_type, self.topic = node, msg_type, topic
+        self.callback, self.report, self.raw = callback, report, raw
+        self.name = node.resolve_topic_name(topic)
+        want = data_sub_qos()
+        self.sub = node.create_subscription(
+            msg_type, topic, callback, want, raw=raw,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            **sub_events(self._on_incompatible))
+        self.reliable = self.sub.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        #: True when the user set the reliability (no automatic switch).
+        self.overridden = self.sub.qos_profile.reliability != want.reliability
+        self._switch_timer: Any = None
+
+    def _on_incompatible(self, info: Any) -> None:
+        line = incompatible_text(self.name, "subscription", info)
+        policy = int(info.last_policy_kind)
+        if (policy == QoSPolicyKind.RELIABILITY and self.reliable and not self.overridden
+                and self._switch_timer is None):
+            line += "; switching to best effort (meets every publisher)"
+            # Not inside the subscription's own event callback: on the next executor turn.
+            self._switch_timer = self.node.create_timer(0.0, self._switch)
+        self.report(line)
+
+    def _switch(self) -> None:
+        self.node.destroy_timer(self._switch_timer)
+        old = self.sub
+        self.sub = self.node.create_subscription(
+            self.msg_type, self.topic, self.callback, data_sub_qos(reliable=False),
+            raw=self.raw, **sub_events(self._on_incompatible))
+        self.node.destroy_subscription(old)
+        self.reliable = False
+
+    def destroy(self) -> None:
+        """Destroy the subscription (lifecycle cleanup)."""
+        if self._switch_timer is not None:
+            self.node.destroy_timer(self._switch_timer)
+        self.node.destroy_subscription(self.sub)
 
 
 def diagnostics_qos() -> QoSProfile:
@@ -172,15 +265,26 @@ class _Channel:
     values: dict[str, Any]
     last_input: float | None
     stale_timeout: float | None
+    keep_on_stale: bool = False
+    stale: bool = False
+
+
+#: s: level changes are published at once, but at most this often (bursts are merged).
+BURST_INTERVAL = 0.1
 
 
 class Diagnostics:
     """Per-channel DiagnosticStatus on ``/diagnostics``, shaped like diagnostic_updater.
 
     Each channel has a level, a message and key/value strings. The array is published every
-    ``period`` s and at once when a channel's level changes. A channel with a stale timeout
-    turns STALE when :meth:`update`/:meth:`touch` has not been called for that long (checked
-    on a timer against ``clock``, never inferred from silence elsewhere).
+    ``period`` s exactly (a timer of that period) and when a channel's level changes (at
+    most every :data:`BURST_INTERVAL` s: a burst of changes goes out as one array). A
+    channel with a stale timeout turns STALE when :meth:`update`/:meth:`touch` has not been
+    called for that long (checked on a timer against ``clock``). A ``keep_on_stale`` channel
+    (a fault found) keeps its level, message and values when its input stops; its message
+    says the input stopped and ``stale`` = true is added.
+
+    Status names are ``<node's full name>: <channel>`` (``/robot1/detector: residual h1``).
 
     Parameters
     ----------
@@ -202,65 +306,106 @@ class Diagnostics:
         self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", diagnostics_qos(),
                                          **pub_events())
         self._last_publish = -float("inf")
+        self._dirty = False
         self.period = float(period)
         #: Called after every publication (e.g. to start a new list of reasons).
         self.on_publish: list[Callable[[], None]] = []
-        # Check staleness more often than we publish, so STALE shows up within ~period/4.
-        node.create_timer(min(self.period, 0.25), self._on_timer)
+        self._timers: list[Any] = []
+        self._start_timers()
+
+    def _start_timers(self) -> None:
+        for t in self._timers:
+            self._node.destroy_timer(t)
+        self._timers = [self._node.create_timer(self.period, self.publish),
+                        self._node.create_timer(min(self.period / 4, BURST_INTERVAL),
+                                                self._on_check)]
+
+    def set_period(self, period: float) -> None:
+        """Change the publication period (takes effect now)."""
+        self.period = float(period)
+        self._start_timers()
+
+    def set_stale_timeout(self, timeout: float) -> None:
+        """Change the stale timeout of every channel that has one."""
+        for ch in self._channels.values():
+            if ch.stale_timeout is not None:
+                ch.stale_timeout = float(timeout)
+
+    def destroy(self) -> None:
+        """Stop the timers and the publisher (lifecycle cleanup)."""
+        for t in self._timers:
+            self._node.destroy_timer(t)
+        self._timers = []
+        self._node.destroy_publisher(self._pub)
 
     def add(self, channel: str, stale_timeout: float | None = None,
-            message: str = "no input yet") -> None:
+            message: str = "no input yet", keep_on_stale: bool = False) -> None:
         """Add a channel; with ``stale_timeout`` it starts STALE until its first input."""
         level = STALE if stale_timeout is not None else OK
-        self._channels[channel] = _Channel(level, message, {}, None, stale_timeout)
+        self._channels[channel] = _Channel(level, message, {}, None, stale_timeout,
+                                           keep_on_stale)
 
     def update(self, channel: str, level: bytes, message: str,
                values: dict[str, Any] | None = None) -> None:
-        """Set a channel's status (fresh input); publish at once on a level change."""
+        """Set a channel's status (fresh input); publish soon on a level change."""
         ch = self._channels[channel]
         changed = ch.level != level
-        ch.level, ch.message = level, message
+        ch.level, ch.message, ch.stale = level, message, False
         if values is not None:
             ch.values = dict(values)  # formatted when published (keeps callbacks cheap)
         ch.last_input = self._clock()
         if changed:
-            self.publish()
+            self._changed()
 
     def touch(self, channel: str) -> None:
         """Mark fresh input on a channel without changing its status."""
-        self._channels[channel].last_input = self._clock()
+        ch = self._channels[channel]
+        ch.last_input = self._clock()
+        ch.stale = False
 
     def level(self, channel: str) -> bytes:
         """The current level of a channel."""
         return self._channels[channel].level
 
-    def _on_timer(self) -> None:
+    def _changed(self) -> None:
+        if self._clock() - self._last_publish >= BURST_INTERVAL:
+            self.publish()
+        else:
+            self._dirty = True
+
+    def _on_check(self) -> None:
         now = self._clock()
-        changed = False
         for ch in self._channels.values():
-            if ch.stale_timeout is None or ch.level == STALE:
+            if ch.stale_timeout is None or ch.level == STALE or ch.stale:
                 continue
             if ch.last_input is not None and now - ch.last_input > ch.stale_timeout:
-                ch.level = STALE
-                ch.message = f"no input for more than {ch.stale_timeout:g} s"
-                changed = True
-        if changed or now - self._last_publish >= self.period:
+                note = f"no input for more than {ch.stale_timeout:g} s"
+                if ch.keep_on_stale and ch.level != OK:
+                    ch.message = f"{ch.message} (input stopped: {note})"
+                    ch.stale = True
+                else:
+                    ch.level, ch.message = STALE, note
+                self._dirty = True
+        if self._dirty and now - self._last_publish >= BURST_INTERVAL:
             self.publish()
 
     def publish(self) -> None:
         """Publish every channel's status now."""
         arr = DiagnosticArray()
         arr.header.stamp = self._node.get_clock().now().to_msg()
+        prefix = self._node.get_fully_qualified_name()
         for name, ch in self._channels.items():
             st = DiagnosticStatus()
             st.level = ch.level
-            st.name = f"{self._node.get_name()}: {name}"
+            st.name = f"{prefix}: {name}"
             st.message = ch.message
             st.hardware_id = self._hardware_id
-            st.values = [KeyValue(key=str(k), value=_text(v)) for k, v in ch.values.items()]
+            values = {**ch.values, "stale": True} if ch.stale else ch.values
+            st.values = [KeyValue(key=str(k), value=_text(v)) for k, v in values.items()]
             arr.status.append(st)
         self._pub.publish(arr)
         self._last_publish = self._clock()
+        self._dirty = False
         for cb in self.on_publish:
             cb()
 
@@ -392,7 +537,10 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
               f"  {prog} --ros-args --params-file {cfg}",
               f"  python -m fd_monitor run {prog} --ros-args --params-file {cfg} "
               f"-p NAME:=VALUE",
-              "Doubles are typed: write 1.0, not 1. Topics are remappable (-r /plant/y:=/x/y).",
+              "Doubles are typed: write 1.0, not 1. Topics are relative: -r __ns:=/robot1 moves "
+              "them all (/diagnostics stays); -r plant/y:=x/y remaps one.",
+              "Lifecycle nodes (autostart true by default); ~/reset (std_srvs/Trigger) starts "
+              "a new run.",
               "A relative --params-file that is not found from the current directory is "
               "looked up in the installed config/ folder."]
     for u in usages:

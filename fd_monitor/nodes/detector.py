@@ -22,21 +22,18 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.core.detector import ResidualDetector, no_override
 from fd_monitor.core.qb import QBDetector, qb_model
 from fd_monitor.core.thresholds import as_gains
-from fd_monitor.errors import MessageError
+from fd_monitor.errors import FdMonitorError, MessageError
 from fd_monitor.nodes.common import (
     ERROR,
     OK,
     WARN,
     NodeUsage,
     Param,
-    data_sub_qos,
     run_node,
-    sub_events,
 )
 from fd_monitor.nodes.conversions import decode
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
@@ -46,8 +43,13 @@ __all__ = ["DetectorNode", "USAGE", "state_labels", "main"]
 
 PARAMS = (
     Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
-          low=0.0, high=1.0),
+          read_only=False, low=0.0, high=1.0),
+    Param("layout", "standalone", "standalone: the detector executable also runs observer, "
+          "agei and bias_estimator in its process (fed plant/u and plant/y it detects on its "
+          "own); chain: the detector alone, fed fd/state_estimate by an observer process"),
 )
+
+LAYOUTS = ("standalone", "chain")
 
 USAGE = NodeUsage(
     "detector", "detector: filtered residuals, thresholds and alarms (QB bounds for a qb "
@@ -78,17 +80,32 @@ class DetectorNode(FdNode):
     """
 
     runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds", "qb": "_start_qb"}
+    outputs = ("fd/residual", "fd/threshold", "fd/alarm")
 
     def __init__(self, detector: ResidualDetector | None = None, system=None, gains=None,
                  qos=None, node_name: str = "detector", **kwargs: Any) -> None:
+        self._detector_arg = detector
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
-        self.detector: Any = detector
-        self.pubs = {t: self.publisher(t) for t in ("/fd/residual", "/fd/threshold",
-                                                    "/fd/alarm")}
+        if self.params.layout not in LAYOUTS:
+            raise FdMonitorError(f"node {node_name}: parameter layout: {self.params.layout!r}"
+                                 f": expected one of {', '.join(LAYOUTS)}")
+
+    def setup(self) -> None:
+        """Publishers, detector and inputs (at configure)."""
+        self.detector: Any = self._detector_arg
+        self.pubs = {t: self.publisher(t) for t in self.outputs}
         self.sigma_hat = np.zeros(self.system.ny)
+        self._alarmed: set[str] = set()
+        self._episode = 0
         self.start_runtime()
         for ch in self.channels:
             self.diag.add(ch, self.params.stale_timeout)
+
+    def build_core(self, gains: Any) -> None:
+        """A new detector for another gain file (runtime swap)."""
+        s = self.system
+        self.detector = (ResidualDetector(s, as_gains(s, gains)) if gains.method == "thresholds"
+                         else QBDetector(s, gains))
 
     def _start_thresholds(self) -> None:
         s = self.system
@@ -96,11 +113,10 @@ class DetectorNode(FdNode):
             self.detector = ResidualDetector(s, as_gains(s, self.gain_file))
         self.channels = [f"residual {o}" for o in s.outputs]
         # The latest bias estimate, for diagnostics only (not joined: it does not enter r_k).
-        self.create_subscription(Float64MultiArray, "/fd/bias_estimate", self._on_bias,
-                                 data_sub_qos(), **sub_events())
+        self.subscribe("fd/bias_estimate", self._on_bias)
         self.start_inputs([
-            Input("est", "/fd/state_estimate", state_labels(s), sequence=True),
-            Input("override", "/fd/threshold_override", tuple(s.outputs),
+            Input("est", "fd/state_estimate", state_labels(s), sequence=True),
+            Input("override", "fd/threshold_override", tuple(s.outputs),
                   initial=no_override(s.ny), allow_nan=True),
         ])
         self._step = self._step_thresholds
@@ -110,12 +126,15 @@ class DetectorNode(FdNode):
         self.detector = QBDetector(s, self.gain_file)
         self._C = qb_model(s).C                 # r = y - C_q x^ (QBObserver.residual)
         self.channels = [f"residual {c}" for c in self.detector.channels]
-        self.start_inputs([Input("est", "/fd/state_estimate", state_labels(s), sequence=True)])
+        self.start_inputs([Input("est", "fd/state_estimate", state_labels(s), sequence=True)])
         self._step = self._step_qb
 
     def _on_bias(self, msg: Any) -> None:
+        if not self.active:
+            return
         try:
-            d = decode(msg, "/fd/bias_estimate", labels=bias_labels(self.system),
+            d = decode(msg, self.resolve_topic_name("fd/bias_estimate"),
+                       labels=bias_labels(self.system),
                        require_stamp=True)
         except MessageError as exc:
             self.bad_input(str(exc))
@@ -126,6 +145,9 @@ class DetectorNode(FdNode):
         """Forget the filters' history (Monitor.reset); the QB detector has no state."""
         if isinstance(self.detector, ResidualDetector):
             self.detector.reset()
+        elif self.detector is None:
+            self.detector = ResidualDetector(self.system, as_gains(self.system,
+                                                                   self.gain_file))
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """(q^_k, x^_k, y~_k), override -> residual, threshold, alarm at k."""
@@ -134,7 +156,7 @@ class DetectorNode(FdNode):
         mode, x_hat, y_t = int(est[0]), est[1:1 + s.n], est[1 + s.n:1 + s.n + s.ny]
         signal, threshold, alarm, extra = self._step(k, mode, x_hat, y_t, inputs)
         for topic, (labels, values) in extra.items():
-            self.publish_array(self.pubs[topic], labels, k, values)
+            self.publish_array(self.pubs[topic.lstrip("/")], labels, k, values)
         self._report(k, mode, signal, threshold, alarm)
 
     def _step_thresholds(self, k, mode, x_hat, y_t, inputs):
@@ -147,12 +169,13 @@ class DetectorNode(FdNode):
         thr = det.rho * det.bounds(mode)
         alarm = sig > thr
         ch = det.channels
-        return sig, thr, alarm, {"/fd/residual": (ch, sig), "/fd/threshold": (ch, thr),
-                                 "/fd/alarm": (ch, alarm.astype(float))}
+        return sig, thr, alarm, {"fd/residual": (ch, sig), "fd/threshold": (ch, thr),
+                                 "fd/alarm": (ch, alarm.astype(float))}
 
     def _report(self, k: int, mode: int, signal: Any, threshold: Any, alarm: Any) -> None:
         share = self.params.warn_share
         qb = not isinstance(self.detector, ResidualDetector)
+        self._log_alarms(k, signal, threshold, alarm)
         for i, ch in enumerate(self.channels):
             r, R = float(signal[i]), float(threshold[i])
             if alarm[i]:
@@ -167,10 +190,62 @@ class DetectorNode(FdNode):
                 values["sigma_hat"] = float(self.sigma_hat[i])
             self.diag.update(ch, level, msg, values)
 
+    def _log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None:
+        """One line when a channel's alarm starts, one when every alarm is over."""
+        now = {ch for i, ch in enumerate(self.channels) if alarm[i]}
+        log = self.get_logger()
+        if now and not self._alarmed:
+            self._episode += 1
+        for i, ch in enumerate(self.channels):
+            if ch in now and ch not in self._alarmed:
+                log.warning(f"alarm episode {self._episode}: {ch} at sample {k}: "
+                            f"|r| = {abs(float(signal[i])):.4g} > R = "
+                            f"{float(threshold[i]):.4g}")
+        if self._alarmed and not now:
+            log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
+                     f"within its threshold")
+        self._alarmed = now
+
+
+def make_nodes(**kwargs: Any) -> list:
+    """The detector node, and with ``layout: standalone`` the rest of the chain beside it.
+
+    The other nodes get the detector's ``system`` and ``gains`` (one plant, one gain file);
+    a qb gain file runs observer + detector only. ``kwargs`` go to every node.
+    """
+    from rclpy.parameter import Parameter
+
+    det = DetectorNode(**kwargs)
+    if det.params.layout != "standalone":
+        return [det]
+    from fd_monitor.nodes.agei import AgeiNode
+    from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
+    from fd_monitor.nodes.observer import ObserverNode
+
+    gains = str(det.gain_file.path) if det.configured else det.params.gains
+    same = [Parameter("system", value=det.params.system), Parameter("gains", value=gains),
+            Parameter("autostart", value=det.params.autostart)]
+    extra = {**kwargs, "parameter_overrides": [*kwargs.get("parameter_overrides", []), *same]}
+    classes = [ObserverNode] + ([AgeiNode, BiasEstimatorNode]
+                                if not det.configured or det.gain_file.method == "thresholds"
+                                else [])
+    nodes = [det]
+    try:
+        for cls in classes:
+            nodes.append(cls(**extra))
+    except Exception:
+        for n in nodes:
+            n.destroy_node()
+        raise
+    return nodes
+
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the detector node."""
-    return run_node(DetectorNode, args, prog="detector", usage=[USAGE])
+    """Run the detector (standalone: with observer, agei, bias_estimator in-process)."""
+    from fd_monitor.nodes import agei, bias_estimator, observer
+
+    return run_node(make_nodes, args, prog="detector",
+                    usage=[USAGE, *(m.USAGE for m in (observer, agei, bias_estimator))])
 
 
 if __name__ == "__main__":

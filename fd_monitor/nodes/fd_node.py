@@ -1,15 +1,29 @@
-"""Base of the diagnosis-chain nodes: parameters, plant and gains, joined inputs, diagnostics.
+"""Base of the diagnosis-chain nodes: lifecycle, parameters, plant and gains, joined inputs,
+diagnostics.
 
-Each chain node (observer, detector, agei, bias_estimator) declares its inputs (topic,
-expected labels, required or feedback with its initial value) and implements
-``process(k, inputs)`` — message -> ``np.asarray`` -> core step -> message -> publish. This
-base decodes and validates every message (:func:`~fd_monitor.nodes.conversions.decode`),
-joins inputs on the stamp (:class:`~fd_monitor.nodes.join.StampJoin`), and reports on
-``/diagnostics``: an ``input`` channel (OK; WARN with the reason of the last bad message;
-STALE when no input came for ``stale_timeout`` s) plus the node's own channels. A bad message
-is logged, reported, and dropped before it reaches the join: it never changes core state.
+Each chain node (observer, detector, agei, bias_estimator) is a lifecycle node
+(:class:`rclpy.lifecycle.LifecycleNode`). ``configure`` loads and verifies the plant and the
+gain file, creates publishers and subscriptions and calls the subclass's :meth:`setup`;
+``activate`` starts processing (messages received while inactive are counted and dropped);
+``deactivate`` stops it; ``cleanup`` destroys what configure made. With ``autostart`` (default
+true) a node configures and activates itself when constructed. ``~/reset``
+(``std_srvs/Trigger``) forgets the stream: the next complete sample starts a new run.
 
-Feedback messages (``/fd/bias_estimate``, ``/fd/guard_event``, ``/fd/threshold_override``) are
+Each node declares its inputs (relative topic, expected labels, required or feedback with its
+initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray`` -> core step
+-> message -> publish. This base decodes and validates every message
+(:func:`~fd_monitor.nodes.conversions.decode`), pairs plain (unstamped) messages by
+sample-and-hold (a plain ``plant/y`` gets the latest ``plant/u`` published before it, by
+the DDS source timestamps; no u yet: reported, sample not processed), joins inputs on the stamp
+(:class:`~fd_monitor.nodes.join.StampJoin`: holes, stray stamps beyond ``stamp_horizon``,
+a stream that restarts lower = a new run after ``restart_after`` s), and reports on
+``/diagnostics``: an ``input`` channel (OK; WARN with the de-duplicated reasons of the bad
+messages; STALE when no input came for ``stale_timeout`` s), a ``ros graph`` channel
+(incompatible QoS, a second publisher on this node's output topics) plus the node's own
+channels. A bad message is logged (throttled: one line per ``log_throttle`` s with the count
+of the others), reported, and dropped before it reaches the join.
+
+Feedback messages (``fd/bias_estimate``, ``fd/guard_event``, ``fd/threshold_override``) are
 stamped with the sample they are *for* (k + 1 when decided at k), so every join is on equal
 stamps.
 """
@@ -23,7 +37,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from rclpy.node import Node
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.errors import FdMonitorError, ImplausibleError, MessageError
@@ -32,19 +47,19 @@ from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
     OK,
     WARN,
+    DataInput,
     Diagnostics,
     Param,
     data_pub_qos,
-    data_sub_qos,
     declare_parameters,
+    incompatible_text,
     pub_events,
-    sub_events,
 )
 from fd_monitor.nodes.conversions import ArrivalStamper, decode, readable_stamp, to_msg
 from fd_monitor.nodes.join import Sample, StampJoin
 from fd_monitor.system import System, load_system
 
-__all__ = ["COMMON_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
+__all__ = ["COMMON_PARAMS", "RUNTIME_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
 
 #: Gain-file methods the chain nodes can run; each node lists the ones it runs in its
 #: ``runtimes`` (method -> name of the method that builds that runtime).
@@ -53,16 +68,34 @@ RUNTIMES = ("thresholds", "qb")
 COMMON_PARAMS = (
     Param("system", "three_tank", "plant file, or the name of a shipped plant"),
     Param("gains", "three_tank_thresholds", "gain file (path or name in config/gains/); "
-          "loaded and its certificate re-verified at start"),
+          "loaded and its certificate re-verified at configure; settable at runtime (a bad "
+          "one is refused, the old one keeps running)", read_only=False),
+    Param("autostart", True, "configure and activate at start (false: wait for lifecycle "
+          "transitions)"),
     Param("stale_timeout", 2.0, "s without input before the input channel turns STALE",
-          low=0.01, high=1.0e6),
-    Param("diagnostics_period", 1.0, "s between /diagnostics publications", low=0.01,
+          read_only=False, low=0.01, high=1.0e6),
+    Param("diagnostics_period", 1.0, "s between /diagnostics publications",
+          read_only=False, low=0.01, high=3600.0),
+    Param("log_throttle", 1.0, "s between two log lines about bad input (the others are "
+          "counted)", read_only=False, low=0.0, high=3600.0),
+    Param("stamp_horizon", 100000, "samples above the next expected stamp beyond which a "
+          "stamp is held as a possible new run, not joined", low=1, high=2**53),
+    Param("restart_after", 1.0, "s without progress before held stamps (a stream that "
+          "restarted lower, or jumped beyond the horizon) become a new run", low=0.001,
           high=3600.0),
     Param("qos_depth", DEFAULT_DEPTH, "history depth of the publishers", low=10,
           high=1000000),
     Param("max_pending", 100000, "samples buffered while waiting for inputs", low=10,
           high=10000000),
 )
+
+#: s a plain sample waits for a later held input (``plant/u``) before it is paired with the
+#: latest one published before it.
+HOLD_WAIT = 0.1
+
+#: Parameters that take effect when set (the others are read-only).
+RUNTIME_PARAMS = ("gains", "stale_timeout", "diagnostics_period", "log_throttle",
+                  "warn_share")
 
 
 @dataclass(frozen=True)
@@ -74,20 +107,24 @@ class Input:
     name : str
         Key in ``process``'s inputs.
     topic : str
+        Relative topic name (resolved in the node's namespace).
     labels : tuple of str, optional
         Expected channel names (None: accept any, check ``size`` only).
     size : int, optional
     initial : object
         For feedback inputs: the value at the node's first sample; ``None`` = required.
     plain_ok : bool
-        Accept unstamped messages (a user's driver), stamped on arrival.
+        Accept unstamped messages (a user's driver).
+    hold : bool
+        A plain message is held (sample-and-hold): each plain message of the other plain
+        inputs (``plant/y``) gets the latest held one published before it.
     allow_nan : bool
-        NaN is a value (``/fd/threshold_override``: no override).
+        NaN is a value (``fd/threshold_override``: no override).
     stamp_offset : int
         Joined at ``stamp + stamp_offset``: -1 for a feedback message (stamped k + 1) that
         is needed at the sample it was decided at (k).
     sequence : bool
-        ``/fd/state_estimate`` of the entry node: its stamps are the samples this node
+        ``fd/state_estimate`` of the entry node: its stamps are the samples this node
         processes and its last value (``restart``) flags a restart (downstream role of
         :class:`~fd_monitor.nodes.join.StampJoin`).
     """
@@ -98,6 +135,7 @@ class Input:
     size: int | None = None
     initial: Any = None
     plain_ok: bool = False
+    hold: bool = False
     allow_nan: bool = False
     stamp_offset: int = 0
     sequence: bool = False
@@ -109,8 +147,8 @@ def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainF
     return system, load_gains(gains_src, system)
 
 
-class FdNode(Node):
-    """A chain node: subclasses set ``inputs`` and implement :meth:`process`.
+class FdNode(LifecycleNode):
+    """A chain node: subclasses implement :meth:`setup` and :meth:`process`.
 
     Parameters
     ----------
@@ -122,40 +160,217 @@ class FdNode(Node):
     qos : rclpy.qos.QoSProfile, optional
         Publisher QoS.
     **kwargs
-        Passed to :class:`rclpy.node.Node`.
+        Passed to :class:`rclpy.lifecycle.LifecycleNode`.
+
+    Raises
+    ------
+    FdMonitorError
+        With ``autostart``: configure failed (bad plant, gain file, parameter).
     """
 
     inputs: Sequence[Input] = ()
     #: Gain-file method -> name of the method building the node's runtime for it.
     runtimes: Mapping[str, str] = {}
+    #: Output topics (relative), for the start line and the second-publisher check.
+    outputs: Sequence[str] = ()
 
     def __init__(self, node_name: str, params: Sequence[Param] = (),
                  system: System | None = None, gains: GainFile | None = None, qos=None,
                  **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = declare_parameters(self, (*COMMON_PARAMS, *params))
+        self._injected = (system, gains)
+        self._qos_arg = qos
+        self.active = False
+        self.configured = False
+        self._error: FdMonitorError | None = None
+        self._autostarting = False
+        self._entities: list[Any] = []
+        from std_srvs.srv import Trigger
+
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        if self.params.autostart:
+            self.start()
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Configure and activate (autostart); raise the configure error, if any."""
+        self._error = None
+        self._autostarting = True
+        try:
+            self.trigger_configure()
+        finally:
+            self._autostarting = False
+        if self._error is not None:
+            raise self._error
+        if not self.configured:
+            raise FdMonitorError(f"node {self.get_name()}: configure failed")
+        self.trigger_activate()
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Load and verify plant and gain file, create publishers and subscriptions."""
+        try:
+            self._configure()
+        except FdMonitorError as exc:
+            self._error = exc
+            self._destroy_entities()
+            if not self._autostarting:           # else start() raises: one line from main
+                self.get_logger().error(f"configure failed: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        self.configured = True
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Start processing."""
+        self.active = True
+        self.get_logger().info(f"active: waiting for {', '.join(self._waits_for())}")
+        self.diag.update("input", self.diag.level("input"), "active: waiting for "
+                         + ", ".join(self._waits_for()))
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop processing (messages are dropped and counted until activated again)."""
+        self.active = False
+        self.get_logger().info(f"inactive: processed {self.processed} samples; input is "
+                               f"dropped until activated")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Destroy what configure made; forget plant, gains and state."""
+        self._destroy_entities()
+        self.configured = False
+        self.get_logger().info("cleaned up: unconfigured")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop processing and destroy what configure made."""
+        self.active = False
+        self._destroy_entities()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _destroy_entities(self) -> None:
+        for e in reversed(self._entities):
+            if isinstance(e, (DataInput, Diagnostics)):
+                e.destroy()
+            elif hasattr(e, "cancel"):
+                self.destroy_timer(e)
+            else:
+                self.destroy_publisher(e)
+        self._entities = []
+
+    def _configure(self) -> None:
+        system, gains = self._injected
         if system is None or gains is None:
             system, gains = load_plant_and_gains(self.params.system, self.params.gains)
         self.system, self.gain_file = system, gains
+        name = self.get_name()
         if gains.method not in self.runtimes:
-            raise FdMonitorError(f"node {node_name}: {gains.path}: method {gains.method!r}: "
-                                 f"{node_name} runs {' and '.join(self.runtimes)} gain files "
+            raise FdMonitorError(f"node {name}: {gains.path}: method {gains.method!r}: "
+                                 f"{name} runs {' and '.join(self.runtimes)} gain files "
                                  f"only (qb designs run on observer + detector; design a "
                                  f"thresholds one with `python -m fd_monitor design "
                                  f"thresholds {system.name}`)")
-        self._qos = qos if qos is not None else data_pub_qos(self.params.qos_depth)
+        self._qos = (self._qos_arg if self._qos_arg is not None
+                     else data_pub_qos(self.params.qos_depth))
         self.diag = Diagnostics(self, system.name, self.params.diagnostics_period)
+        self._entities.append(self.diag)
         self.diag.add("input", self.params.stale_timeout, "no input yet")
+        self.diag.add("ros graph")
+        self.diag.update("ros graph", OK, "no QoS incompatibility, no other publisher on "
+                         "our outputs")
         self.bad_messages = 0
         self.processed = 0
         self.holes = 0
+        self.inactive_dropped = 0
         #: True while :meth:`process` handles a restart sample (first, or first after a hole).
         self.restarting = False
-        # Reasons of the bad messages since the last /diagnostics publication: each one is
-        # published (a burst in one status), and WARN holds for one period after the last.
+        # Reasons of the bad messages since the last /diagnostics publication, each once.
         self._reasons: list[str] = []
+        self._graph_notes: list[str] = []
         self._last_bad = -float("inf")
+        self._last_log = -float("inf")
+        self._suppressed = 0
+        self._pubs: list[Any] = []
         self.diag.on_publish.append(self._reasons.clear)
+        self.setup()
+        self._entities.append(self.create_timer(5.0, self._check_outputs))
+        g = self.gain_file
+        self.get_logger().info(
+            f"configured: plant {system.name}, gain file {g.path} ({g.id}, certificate "
+            f"{g.certificate_status}); subscribes {', '.join(self._topic_names(True))}; "
+            f"publishes {', '.join(self._topic_names(False))}, /diagnostics")
+
+    def setup(self) -> None:  # pragma: no cover
+        """Create the node's publishers, runtime and inputs (subclasses; at configure)."""
+        raise NotImplementedError
+
+    def _topic_names(self, inputs: bool) -> list[str]:
+        topics = [i.topic for i in self.inputs] if inputs else list(self.outputs)
+        return [self.resolve_topic_name(t) for t in topics]
+
+    def _waits_for(self) -> list[str]:
+        return [self.resolve_topic_name(i.topic) for i in self.inputs if i.initial is None]
+
+    # -- services and parameters --------------------------------------------------------------
+
+    def _on_reset(self, request: Any, response: Any) -> Any:
+        if not self.configured:
+            response.success, response.message = False, "not configured"
+            return response
+        self.join.reset()
+        self._waiting.clear()
+        for hist in self._held.values():
+            hist.clear()
+        self.reset()
+        self.get_logger().info("reset (service): the next complete sample starts a new run")
+        response.success, response.message = True, "reset: the next sample starts a new run"
+        return response
+
+    def _on_set_parameters(self, params: Sequence[Any]) -> SetParametersResult:
+        for p in params:
+            if p.name == "gains" and self.configured:
+                reason = self._swap_gains(str(p.value))
+                if reason is not None:
+                    return SetParametersResult(successful=False, reason=reason)
+        for p in params:
+            if p.name in RUNTIME_PARAMS:
+                setattr(self.params, p.name, p.value)
+                if not self.configured:
+                    continue
+                if p.name == "stale_timeout":
+                    self.diag.set_stale_timeout(float(p.value))
+                elif p.name == "diagnostics_period":
+                    self.diag.set_period(float(p.value))
+                if p.name != "gains":
+                    self.get_logger().info(f"parameter {p.name} set to {p.value!r}")
+        return SetParametersResult(successful=True)
+
+    def _swap_gains(self, source: str) -> str | None:
+        """Load, verify and run another gain file; a one-line refusal, or None."""
+        old = self.gain_file
+        try:
+            new = load_gains(source, self.system)
+            if new.method != old.method:
+                raise FdMonitorError(f"{new.path}: method {new.method!r}: the running "
+                                     f"runtime is {old.method!r}")
+            self.build_core(new)
+        except FdMonitorError as exc:
+            reason = f"gains {source}: refused ({exc}); still running {old.path}"
+            self.get_logger().error(reason)
+            self._graph_note(reason)
+            return reason
+        self.gain_file = new
+        self.join.reset()
+        self.reset()
+        self.get_logger().info(f"gain file swapped: {new.path} ({new.id}, certificate "
+                               f"{new.certificate_status}); the next sample starts a new run")
+        return None
+
+    def build_core(self, gains: GainFile) -> None:
+        """Rebuild the core component for another gain file (subclasses; runtime swap)."""
+        raise FdMonitorError(f"node {self.get_name()} cannot swap gain files at runtime")
 
     # -- set-up helpers for subclasses --------------------------------------------------------
 
@@ -164,8 +379,21 @@ class FdNode(Node):
         getattr(self, self.runtimes[self.gain_file.method])()
 
     def publisher(self, topic: str) -> Any:
-        """A data-path publisher of Float64MultiArray."""
-        return self.create_publisher(Float64MultiArray, topic, self._qos, **pub_events())
+        """A data-path publisher of Float64MultiArray (relative topic)."""
+        name = self.resolve_topic_name(topic)
+        pub = self.create_publisher(
+            Float64MultiArray, topic, self._qos,
+            **pub_events(lambda info: self._graph_note(
+                incompatible_text(name, "publisher", info))))
+        self._entities.append(pub)
+        self._pubs.append(pub)
+        return pub
+
+    def subscribe(self, topic: str, callback: Callable[..., None]) -> DataInput:
+        """A data-path subscription of Float64MultiArray (relative topic)."""
+        sub = DataInput(self, Float64MultiArray, topic, callback, self._graph_note)
+        self._entities.append(sub)
+        return sub
 
     def start_inputs(self, inputs: Sequence[Input], gap_timeout: float | None = None) -> None:
         """Subscribe to every input and set up the stamp join.
@@ -179,23 +407,33 @@ class FdNode(Node):
         self.join = StampJoin([i.name for i in inputs if i.initial is None],
                               {i.name: i.initial for i in inputs if i.initial is not None},
                               self.params.max_pending, sequence=seq[0] if seq else None,
-                              gap_timeout=None if seq else gap_timeout)
+                              gap_timeout=None if seq else gap_timeout,
+                              horizon=self.params.stamp_horizon,
+                              restart_after=self.params.restart_after)
+        self._stamper = ArrivalStamper()
+        self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
+        self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
         for inp in inputs:
-            self.create_subscription(Float64MultiArray, inp.topic, self._callback(inp),
-                                     data_sub_qos(), **sub_events())
-        if not seq and gap_timeout is not None:
-            # A hole must be declared even when no further message arrives.
-            self.create_timer(min(0.25, max(0.01, gap_timeout / 4)), self._on_gap_timer)
+            self.subscribe(inp.topic, self._callback(inp))
+        if self._held:
+            self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
+        # A hole, lost feedback or a new run must be declared even when no further message
+        # arrives.
+        period = min(0.25, max(0.01, min(gap_timeout or 1.0, self.params.restart_after) / 4))
+        self._entities.append(self.create_timer(period, self._on_gap_timer))
 
-    def _callback(self, inp: Input) -> Callable[[Any], None]:
-        stamper = ArrivalStamper()
-        order = _TopicOrder(inp.topic)
+    def _callback(self, inp: Input) -> Callable[[Any, Any], None]:
+        stamper = self._stamper
+        topic = self.resolve_topic_name(inp.topic)
+        order = _TopicOrder(topic)
 
-        def cb(msg: Any) -> None:
+        def cb(msg: Any, info: Any) -> None:
+            if not self.active:
+                self.inactive_dropped += 1
+                return
             try:
-                d = stamper.stamp(decode(msg, inp.topic, labels=inp.labels, size=inp.size,
-                                         require_stamp=not inp.plain_ok,
-                                         allow_nan=inp.allow_nan))
+                d = decode(msg, topic, labels=inp.labels, size=inp.size,
+                           require_stamp=not inp.plain_ok, allow_nan=inp.allow_nan)
             except MessageError as exc:
                 self.bad_input(str(exc))
                 k = readable_stamp(msg) if inp.initial is None else None
@@ -203,16 +441,59 @@ class FdNode(Node):
                     self.join.reject(k + inp.stamp_offset)
                     self._drain()
                 return
-            note = order.check(int(d.stamp or 0))
+            if d.stamp is None:
+                t = int(info["source_timestamp"])
+                if inp.hold:
+                    self._held[inp.name].append((t, d.values))
+                else:
+                    d = stamper.stamp(d)
+                    self._waiting.append((t, time.monotonic(), inp, int(d.stamp or 0),
+                                          d.values))
+                self._pair_plain()
+                return
+            note, duplicate = order.check(int(d.stamp))
             if note is not None:
                 self._warn(note)
-                if "duplicate" in note:
+                if duplicate:
                     return
-            stamp = int(d.stamp or 0) + inp.stamp_offset
+            stamp = int(d.stamp) + inp.stamp_offset
             if stamp >= 0:
                 self.on_input(inp.name, stamp, d.values,
                               restart=inp.sequence and d.values[-1] > 0.5)
         return cb
+
+    def _pair_plain(self, now: float | None = None) -> None:
+        """Sample-and-hold: pair each plain sample with the latest held input (``plant/u``)
+        published before it (source timestamps). A sample waits until a later held input
+        arrived (every earlier one is then in) or for :data:`HOLD_WAIT` s."""
+        while self._waiting:
+            t, arrival, inp, k, values = self._waiting[0]
+            later = all(h and h[-1][0] > t for h in self._held.values())
+            if not later and (now is None or now - arrival < HOLD_WAIT):
+                return
+            self._waiting.popleft()
+            missing = []
+            for name, hist in self._held.items():
+                before = [v for tu, v in hist if tu <= t]
+                if before:
+                    self.on_input(name, k, before[-1])
+                else:
+                    missing.append(name)
+                # Keep the one held at t: the next samples may still need it.
+                while len(hist) > 1 and hist[1][0] <= t:
+                    hist.popleft()
+            if missing:
+                topics = [self.resolve_topic_name(i.topic) for i in self.inputs
+                          if i.name in missing]
+                self.bad_input(f"{self.resolve_topic_name(inp.topic)} sample {k}: no "
+                               f"{', '.join(topics)} received before it; sample not "
+                               f"processed")
+                self.join.reject(k)
+                self._drain()
+                continue
+            self.on_input(inp.name, k, values)
+
+    # -- reporting ----------------------------------------------------------------------------
 
     def bad_input(self, reason: str) -> None:
         """Log a rejected message and report it on /diagnostics (WARN); keep running."""
@@ -220,14 +501,42 @@ class FdNode(Node):
         self._warn(reason)
 
     def _warn(self, reason: str) -> None:
-        """Log ``reason`` and report it on the ``input`` channel (WARN)."""
-        self._last_bad = time.monotonic()
-        self.get_logger().warning(reason)
-        if len(self._reasons) < 10:
+        """Log ``reason`` (throttled) and report it on the ``input`` channel (WARN)."""
+        now = time.monotonic()
+        self._last_bad = now
+        if now - self._last_log >= self.params.log_throttle:
+            more = (f" (and {self._suppressed} more bad-input lines in the last "
+                    f"{now - self._last_log:.1f} s)" if self._suppressed else "")
+            self.get_logger().warning(reason + more)
+            self._last_log, self._suppressed = now, 0
+        else:
+            self._suppressed += 1
+        if reason not in self._reasons and len(self._reasons) < 10:
             self._reasons.append(reason)
         self.diag.update("input", WARN, "; ".join(self._reasons),
                          {"bad_messages": self.bad_messages, "holes": self.holes,
-                          "processed": self.processed, "last_warning": reason})
+                          "new_runs": self.join.new_runs, "processed": self.processed,
+                          "last_warning": reason})
+
+    def _graph_note(self, line: str) -> None:
+        """Log a ROS-graph problem (QoS, another publisher) and report it (WARN)."""
+        self.get_logger().warning(line)
+        if line not in self._graph_notes:
+            self._graph_notes = [*self._graph_notes[-4:], line]
+        self.diag.update("ros graph", WARN, "; ".join(self._graph_notes))
+
+    def _check_outputs(self) -> None:
+        """Warn when another node publishes on one of our output topics (a second monitor)."""
+        me = (self.get_namespace(), self.get_name())
+        for pub in self._pubs:
+            others = [f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                      for i in self.get_publishers_info_by_topic(pub.topic_name)
+                      if (i.node_namespace, i.node_name) != me]
+            if others:
+                line = (f"{pub.topic_name}: also published by {', '.join(sorted(others))} "
+                        f"(a second monitor on the same topics? its outputs mix with ours)")
+                if line not in self._graph_notes:
+                    self._graph_note(line)
 
     def on_input(self, name: str, stamp: int, values: np.ndarray,
                  restart: bool = False) -> None:
@@ -241,16 +550,19 @@ class FdNode(Node):
         if level == WARN and time.monotonic() - self._last_bad < self.diag.period:
             self.diag.touch("input")
         elif level != OK or self.processed % 50 == 0:
-            if self._reasons:
-                self.diag.publish()  # the reasons not published yet go out before OK
             self.diag.update("input", OK, "receiving", {
                 "bad_messages": self.bad_messages, "processed": self.processed,
+                "holes": self.holes, "new_runs": self.join.new_runs,
                 "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for()})
         else:
             self.diag.touch("input")
 
+    def _on_hold_timer(self) -> None:
+        if self.active and self._waiting:
+            self._pair_plain(time.monotonic())
+
     def _on_gap_timer(self) -> None:
-        if self.join.pending:
+        if self.active and (self.join.pending or self.join.held):
             self._drain()
 
     def _drain(self) -> None:
@@ -259,7 +571,15 @@ class FdNode(Node):
             self._run(s)
 
     def _run(self, s: Sample) -> None:
-        if s.hole is not None:
+        if s.new_run is not None:
+            old, count = s.new_run
+            self._warn(f"new run: the stream restarted at stamp {s.k} (the old one stopped "
+                       f"before {old}; {count} messages held meanwhile); fresh state")
+        elif s.feedback_lost:
+            self.holes += 1
+            self._warn(f"feedback for sample {s.k} did not come in time (lost on the way?): "
+                       f"restarted at {s.k} (fresh state, feedback at initial values)")
+        elif s.hole is not None:
             self.holes += 1
             a, b = s.hole
             span = f"stamp {a}" if a == b else f"stamps {a}..{b}"
@@ -297,29 +617,27 @@ class FdNode(Node):
 
 
 class _TopicOrder:
-    """Per-topic duplicate and out-of-order detection, as :func:`fd_monitor.offline.read_inputs`
-    reports them (a duplicate is dropped, the first kept; out of order is only reported)."""
+    """Per-topic duplicate and out-of-order report, as :func:`fd_monitor.offline.read_inputs`
+    reports them (a duplicate is dropped, the first kept; out of order is only reported).
 
-    _MEMORY = 4096  # stamps remembered per topic
+    A duplicate here is the same stamp twice in a row; out of order is one line per step
+    back. A stamp seen earlier goes on to the join, which keeps the first of a pending one and
+    holds a processed one: dropped if the stream goes on, a new run if it stopped (a source
+    that restarted, a second bag) -- not thousands of duplicates.
+    """
 
     def __init__(self, topic: str) -> None:
         self.topic = topic
-        self.top: int | None = None
-        self._seen: set[int] = set()
-        self._order: deque[int] = deque()
+        self.last: int | None = None
 
-    def check(self, k: int) -> str | None:
-        """Record stamp k; a one-line report when it is a duplicate or out of order."""
-        if k in self._seen:
-            return f"{self.topic} stamp {k}: duplicate (first kept)"
-        self._seen.add(k)
-        self._order.append(k)
-        if len(self._order) > self._MEMORY:
-            self._seen.discard(self._order.popleft())
-        top, self.top = self.top, k if self.top is None else max(self.top, k)
-        if top is not None and k < top:
-            return f"{self.topic} stamp {k} after stamp {top}: out of order"
-        return None
+    def check(self, k: int) -> tuple[str | None, bool]:
+        """Record stamp k: (one-line report or None, True when k is a duplicate)."""
+        last, self.last = self.last, k
+        if k == last:
+            return f"{self.topic} stamp {k}: duplicate (first kept)", True
+        if last is not None and k < last:
+            return f"{self.topic} stamp {k} after stamp {last}: out of order", False
+        return None, False
 
 
 def require(condition: bool, message: str) -> None:

@@ -20,6 +20,16 @@ Two roles, matching the offline runner (:func:`fd_monitor.offline.run_bag`):
   stamps the entry node published on the sequence input (in order, so when est_s arrives,
   every earlier est has arrived and any pending stamp below s without one is dead), and
   restarts where the entry node flagged a restart. No timeout is involved.
+
+A stamp cannot blind the join. A stamp below the next one (a source that restarted its
+stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
+like 2**52) is *held* aside, not refused: the first one of an episode is reported. The held
+stamps become a new run (restart at the smallest complete one, :attr:`Sample.new_run` set)
+
+* entry role: once the current stream has made no progress for ``restart_after`` s and a
+  held stamp arrived after its last progress (held stamps older than the last progress are
+  forgotten: a duplicate or a stray stamp inside a live stream);
+* downstream role: at once, when the sequence input flags a restart at a held stamp.
 """
 
 from __future__ import annotations
@@ -48,12 +58,20 @@ class Sample:
         First sample, or first after a hole: reset the core component before it.
     hole : (int, int) or None
         Inclusive stamps skipped just before ``k`` (None: none).
+    new_run : (int, int) or None
+        First sample of a new run adopted from held stamps: (the old stream's next stamp,
+        messages held meanwhile).
+    feedback_lost : bool
+        A restart because the feedback for ``k`` did not come in time (lost on the way:
+        a burst overflowed a publisher's history); without it the join would wait forever.
     """
 
     k: int
     inputs: dict[str, Any]
     restart: bool
     hole: tuple[int, int] | None = None
+    new_run: tuple[int, int] | None = None
+    feedback_lost: bool = False
 
 
 class StampJoin:
@@ -74,11 +92,16 @@ class StampJoin:
     gap_timeout : float, optional
         Entry role: s a later stamp must have been complete before an incomplete one that
         was not rejected is declared lost; None: only rejections make holes.
+    horizon : int, optional
+        Stamps more than this many samples above the next one are held, not joined.
+    restart_after : float
+        Entry role: s without progress before held stamps become a new run.
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
                  max_pending: int = 100_000, *, sequence: str | None = None,
-                 gap_timeout: float | None = None) -> None:
+                 gap_timeout: float | None = None, horizon: int | None = None,
+                 restart_after: float = 1.0) -> None:
         self.required = tuple(required)
         self.feedback = dict(feedback or {})
         self.names = (*self.required, *self.feedback)
@@ -99,6 +122,24 @@ class StampJoin:
         self._restart_at: set[int] = set()     # downstream: stamps flagged restart
         #: Recent holes ``(first, last)``, inclusive.
         self.holes: deque[tuple[int, int]] = deque(maxlen=_HOLE_HISTORY)
+        self.horizon = horizon
+        self.restart_after = float(restart_after)
+        #: Stamps outside the window (below k_next, beyond the horizon): stamp -> inputs.
+        self.held: dict[int, dict[str, Any]] = {}
+        self._held_t: dict[int, float] = {}          # stamp -> arrival of its first input
+        self._held_seq: deque[int] = deque()          # downstream: held sequence stamps
+        self._held_restart: set[int] = set()
+        #: Messages held in the current episode, and new runs adopted so far.
+        self.held_messages = 0
+        self.new_runs = 0
+        self._progress = -float("inf")                 # time of the last release
+        self._adopted: tuple[int, int] | None = None
+
+    def reset(self) -> None:
+        """Forget everything: the next complete sample starts a run (a reset service)."""
+        self.__init__(self.required, self.feedback, self.max_pending,  # type: ignore[misc]
+                      sequence=self.sequence, gap_timeout=self.gap_timeout,
+                      horizon=self.horizon, restart_after=self.restart_after)
 
     # -- input ---------------------------------------------------------------------------------
 
@@ -112,13 +153,14 @@ class StampJoin:
         """
         if name not in self.names:
             raise KeyError(name)
-        if self.k_next is not None and stamp < self.k_next:
-            if self._in_hole(stamp):
-                # Feedback for a skipped sample, or (downstream) anything of a dead stamp.
-                if name in self.feedback or self.sequence is not None:
-                    return None
-                return f"{name} stamp {stamp}: arrived after its hole was declared; ignored"
-            return f"{name} stamp {stamp}: already processed (next is {self.k_next}); ignored"
+        if self.k_next is not None and stamp < self.k_next and self._in_hole(stamp):
+            # Feedback for a skipped sample, or (downstream) anything of a dead stamp.
+            if name in self.feedback or self.sequence is not None:
+                return None
+            return f"{name} stamp {stamp}: arrived after its hole was declared; ignored"
+        if self.k_next is not None and (stamp < self.k_next or (
+                self.horizon is not None and stamp > self.k_next + self.horizon)):
+            return self._hold(name, stamp, value, now, restart)
         slot = self.pending.setdefault(stamp, {})
         if name in slot:
             return f"{name} stamp {stamp}: duplicate; the first one is kept"
@@ -135,6 +177,63 @@ class StampJoin:
             self.dropped += 1
             return f"more than {self.max_pending} samples pending: dropped stamp {oldest}"
         return None
+
+    def _hold(self, name: str, stamp: int, value: Any, now: float,
+              restart: bool) -> str | None:
+        if name in self.feedback and self.sequence is None:
+            return None                          # feedback follows the run it belongs to
+        assert self.k_next is not None
+        first = not self.held
+        slot = self.held.setdefault(stamp, {})
+        self._held_t.setdefault(stamp, now)
+        if name in slot:
+            return f"{name} stamp {stamp}: duplicate; the first one is kept"
+        slot[name] = value
+        self.held_messages += 1
+        if name == self.sequence:
+            self._held_seq.append(stamp)
+            if restart:
+                self._held_restart.add(stamp)
+        if len(self.held) > self.max_pending:
+            oldest = min(self.held)
+            self.held.pop(oldest)
+            self._held_t.pop(oldest, None)
+            self.dropped += 1
+        if not first or self.sequence is not None:
+            return None
+        where = ("below" if stamp < self.k_next
+                 else f"more than {self.horizon} samples ahead of")
+        return (f"{name} stamp {stamp}: {where} the stream (next is {self.k_next}): held; "
+                f"it becomes a new run if the stream stops for {self.restart_after:g} s")
+
+    def _adopt(self) -> int:
+        """Make the held stamps the stream: a new run from the smallest complete one."""
+        old = self.k_next if self.k_next is not None else -1
+        held, held_t, seq, rst = self.held, self._held_t, self._held_seq, self._held_restart
+        count = self.held_messages
+        self.pending, self._complete_since, self._seq = {}, {}, deque()
+        self._restart_at, self.rejected = set(), set()
+        self.held, self._held_t, self._held_seq, self._held_restart = {}, {}, deque(), set()
+        self.holes.clear()
+        self.k_next = None
+        self.held_messages = 0
+        self.new_runs += 1
+        for stamp, slot in held.items():
+            self.pending[stamp] = slot
+            if all(n in slot for n in self.required):
+                self._complete_since[stamp] = held_t[stamp]
+        self._seq = seq
+        self._restart_at = rst
+        self._adopted = (old, count)
+        return old
+
+    def _prune_held(self, cutoff: float) -> None:
+        """Forget held stamps that arrived at or before ``cutoff``."""
+        for stamp in [j for j, t in self._held_t.items() if t <= cutoff]:
+            self.held.pop(stamp, None)
+            self._held_t.pop(stamp)
+        if not self.held:
+            self.held_messages = 0
 
     def reject(self, stamp: int) -> None:
         """A required message for ``stamp`` was rejected (entry role): the stamp is lost."""
@@ -156,9 +255,15 @@ class StampJoin:
             s = step(now)
             if s is None:
                 return
+            self._progress = now
+            if self.held:
+                # Entry: held before this progress = a stray stamp in a live stream.
+                # Downstream: a new run's inputs precede its restart flag by little.
+                self._prune_held(now if self.sequence is None else now - self.restart_after)
             yield s
 
-    def _release(self, k: int, restart: bool, hole: tuple[int, int] | None) -> Sample:
+    def _release(self, k: int, restart: bool, hole: tuple[int, int] | None,
+                 lost: bool = False) -> Sample:
         if restart:
             # Only a jump can leave stamps below k (put refuses stamps below k_next).
             for j in [j for j in self.pending if j < k]:
@@ -169,8 +274,10 @@ class StampJoin:
         if hole is not None:
             self.holes.append(hole)
         self.k_next = k + 1
+        adopted, self._adopted = self._adopted, None
         # At a restart, feedback decided before the hole does not belong to this run.
-        return Sample(k, {**slot, **self.feedback} if restart else slot, restart, hole)
+        return Sample(k, {**slot, **self.feedback} if restart else slot, restart, hole,
+                      adopted, lost)
 
     def _forget(self, k: int) -> dict[str, Any]:
         self._complete_since.pop(k, None)
@@ -178,6 +285,11 @@ class StampJoin:
         return self.pending.pop(k, {})
 
     def _next_entry(self, now: float) -> Sample | None:
+        # Stalled: no progress for restart_after s and nothing complete in the window.
+        if (self._held_t and not self._complete_since
+                and now - self._progress >= self.restart_after
+                and any(self.held[j].keys() >= set(self.required) for j in self.held)):
+            self._adopt()
         k = self.k_next
         if k is None:
             if not self._complete_since:
@@ -187,6 +299,8 @@ class StampJoin:
             slot = self.pending[k]
             if all(n in slot for n in self.feedback):
                 return self._release(k, False, None)
+            if self._feedback_overdue(k, now, self.gap_timeout):
+                return self._release(k, True, None, lost=True)
             return None                          # waiting for feedback, not a hole
         later = [j for j in self._complete_since if j > k]
         if not later:
@@ -199,6 +313,8 @@ class StampJoin:
         return self._release(s, True, (k, s - 1))
 
     def _next_downstream(self, now: float) -> Sample | None:
+        if self._held_restart:
+            self._adopt()                        # the entry node started a new run
         seq = self._seq
         while seq and (seq[0] not in self.pending or self.sequence not in self.pending[seq[0]]):
             seq.popleft()                        # already released or dropped
@@ -210,11 +326,20 @@ class StampJoin:
             return None
         k = self.k_next
         restart = k is None or s in self._restart_at or s != k
+        lost = False
         if not restart and any(n not in slot for n in self.feedback):
-            return None
+            if not self._feedback_overdue(s, now, self.restart_after):
+                return None
+            restart = lost = True
         hole = (k, s - 1) if k is not None and s != k else None
         seq.popleft()
-        return self._release(s, restart, hole)
+        return self._release(s, restart, hole, lost)
+
+    def _feedback_overdue(self, k: int, now: float, timeout: float | None) -> bool:
+        """Sample k's required inputs have been here ``timeout`` s since the previous sample
+        was released (its feedback could not exist before), its feedback has not."""
+        t = self._complete_since.get(k)
+        return timeout is not None and t is not None and now - max(t, self._progress) >= timeout
 
     # -- queries -------------------------------------------------------------------------------
 

@@ -71,15 +71,26 @@ class ObserverNode(FdNode):
 
     runtimes: Mapping[str, str] = {"thresholds": "_start_hybrid", "qb": "_start_qb"}
 
+    outputs = ("fd/state_estimate",)
+
     def __init__(self, observer: HybridObserver | None = None, system=None, gains=None,
                  qos=None, node_name: str = "observer", **kwargs: Any) -> None:
+        self._observer_arg = observer
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
-        self.observer: Any = observer
+
+    def setup(self) -> None:
+        """Publisher, observer and inputs (at configure)."""
+        self.observer: Any = self._observer_arg
         self._outside: np.ndarray | None = None
         self._was_outside = False
-        self.pub = self.publisher("/fd/state_estimate")
+        self.pub = self.publisher("fd/state_estimate")
         self.diag.add("estimate", self.params.stale_timeout)
         self.start_runtime()
+
+    def build_core(self, gains: Any) -> None:
+        """A new observer for another gain file (the hybrid observer does not use gains)."""
+        if gains.method == "qb":
+            self.observer = QBObserver(self.system, gains)
 
     def _start_hybrid(self) -> None:
         s = self.system
@@ -88,10 +99,10 @@ class ObserverNode(FdNode):
                 s, region=CertifiedRegion.from_results(s, self.gain_file.results))
         blab = bias_labels(s)
         self.start_inputs([
-            Input("u", "/plant/u", s.inputs, plain_ok=True),
-            Input("y", "/plant/y", s.outputs, plain_ok=True),
-            Input("sigma", "/fd/bias_estimate", blab, initial=np.zeros(len(blab))),
-            Input("guard", "/fd/guard_event", GUARD_LABELS,
+            Input("u", "plant/u", s.inputs, plain_ok=True, hold=True),
+            Input("y", "plant/y", s.outputs, plain_ok=True),
+            Input("sigma", "fd/bias_estimate", blab, initial=np.zeros(len(blab))),
+            Input("guard", "fd/guard_event", GUARD_LABELS,
                   initial=np.array([float(NO_TRIGGER), 0.0, 0.0, 0.0])),
         ], gap_timeout=self.params.gap_timeout)
         self._step = self._step_hybrid
@@ -101,8 +112,8 @@ class ObserverNode(FdNode):
         self.observer = QBObserver(s, self.gain_file)
         # A plant without inputs has no /plant/u (offline: u = () at every sample).
         self.start_inputs([
-            *([Input("u", "/plant/u", s.inputs, plain_ok=True)] if s.nu else []),
-            Input("y", "/plant/y", s.outputs, plain_ok=True),
+            *([Input("u", "plant/u", s.inputs, plain_ok=True, hold=True)] if s.nu else []),
+            Input("y", "plant/y", s.outputs, plain_ok=True),
         ], gap_timeout=self.params.gap_timeout)
         self._step = self._step_qb
 
@@ -110,6 +121,8 @@ class ObserverNode(FdNode):
         """Fresh observer state, as the offline runner restarts it after a hole."""
         if isinstance(self.observer, QBObserver):
             self.observer = QBObserver(self.system, self.gain_file)
+        elif self.observer is None:
+            self.observer = HybridObserver(self.system)
         else:
             self.observer.reset()                # Monitor.reset
 

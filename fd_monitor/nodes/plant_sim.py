@@ -122,9 +122,9 @@ class PlantSimNode(Node):
         self.n_samples = max(1, round(duration / sys_.sample_time))
         self.dt = sys_.sample_time
         qos = qos if qos is not None else data_pub_qos(p.qos_depth)
-        self.pub_u = self.create_publisher(Float64MultiArray, "/plant/u", qos, **pub_events())
-        self.pub_y = self.create_publisher(Float64MultiArray, "/plant/y", qos, **pub_events())
-        self.pub_truth = (self.create_publisher(Float64MultiArray, "/plant/truth", qos,
+        self.pub_u = self.create_publisher(Float64MultiArray, "plant/u", qos, **pub_events())
+        self.pub_y = self.create_publisher(Float64MultiArray, "plant/y", qos, **pub_events())
+        self.pub_truth = (self.create_publisher(Float64MultiArray, "plant/truth", qos,
                                                 **pub_events())
                           if p.publish_truth else None)
         pubs = [self.pub_u, self.pub_y] + ([self.pub_truth] if self.pub_truth else [])
