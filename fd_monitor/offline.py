@@ -115,7 +115,8 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
             raise BagError(f"{bag}: {t} is recorded as {present[t][0]}, expected "
                            f"{FLOAT64_MULTI_ARRAY}")
     with _bag_errors(bag):
-        _read_streams(read_messages(bag, topics, msgtype=FLOAT64_MULTI_ARRAY), labels, streams, top, rep)
+        _read_streams(read_messages(bag, topics, msgtype=FLOAT64_MULTI_ARRAY), labels, streams,
+                      top, rep)
     return _after_read(system, streams, rep)
 
 
