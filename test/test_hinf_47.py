@@ -17,7 +17,7 @@ from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.errors import DesignError, GainFileError
-from fd_monitor.gains import load_gains, save_gains
+from fd_monitor.gains import load_gains, save_gains, write_gain_doc
 from fd_monitor.scenario import load_scenario
 from fd_monitor.system import load_system, parse_system
 
@@ -92,9 +92,14 @@ def test_gain_file_round_trip_and_tamper(system, bank, tmp_path):
     assert gf.certificate_status == "verified"
     doc = yaml.safe_load(p.read_text())
     doc["results"]["generators"][0]["L0"][0][0] += 5.0
+    # a plain edit is refused by the digest, naming the key path ...
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(doc))
-    with pytest.raises(GainFileError, match=r"certificate does not hold"):
+    with pytest.raises(GainFileError, match=r"edited after design: results\.generators\[0\]\.L0"):
         load_gains(tmp_path / "bad.yaml", system)
+    # ... and one re-sealed with a fresh digest still fails its certificate
+    write_gain_doc(tmp_path / "resealed.yaml", doc)
+    with pytest.raises(GainFileError, match=r"certificate does not hold"):
+        load_gains(tmp_path / "resealed.yaml", system)
     with pytest.raises(GainFileError):
         check_certificate(system, doc["results"])
 
