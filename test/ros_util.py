@@ -94,6 +94,11 @@ def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[
     Fails if replay or record fail, or if a node printed a traceback.
     """
     try:
+        # Data topics are volatile: before the flat-out replay, every topic the recorder
+        # records must show its publisher and the recorder in the graph.
+        args = rec.args[rec.args.index("record") + 1:]
+        recorded = [a for a in args[:args.index("-o")] if a.startswith("/fd/")]
+        assert wait_graph(recorded, 60.0), f"publishers of {recorded} not in the graph"
         rep = run_cli(["replay", str(bag), "--topics", *topics, "--rate", "0",
                        "--wait-subscribers", str(wait_subscribers)], timeout=timeout)
         assert rep.returncode == 0, rep.stderr
@@ -104,6 +109,24 @@ def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[
             p.stop()
     for p in procs:
         assert "Traceback" not in p.output(), p.output()
+
+
+def wait_graph(topics: Sequence[str], timeout: float) -> bool:
+    """Poll the ROS graph until every topic has a publisher and a subscription."""
+    with ros_context() as ctx:
+        from rclpy.node import Node
+
+        node = Node("graph_probe", context=ctx)
+        deadline = time.monotonic() + timeout
+        try:
+            while time.monotonic() < deadline:
+                if all(node.count_publishers(t) >= 1 and node.count_subscribers(t) >= 1
+                       for t in topics):
+                    return True
+                time.sleep(0.05)  # polling the graph, not synchronising messages
+            return False
+        finally:
+            node.destroy_node()
 
 
 @contextmanager
