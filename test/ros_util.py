@@ -102,8 +102,12 @@ def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[
         rep = run_cli(["replay", str(bag), "--topics", *topics, "--rate", "0",
                        "--wait-subscribers", str(wait_subscribers)], timeout=timeout)
         assert rep.returncode == 0, rep.stderr
-        assert rec.wait(timeout) == 0, rec.output() + "".join(p.output()[-2000:]
-                                                              for p in procs)
+        try:
+            status: int | str = rec.wait(timeout)
+        except subprocess.TimeoutExpired:
+            status = f"still running after {timeout} s"
+        assert status == 0, (f"record: {status}\n" + rec.output()[-3000:]
+                             + "".join(p.output()[-3000:] for p in procs))
     finally:
         for p in [rec, *procs]:
             p.stop()
