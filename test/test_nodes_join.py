@@ -212,3 +212,27 @@ def test_downstream_lost_feedback_restarts_after_restart_after():
     j.put("est", 1, "e1", 1.0)
     assert release(j, 1.5) == []
     assert [(s.k, s.restart, s.feedback_lost) for s in j.ready(2.0)] == [(1, True, True)]
+
+
+def test_downstream_skips_a_stamp_whose_inputs_were_published_before_it_subscribed():
+    """A downstream node that subscribed after the source started (a robot driver already
+    publishing, the standalone detector's bias estimator created last) gets est_0 but never
+    u_0: once a later sequence stamp has every input, 0 is dead and the node restarts there
+    instead of waiting for u_0 forever."""
+    j = StampJoin(["u", "est"], {"fb": FB0}, sequence="est")
+    j.put("est", 0, "e0", restart=True)
+    j.put("u", 1, "u1")
+    assert release(j) == []                            # 1 has no est yet: 0 may still come
+    j.put("est", 1, "e1", restart=True)
+    assert release(j) == [(1, True, None, FB0)]
+    assert j.pending == {}
+    j.put("u", 2, "u2")
+    j.put("est", 2, "e2")
+    j.put("fb", 2, "fb2")
+    assert release(j) == [(2, False, None, "fb2")]
+    # later in the stream: u_3 lost on the way, 4 complete -> a hole at 3, restart at 4
+    j.put("est", 3, "e3")
+    j.put("fb", 3, "fb3")
+    j.put("u", 4, "u4")
+    j.put("est", 4, "e4")
+    assert release(j) == [(4, True, (3, 3), FB0)]

@@ -115,7 +115,7 @@ def test_readme_workspace_commands_work_literally(tmp_path: Path) -> None:
     env = {"HOME": str(home), "PATH": f"{env_dir / 'bin'}{os.pathsep}/usr/bin{os.pathsep}/bin",
            "LANG": "C.UTF-8", "PYTHONUNBUFFERED": "1"}
     for var in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "RMW_IMPLEMENTATION",
-                "ROS_LOG_DIR"):
+                "ROS_LOG_DIR", "FASTDDS_BUILTIN_TRANSPORTS"):
         if var in os.environ:
             env[var] = os.environ[var]
     log = tmp_path / "session.log"

@@ -226,9 +226,11 @@ def make_nodes(**kwargs: Any) -> list:
     same = [Parameter("system", value=det.params.system), Parameter("gains", value=gains),
             Parameter("autostart", value=det.params.autostart)]
     extra = {**kwargs, "parameter_overrides": [*kwargs.get("parameter_overrides", []), *same]}
-    classes = [ObserverNode] + ([AgeiNode, BiasEstimatorNode]
-                                if not det.configured or det.gain_file.method == "thresholds"
-                                else [])
+    # The observer (the chain's entry) last: the others then subscribe before a source
+    # waiting for plant/y subscribers starts, and before the first estimate goes out.
+    classes = ([AgeiNode, BiasEstimatorNode]
+               if not det.configured or det.gain_file.method == "thresholds" else [])
+    classes.append(ObserverNode)
     nodes = [det]
     try:
         for cls in classes:

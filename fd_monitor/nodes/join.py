@@ -19,7 +19,10 @@ Two roles, matching the offline runner (:func:`fd_monitor.offline.run_bag`):
 * a **downstream** node (``sequence="est"``) follows the entry node: it processes exactly the
   stamps the entry node published on the sequence input (in order, so when est_s arrives,
   every earlier est has arrived and any pending stamp below s without one is dead), and
-  restarts where the entry node flagged a restart. No timeout is involved.
+  restarts where the entry node flagged a restart. A sequence stamp that lacks another
+  required input is dead once a later sequence stamp has all of them (delivery is in order
+  per topic: the missing message was published before this node subscribed, or lost): the
+  node restarts at the later one instead of waiting forever. No timeout is involved.
 
 A stamp cannot blind the join. A stamp below the next one (a source that restarted its
 stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
@@ -323,7 +326,15 @@ class StampJoin:
         s = seq[0]
         slot = self.pending[s]
         if any(n not in slot for n in self.required):
-            return None
+            # Per-topic delivery is reliable and in order: once a later sequence stamp has
+            # every required input, the missing ones of this stamp will not come (published
+            # before this node subscribed, or lost). Skip to it instead of waiting forever.
+            later = min(self._complete_since, default=None)
+            if later is None or later <= s:
+                return None
+            while seq[0] != later:
+                self._forget(seq.popleft())
+            s, slot = later, self.pending[later]
         k = self.k_next
         restart = k is None or s in self._restart_at or s != k
         lost = False

@@ -16,9 +16,14 @@ __all__ = ["make_nodes", "main"]
 
 
 def make_nodes(**kwargs) -> list:
-    """The four chain nodes (kwargs go to every node, e.g. ``context``)."""
-    return [ObserverNode(**kwargs), DetectorNode(**kwargs), AgeiNode(**kwargs),
-            BiasEstimatorNode(**kwargs)]
+    """The four chain nodes (kwargs go to every node, e.g. ``context``).
+
+    The observer, the chain's entry, is created last: by the time it subscribes to
+    ``plant/y`` (what a source waits for) the other nodes already subscribe to ``plant/*``
+    and to the observer's outputs, so none of them misses the first samples.
+    """
+    det, agei, est = DetectorNode(**kwargs), AgeiNode(**kwargs), BiasEstimatorNode(**kwargs)
+    return [ObserverNode(**kwargs), det, agei, est]
 
 
 def main(args: Sequence[str] | None = None) -> int:
