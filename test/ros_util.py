@@ -46,6 +46,19 @@ class Proc:
         self.p = subprocess.Popen(self.args, cwd=REPO, env=env or fd_env(), stdout=self._out,
                                   stderr=subprocess.STDOUT, text=True)
 
+    def node_names(self) -> list[str]:
+        """The ROS nodes this ``run <exe>`` process starts (empty for other commands)."""
+        if "run" not in self.args:
+            return []
+        exe = self.args[self.args.index("run") + 1]
+        chain = ["observer", "detector", "agei", "bias_estimator"]
+        if exe == "monitor":
+            return chain
+        if exe == "detector" and "layout:=chain" not in self.args:
+            qb = any("_qb" in a for a in self.args)
+            return ["detector", "observer"] if qb else chain
+        return [exe]
+
     def wait(self, timeout: float) -> int:
         """Wait for the exit status (raises subprocess.TimeoutExpired)."""
         return self.p.wait(timeout)
@@ -98,7 +111,9 @@ def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[
         # records must show its publisher and the recorder in the graph.
         args = rec.args[rec.args.index("record") + 1:]
         recorded = [a for a in args[:args.index("-o")] if a.startswith("/fd/")]
-        assert wait_graph(recorded, 60.0), f"publishers of {recorded} not in the graph"
+        nodes = [n for p in procs for n in p.node_names()]
+        assert wait_graph(recorded, 60.0, nodes), \
+            f"nodes {nodes} or publishers of {recorded} not in the graph"
         rep = run_cli(["replay", str(bag), "--topics", *topics, "--rate", "0",
                        "--wait-subscribers", str(wait_subscribers)], timeout=timeout)
         assert rep.returncode == 0, rep.stderr
@@ -115,17 +130,37 @@ def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[
         assert "Traceback" not in p.output(), p.output()
 
 
-def wait_graph(topics: Sequence[str], timeout: float) -> bool:
-    """Poll the ROS graph until every topic has a publisher and a subscription."""
+def wait_graph(topics: Sequence[str], timeout: float, nodes: Sequence[str] = (),
+               recorder: str = "record", settle: float = 0.5) -> bool:
+    """Poll the ROS graph until every node of ``nodes`` is in it, every topic has a
+    publisher and ``recorder`` among its subscriptions, and every ``/fd/*`` endpoint count
+    has stayed the same for ``settle`` s (the nodes' subscriptions all exist: data topics are
+    volatile, a subscription that comes late misses data).
+    """
     with ros_context() as ctx:
         from rclpy.node import Node
 
         node = Node("graph_probe", context=ctx)
+
+        def counts() -> tuple:
+            fd = sorted(t for t, _ in node.get_topic_names_and_types() if t.startswith("/fd/"))
+            return tuple((t, node.count_publishers(t), node.count_subscribers(t)) for t in fd)
+
+        def ready() -> bool:
+            names = {n for n, _ in node.get_node_names_and_namespaces()}
+            return set(nodes) <= names and all(node.count_publishers(t) >= 1
+                       and any(i.node_name == recorder
+                               for i in node.get_subscriptions_info_by_topic(t))
+                       for t in topics)
+
         deadline = time.monotonic() + timeout
         try:
+            last, since = None, time.monotonic()
             while time.monotonic() < deadline:
-                if all(node.count_publishers(t) >= 1 and node.count_subscribers(t) >= 1
-                       for t in topics):
+                now = counts()
+                if now != last:
+                    last, since = now, time.monotonic()
+                elif ready() and time.monotonic() - since >= settle:
                     return True
                 time.sleep(0.05)  # polling the graph, not synchronising messages
             return False
