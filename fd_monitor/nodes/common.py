@@ -5,11 +5,13 @@ QoS and the lossless data path
 Data topics (``plant/*``, ``fd/*``, relative to the node's namespace) are RELIABLE and
 VOLATILE: publishers keep the last ``qos_depth`` samples for repairs only, a subscriber that
 joins late gets nothing old (as with ROS's default profile). Subscriptions are KEEP_ALL,
-RELIABLE, VOLATILE, so they meet ROS's default publishers (reliable, volatile) losslessly;
-when a best-effort publisher (the sensor-data profile) appears, the incompatible-QoS event
-names RELIABILITY and :class:`DataInput` re-creates the subscription as best effort (logged and
-reported on ``/diagnostics``), which meets both kinds. Every policy can be overridden per
-topic with ROS's ``qos_overrides.<topic>.subscription.<policy>`` parameters (then no
+RELIABLE, VOLATILE, so they meet ROS's default publishers (reliable, volatile) losslessly
+(``config/fastdds.xml`` caps a reader at 2000 samples: a full reader stops acknowledging, so a
+paced source waits and an unpaced burst becomes a hole, not a backlog of minutes); when a
+best-effort publisher (the sensor-data profile) appears, the incompatible-QoS event names
+RELIABILITY and :class:`DataInput` re-creates the subscription as best effort (logged and
+reported on ``/diagnostics``), which meets both kinds. Every policy can be overridden per topic
+with ROS's ``qos_overrides.<topic>.subscription.<policy>`` parameters (then no
 automatic switch happens). Sources that run flat out (``plant_sim`` with ``rate_factor:
 0.0``, ``replay --rate 0``) wait until the expected subscribers are matched, then pace by
 acknowledgements: after every ``ack_window`` (< ``qos_depth``) samples they block in

@@ -1,0 +1,80 @@
+"""A burst of 50,000 samples degrades to reported holes, then the monitor recovers (issue 12).
+
+Before: 50,000 unpaced samples from a publisher with a 1000-deep history filled the
+subscriptions' unbounded (KEEP_ALL) queues; the monitor drained them for minutes, and the
+entry node waited forever for feedback the burst had pushed out (nothing more was ever
+processed). Now each reader holds at most ``max_samples`` (``config/fastdds.xml``): a full
+reader stops acknowledging, so a paced source (``replay``, ``plant_sim``) waits and loses
+nothing, while an unpaced one overwrites its own history and the node sees a hole. Lost
+feedback is a restart after a timeout, and a downstream node skips a sample whose inputs
+will not come.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from ros_util import ros_context, spin_until
+from test_nodes_graph import Rig
+
+pytestmark = [pytest.mark.ros]
+
+BURST = 50_000
+NEW = 200
+
+
+def test_burst_of_50000_degrades_to_holes_then_a_new_publisher_is_processed():
+    from rclpy.node import Node
+    from std_msgs.msg import Float64MultiArray
+
+    from fd_monitor.nodes.common import data_pub_qos
+    from fd_monitor.nodes.conversions import to_msg
+    from fd_monitor.nodes.monitor import make_nodes
+
+    u = np.array([1.0e-4, 1.0e-4, 0.0])
+    y = np.array([0.4, 0.2, 0.3])
+    with ros_context() as ctx:
+        nodes = make_nodes(context=ctx)
+        rig = Rig(ctx, nodes, topics=("fd/state_estimate",))
+        obs = nodes[0]
+        assert obs.get_name() == "observer"
+        assert rig.matched()
+        for k in range(BURST):                       # unpaced: the history overflows
+            rig.pub["u"].publish(to_msg(("q1", "q2", "v13"), k, u))
+            rig.pub["y"].publish(to_msg(("h1", "h2", "h3"), k, y))
+        # A new publisher (a restarted driver) continues the stamps; it must get through.
+        drv2 = Node("driver2", context=ctx)
+        pubs = {t: drv2.create_publisher(Float64MultiArray, f"/plant/{t}", data_pub_qos())
+                for t in ("u", "y")}
+        rig.ex.add_node(drv2)
+        assert spin_until(rig.ex, lambda: all(p.get_subscription_count() >= 2
+                                              for p in pubs.values()), 10.0)
+        after_burst = obs.processed
+        k0 = BURST + 10
+        t0 = time.monotonic()
+        for k in range(k0, k0 + NEW):
+            pubs["u"].publish(to_msg(("q1", "q2", "v13"), k, u))
+            pubs["y"].publish(to_msg(("h1", "h2", "h3"), k, y))
+            rig.spin(lambda: False, 0.002)           # a 500 Hz-ish source, not a burst
+
+        def new() -> list[int]:
+            return [int(m.data[0]) for m in rig.col.msgs["/fd/state_estimate"]
+                    if m.data[0] >= k0]
+
+        # bounded wait; the figure is printed (speed belongs to benchmarks, not asserts)
+        ok = rig.spin(lambda: len(new()) >= NEW - 10, 60.0)
+        print(f"burst of {BURST}: {after_burst} processed when the new publisher matched, "
+              f"{obs.processed} in all, holes {obs.holes}; new publisher: {len(new())} of "
+              f"{NEW} processed {time.monotonic() - t0:.1f} s after its first sample")
+        assert ok, (after_burst, obs.processed, obs.holes, len(new()))
+        assert obs.processed < BURST                 # the burst did overflow ...
+        assert obs.holes >= 1                        # ... and that was a reported hole
+        got = new()
+        assert got == sorted(got)                    # in order, nothing twice
+        # reported on /diagnostics (the input channel's de-duplicated reasons)
+        assert rig.spin(lambda: any("hole: no valid sample" in s.message
+                                    for s in rig.col.statuses("/observer: input")), 10.0)
+        rig.close()
+        drv2.destroy_node()
