@@ -465,19 +465,21 @@ def wait_for_subscribers(publishers: Sequence[tuple[Any, int]]) -> bool:
 _PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
 
-def use_dds_profile() -> str | None:
-    """Point Fast DDS at fd_monitor's ``config/fastdds.xml`` before rclpy starts.
+def use_dds_profile(name: str = "fastdds.xml") -> str | None:
+    """Point Fast DDS at one of fd_monitor's profiles (``config/<name>``) before rclpy starts.
 
-    Does nothing when the user set a profile file already, or when the XML is not found.
-    Child processes inherit it. Returns the profile in force, if any.
+    ``fastdds.xml`` for the nodes; ``fastdds_record.xml`` (no reader cap) for ``record``.
+    Keeps a profile file the user set (one that is not fd_monitor's); does nothing when the
+    XML is not found. Child processes inherit it. Returns the profile in force, if any.
     """
-    for var in _PROFILE_VARS:
-        if os.environ.get(var):
-            return os.environ[var]
     from fd_monitor.paths import config_dirs
 
+    ours = {str(d / x) for d in config_dirs() for x in ("fastdds.xml", "fastdds_record.xml")}
+    for var in _PROFILE_VARS:
+        if os.environ.get(var) and os.environ[var] not in ours:
+            return os.environ[var]
     for d in config_dirs():
-        xml = d / "fastdds.xml"
+        xml = d / name
         if xml.is_file():
             for var in _PROFILE_VARS:
                 os.environ[var] = str(xml)
@@ -566,14 +568,15 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
 # -- main ------------------------------------------------------------------------------------
 
 def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] | None = None,
-             prog: str = "fd_monitor", usage: Sequence[NodeUsage] = ()) -> int:
+             prog: str = "fd_monitor", usage: Sequence[NodeUsage] = (),
+             profile: str = "fastdds.xml") -> int:
     """Init rclpy, build the node(s), spin until done or shut down; return an exit status.
 
     With ``-h``/``--help`` before ``--ros-args`` it prints :func:`usage_text` of ``usage``
     and returns 0 without starting ROS.
 
-    A node may expose ``done`` (an ``rclpy.task.Future``) to end the spin, and
-    ``exit_code``. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
+    ``profile``: the Fast DDS profile (:func:`use_dds_profile`). A node may expose ``done``
+    (an ``rclpy.task.Future``) to end the spin, and ``exit_code``. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
     parameter) print one line ``<prog>: error: ...`` and return 2. SIGINT/SIGTERM end
     cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
     ``rclpy.try_shutdown()``, as the ROS 2 demos do.
@@ -581,7 +584,7 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
     if wants_help(args):
         sys.stdout.write(usage_text(prog, usage))
         return 0
-    use_dds_profile()
+    use_dds_profile(profile)
     try:
         init_ros(args)
     except FdMonitorError as exc:
