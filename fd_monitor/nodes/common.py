@@ -576,10 +576,11 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
     and returns 0 without starting ROS.
 
     ``profile``: the Fast DDS profile (:func:`use_dds_profile`). A node may expose ``done``
-    (an ``rclpy.task.Future``) to end the spin, and ``exit_code``. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
-    parameter) print one line ``<prog>: error: ...`` and return 2. SIGINT/SIGTERM end
-    cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
-    ``rclpy.try_shutdown()``, as the ROS 2 demos do.
+    (an ``rclpy.task.Future``) to end the spin, and ``exit_code``. Start-up errors
+    (``FdMonitorError``: bad gain file, bad scenario, bad parameter) print one line ``<prog>:
+    error: ...`` and return 2. SIGINT/SIGTERM end cleanly (KeyboardInterrupt /
+    ExternalShutdownException), then ``destroy_node()`` and ``rclpy.try_shutdown()``, as the
+    ROS 2 demos do.
     """
     if wants_help(args):
         sys.stdout.write(usage_text(prog, usage))
