@@ -1,13 +1,11 @@
-"""A burst of 50,000 samples degrades to reported holes, then the monitor recovers (issue 12).
+"""A burst of 50,000 samples degrades to a reported hole, then the monitor recovers (issue 12).
 
-Before: 50,000 unpaced samples from a publisher with a 1000-deep history filled the
-subscriptions' unbounded (KEEP_ALL) queues; the monitor drained them for minutes, and the
-entry node waited forever for feedback the burst had pushed out (nothing more was ever
-processed). Now each reader holds at most ``max_samples`` (``config/fastdds.xml``): a full
-reader stops acknowledging, so a paced source (``replay``, ``plant_sim``) waits and loses
-nothing, while an unpaced one overwrites its own history and the node sees a hole. Lost
-feedback is a restart after a timeout, and a downstream node skips a sample whose inputs
-will not come.
+Before: 50,000 unpaced samples from a publisher with a 1000-deep history: about 4,600
+processed, then nothing more, ever -- the entry node waited forever for feedback the burst
+had pushed out, and a downstream node for inputs that would never come. Now lost feedback
+is a restart after a timeout and a downstream node skips a sample whose inputs will not
+come, so the queued backlog drains (at the one-process monitor's rate) and a new
+publisher's samples are processed after it.
 """
 
 from __future__ import annotations
@@ -64,7 +62,7 @@ def test_burst_of_50000_degrades_to_holes_then_a_new_publisher_is_processed():
                     if m.data[0] >= k0]
 
         # bounded wait; the figure is printed (speed belongs to benchmarks, not asserts)
-        ok = rig.spin(lambda: len(new()) >= NEW - 10, 60.0)
+        ok = rig.spin(lambda: len(new()) >= NEW - 10, 240.0)
         print(f"burst of {BURST}: {after_burst} processed when the new publisher matched, "
               f"{obs.processed} in all, holes {obs.holes}; new publisher: {len(new())} of "
               f"{NEW} processed {time.monotonic() - t0:.1f} s after its first sample")

@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         code = run_node(lambda: RecorderNode(writer, {t: types[t] for t in topics}, until,
                                              args.messages, args.duration),
-                        ["record"], prog="record", profile="fastdds_record.xml")
+                        ["record"], prog="record")
     finally:
         writer.close()
     if code:

@@ -5,13 +5,11 @@ QoS and the lossless data path
 Data topics (``plant/*``, ``fd/*``, relative to the node's namespace) are RELIABLE and
 VOLATILE: publishers keep the last ``qos_depth`` samples for repairs only, a subscriber that
 joins late gets nothing old (as with ROS's default profile). Subscriptions are KEEP_ALL,
-RELIABLE, VOLATILE, so they meet ROS's default publishers (reliable, volatile) losslessly
-(``config/fastdds.xml`` caps a reader at 2000 samples: a full reader stops acknowledging, so a
-paced source waits and an unpaced burst becomes a hole, not a backlog of minutes); when a
-best-effort publisher (the sensor-data profile) appears, the incompatible-QoS event names
-RELIABILITY and :class:`DataInput` re-creates the subscription as best effort (logged and
-reported on ``/diagnostics``), which meets both kinds. Every policy can be overridden per topic
-with ROS's ``qos_overrides.<topic>.subscription.<policy>`` parameters (then no
+RELIABLE, VOLATILE, so they meet ROS's default publishers (reliable, volatile) losslessly;
+when a best-effort publisher (the sensor-data profile) appears, the incompatible-QoS event
+names RELIABILITY and :class:`DataInput` re-creates the subscription as best effort (logged and
+reported on ``/diagnostics``), which meets both kinds. Every policy can be overridden per
+topic with ROS's ``qos_overrides.<topic>.subscription.<policy>`` parameters (then no
 automatic switch happens). Sources that run flat out (``plant_sim`` with ``rate_factor:
 0.0``, ``replay --rate 0``) wait until the expected subscribers are matched, then pace by
 acknowledgements: after every ``ack_window`` (< ``qos_depth``) samples they block in
@@ -465,21 +463,19 @@ def wait_for_subscribers(publishers: Sequence[tuple[Any, int]]) -> bool:
 _PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
 
-def use_dds_profile(name: str = "fastdds.xml") -> str | None:
-    """Point Fast DDS at one of fd_monitor's profiles (``config/<name>``) before rclpy starts.
+def use_dds_profile() -> str | None:
+    """Point Fast DDS at fd_monitor's ``config/fastdds.xml`` before rclpy starts.
 
-    ``fastdds.xml`` for the nodes; ``fastdds_record.xml`` (no reader cap) for ``record``.
-    Keeps a profile file the user set (one that is not fd_monitor's); does nothing when the
-    XML is not found. Child processes inherit it. Returns the profile in force, if any.
+    Does nothing when the user set a profile file already, or when the XML is not found.
+    Child processes inherit it. Returns the profile in force, if any.
     """
+    for var in _PROFILE_VARS:
+        if os.environ.get(var):
+            return os.environ[var]
     from fd_monitor.paths import config_dirs
 
-    ours = {str(d / x) for d in config_dirs() for x in ("fastdds.xml", "fastdds_record.xml")}
-    for var in _PROFILE_VARS:
-        if os.environ.get(var) and os.environ[var] not in ours:
-            return os.environ[var]
     for d in config_dirs():
-        xml = d / name
+        xml = d / "fastdds.xml"
         if xml.is_file():
             for var in _PROFILE_VARS:
                 os.environ[var] = str(xml)
@@ -568,24 +564,22 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
 # -- main ------------------------------------------------------------------------------------
 
 def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] | None = None,
-             prog: str = "fd_monitor", usage: Sequence[NodeUsage] = (),
-             profile: str = "fastdds.xml") -> int:
+             prog: str = "fd_monitor", usage: Sequence[NodeUsage] = ()) -> int:
     """Init rclpy, build the node(s), spin until done or shut down; return an exit status.
 
     With ``-h``/``--help`` before ``--ros-args`` it prints :func:`usage_text` of ``usage``
     and returns 0 without starting ROS.
 
-    ``profile``: the Fast DDS profile (:func:`use_dds_profile`). A node may expose ``done``
-    (an ``rclpy.task.Future``) to end the spin, and ``exit_code``. Start-up errors
-    (``FdMonitorError``: bad gain file, bad scenario, bad parameter) print one line ``<prog>:
-    error: ...`` and return 2. SIGINT/SIGTERM end cleanly (KeyboardInterrupt /
-    ExternalShutdownException), then ``destroy_node()`` and ``rclpy.try_shutdown()``, as the
-    ROS 2 demos do.
+    A node may expose ``done`` (an ``rclpy.task.Future``) to end the spin, and
+    ``exit_code``. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
+    parameter) print one line ``<prog>: error: ...`` and return 2. SIGINT/SIGTERM end
+    cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
+    ``rclpy.try_shutdown()``, as the ROS 2 demos do.
     """
     if wants_help(args):
         sys.stdout.write(usage_text(prog, usage))
         return 0
-    use_dds_profile(profile)
+    use_dds_profile()
     try:
         init_ros(args)
     except FdMonitorError as exc:
