@@ -52,3 +52,43 @@ def test_demo_bad_arguments_are_one_line(tmp_path):
         assert r.returncode == 2
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and match in lines[0], r.stderr
+
+
+def test_demo_children_die_with_it(tmp_path):
+    """A demo killed outright (SIGKILL, a CI timeout) leaves no node publishing into the
+    domain: its children get SIGTERM from the kernel (PR_SET_PDEATHSIG)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from ros_util import fd_env
+
+    p = subprocess.Popen([sys.executable, "-m", "fd_monitor", "demo", "--output",
+                          str(tmp_path / "out")], cwd=REPO, env=fd_env(),
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def children() -> list[int]:
+        out = subprocess.run(["pgrep", "-P", str(p.pid)], capture_output=True, text=True)
+        return [int(x) for x in out.stdout.split()]
+
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(children()) < 4 and p.poll() is None:
+            time.sleep(0.2)  # polling the process table, bounded
+        kids = children()
+        assert len(kids) >= 4, kids
+        print("demo children:", kids)
+    finally:
+        p.kill()
+        p.wait(30)
+    deadline = time.monotonic() + 30
+    alive = kids
+    while alive and time.monotonic() < deadline:
+        alive = [k for k in kids if os.path.exists(f"/proc/{k}")
+                 and open(f"/proc/{k}/stat").read().split()[2] != "Z"]
+        time.sleep(0.2)  # polling the process table, bounded
+    for k in alive:
+        os.kill(k, signal.SIGKILL)
+    assert not alive, f"demo children still running after the demo was killed: {alive}"
