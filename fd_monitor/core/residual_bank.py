@@ -392,16 +392,10 @@ def check_generator(model: AffineModel, gen: Generator) -> dict[str, Any]:
             raise GainFileError(f"generator {name!r}: the bounded-real LMI does not hold at "
                                 f"rho = {v.tolist()} (max eigenvalue {lm:.3e} >= 0)")
         A_obs = model.A0 if gen.kind == "uncertain" else model.A(v)
-        Acl = A_obs - gen.L(None if gen.kind == "uncertain" else v) @ model.C
-        cl = float(np.linalg.eigvals(Acl).real.max())
+        L = gen.L(None if gen.kind == "uncertain" else v)
+        cl, res = _closed_loop_at(name, gen, v, A_obs, L, model.C)
         cl_max.append(cl)
-        if not cl < 0:
-            raise GainFileError(f"generator {name!r}: A - L C is not Hurwitz at rho = "
-                                f"{v.tolist()} (max real part {cl:.3e})")
-        if np.isfinite(gen.lam) and gen.V.shape[1]:
-            res = np.linalg.norm(Acl @ gen.V - gen.lam * gen.V)
-            scale = (np.linalg.norm(A_obs) + abs(gen.lam)) * np.linalg.norm(gen.V)
-            eig_res = max(eig_res, float(res / scale))
+        eig_res = max(eig_res, res)
         for Lr, Mr in gen.region:
             rm = float(np.linalg.eigvalsh(region_matrix(model, gen, v, Lr, Mr)).max())
             reg_max.append(rm)
@@ -459,16 +453,9 @@ def _check_affine(model: AffineModel, gen: Generator) -> dict[str, Any]:
         if not lm < 0:
             raise GainFileError(f"generator {name!r}: the bounded-real LMI (6.66) does not "
                                 f"hold at rho = {v.tolist()} (max eigenvalue {lm:.3e} >= 0)")
-        Acl = model.A(v) - gen.L(v) @ model.C
-        cl = float(np.linalg.eigvals(Acl).real.max())
+        cl, res = _closed_loop_at(name, gen, v, model.A(v), gen.L(v), model.C)
         cl_max.append(cl)
-        if not cl < 0:
-            raise GainFileError(f"generator {name!r}: A - L C is not Hurwitz at rho = "
-                                f"{v.tolist()} (max real part {cl:.3e})")
-        if np.isfinite(gen.lam) and gen.V.shape[1]:
-            res = np.linalg.norm(Acl @ gen.V - gen.lam * gen.V)
-            eig_res = max(eig_res, float(res / ((np.linalg.norm(model.A(v)) + abs(gen.lam))
-                                                * np.linalg.norm(gen.V))))
+        eig_res = max(eig_res, res)
         for Lr, Mr in gen.region:
             rm = float(np.linalg.eigvalsh(region_matrix(model, gen, v, Lr, Mr)).max())
             reg_max.append(rm)
@@ -498,6 +485,21 @@ def _check_affine(model: AffineModel, gen: Generator) -> dict[str, Any]:
     return {"lmi_max_eig": lmi_max, "p_min_eig": p_min, "closed_loop_max_real": cl_max,
             "eigvec_residual": eig_res, "region_max_eig": reg_max,
             "multiconvex_min_eig": convex_min}
+
+
+def _closed_loop_at(name: str, gen: Any, v: np.ndarray, A_obs: np.ndarray, L: np.ndarray,
+                    C: np.ndarray) -> tuple[float, float]:
+    """At vertex ``v``: the largest real part of eig(A - L C) (refused unless < 0) and the
+    relative residual of the assigned eigenstructure (0 when there is none)."""
+    Acl = A_obs - L @ C
+    cl = float(np.linalg.eigvals(Acl).real.max())
+    if not cl < 0:
+        raise GainFileError(f"generator {name!r}: A - L C is not Hurwitz at rho = "
+                            f"{v.tolist()} (max real part {cl:.3e})")
+    if not (np.isfinite(gen.lam) and gen.V.shape[1]):
+        return cl, 0.0
+    res = np.linalg.norm(Acl @ gen.V - gen.lam * gen.V)
+    return cl, float(res / ((np.linalg.norm(A_obs) + abs(gen.lam)) * np.linalg.norm(gen.V)))
 
 
 def check_certificate(system: System, gains: Any) -> dict[str, Any]:
