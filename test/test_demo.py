@@ -23,6 +23,13 @@ def check(doc, onset):
     assert set(doc["samples"]) >= {"/plant/y", "/fd/alarm", "/fd/bias_estimate"}
 
 
+def logs(folder, lines=8):
+    """The last lines of every child's log (what a failed run in CI needs to be understood)."""
+    return "".join(f"\n== {p.name}:\n" + "\n".join(p.read_text(errors="replace")
+                                                   .splitlines()[-lines:])
+                   for p in sorted(folder.glob("*.log")))
+
+
 def test_demo_json_on_a_short_scenario(tmp_path):
     """The demo's scenario shortened to 80 s (bias at 40 s) to keep the suite fast."""
     doc = yaml.safe_load((REPO / "config/scenarios/three_tank_bias_h1.yaml").read_text())
@@ -31,7 +38,7 @@ def test_demo_json_on_a_short_scenario(tmp_path):
     sc.write_text(yaml.safe_dump(doc))
     r = run_cli(["demo", "--json", "--scenario", str(sc), "--output", str(tmp_path / "out")],
                 timeout=180)
-    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.returncode == 0, r.stderr[-3000:] + logs(tmp_path / "out" / "logs")
     out = json.loads(r.stdout)
     check(out, 40.0)
     assert out["samples"]["/plant/y"] == 800
@@ -41,7 +48,7 @@ def test_demo_json_on_a_short_scenario(tmp_path):
 @pytest.mark.slow
 def test_demo_default_json(tmp_path):
     r = run_cli(["demo", "--json", "--output", str(tmp_path / "out")], timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.returncode == 0, r.stderr[-3000:] + logs(tmp_path / "out" / "logs")
     check(json.loads(r.stdout), 200.0)
 
 

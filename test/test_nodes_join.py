@@ -236,3 +236,30 @@ def test_downstream_skips_a_stamp_whose_inputs_were_published_before_it_subscrib
     j.put("u", 4, "u4")
     j.put("est", 4, "e4")
     assert release(j) == [(4, True, (3, 3), FB0)]
+
+
+def test_feedback_without_a_publisher_is_not_waited_for():
+    """An observer without its bias estimator (or before its publisher matched) runs open
+    loop: feedback at its initial value, no restart, no wait; once a publisher is matched it
+    waits for the feedback again."""
+    there = {"fb": False}
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=1.0,
+                  feedback_source=lambda n: there[n])
+    feed(j, 0)
+    feed(j, 1)
+    feed(j, 2)
+    assert release(j) == [(0, True, None, FB0), (1, False, None, FB0), (2, False, None, FB0)]
+    there["fb"] = True
+    feed(j, 3)
+    assert release(j, 0.5) == []                       # a source exists: wait for fb_3
+    j.put("fb", 3, "fb3")
+    assert release(j, 0.5) == [(3, False, None, "fb3")]
+    j.reset()
+    assert j.feedback_source is not None               # kept across a reset
+
+
+def test_downstream_feedback_without_a_publisher_is_not_waited_for():
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", feedback_source=lambda n: False)
+    j.put("est", 0, "e0", restart=True)
+    j.put("est", 1, "e1")
+    assert release(j) == [(0, True, None, FB0), (1, False, None, FB0)]

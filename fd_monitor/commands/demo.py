@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -123,12 +122,14 @@ def _gains(out: Path, env: dict[str, str]) -> Path:
 
 def _env(out: Path) -> dict[str, str]:
     from fd_monitor.nodes.common import use_dds_profile  # noqa: F401  (ROS present?)
+    from fd_monitor.nodes.domain import free_domain
 
     env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.pop("ROS_LOCALHOST_ONLY", None)
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    # Its own domain: a foreign node in it would feed the chain or count as a subscriber.
+    env["ROS_DOMAIN_ID"] = str(free_domain(env))
     env["ROS_LOG_DIR"] = str(out / "ros_logs")
     env["PYTHONUNBUFFERED"] = "1"
     root = Path(__file__).resolve().parents[2]

@@ -409,18 +409,37 @@ class FdNode(LifecycleNode):
                               self.params.max_pending, sequence=seq[0] if seq else None,
                               gap_timeout=None if seq else gap_timeout,
                               horizon=self.params.stamp_horizon,
-                              restart_after=self.params.restart_after)
+                              restart_after=self.params.restart_after,
+                              feedback_source=self._feedback_source)
         self._stamper = ArrivalStamper()
         self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
-        for inp in inputs:
-            self.subscribe(inp.topic, self._callback(inp))
+        self._data_inputs = {inp.name: self.subscribe(inp.topic, self._callback(inp))
+                             for inp in inputs}
+        self._open_loop: set[str] = set()
         if self._held:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
         # A hole, lost feedback or a new run must be declared even when no further message
         # arrives.
         period = min(0.25, max(0.01, min(gap_timeout or 1.0, self.params.restart_after) / 4))
         self._entities.append(self.create_timer(period, self._on_gap_timer))
+
+    def _feedback_source(self, name: str) -> bool:
+        """Whether a publisher of feedback input ``name`` is matched (the join waits for its
+        feedback only then). A change is logged once: without the node that feeds it back
+        (e.g. no bias_estimator) this node runs open loop at full rate."""
+        there = self._data_inputs[name].sub.get_publisher_count() > 0
+        if there == (name in self._open_loop):
+            topic = self._data_inputs[name].sub.topic_name
+            if there:
+                self._open_loop.discard(name)
+                self.get_logger().info(f"{topic}: a publisher is here: waiting for its "
+                                       f"feedback again")
+            else:
+                self._open_loop.add(name)
+                self.get_logger().info(f"{topic}: no publisher: running without this "
+                                       f"feedback (its initial value) until one appears")
+        return there
 
     def _callback(self, inp: Input) -> Callable[[Any, Any], None]:
         stamper = self._stamper

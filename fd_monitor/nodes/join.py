@@ -24,6 +24,10 @@ Two roles, matching the offline runner (:func:`fd_monitor.offline.run_bag`):
   per topic: the missing message was published before this node subscribed, or lost): the
   node restarts at the later one instead of waiting forever. No timeout is involved.
 
+Feedback is waited for only while its source exists (``feedback_source``: the node asks
+whether a publisher is matched); without one the sample is released with that feedback at its
+initial value and no restart: the node runs open loop.
+
 A stamp cannot blind the join. A stamp below the next one (a source that restarted its
 stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
 like 2**52) is *held* aside, not refused: the first one of an episode is reported. The held
@@ -38,7 +42,7 @@ stamps become a new run (restart at the smallest complete one, :attr:`Sample.new
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -99,13 +103,20 @@ class StampJoin:
         Stamps more than this many samples above the next one are held, not joined.
     restart_after : float
         Entry role: s without progress before held stamps become a new run.
+    feedback_source : callable, optional
+        ``feedback_source(name)`` is False when no publisher of feedback input ``name`` is
+        matched: the join does not wait for that feedback and uses its initial value (no
+        restart), as a node without the node that feeds it back runs open loop. None: always
+        wait.
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
                  max_pending: int = 100_000, *, sequence: str | None = None,
                  gap_timeout: float | None = None, horizon: int | None = None,
-                 restart_after: float = 1.0) -> None:
+                 restart_after: float = 1.0,
+                 feedback_source: Callable[[str], bool] | None = None) -> None:
         self.required = tuple(required)
+        self.feedback_source = feedback_source
         self.feedback = dict(feedback or {})
         self.names = (*self.required, *self.feedback)
         if sequence is not None and sequence not in self.required:
@@ -142,7 +153,8 @@ class StampJoin:
         """Forget everything: the next complete sample starts a run (a reset service)."""
         self.__init__(self.required, self.feedback, self.max_pending,  # type: ignore[misc]
                       sequence=self.sequence, gap_timeout=self.gap_timeout,
-                      horizon=self.horizon, restart_after=self.restart_after)
+                      horizon=self.horizon, restart_after=self.restart_after,
+                      feedback_source=self.feedback_source)
 
     # -- input ---------------------------------------------------------------------------------
 
@@ -299,8 +311,7 @@ class StampJoin:
                 return None
             return self._release(min(self._complete_since), True, None)
         if k in self._complete_since:
-            slot = self.pending[k]
-            if all(n in slot for n in self.feedback):
+            if self._feedback_here(self.pending[k]):
                 return self._release(k, False, None)
             if self._feedback_overdue(k, now, self.gap_timeout):
                 return self._release(k, True, None, lost=True)
@@ -338,13 +349,24 @@ class StampJoin:
         k = self.k_next
         restart = k is None or s in self._restart_at or s != k
         lost = False
-        if not restart and any(n not in slot for n in self.feedback):
+        if not restart and not self._feedback_here(slot):
             if not self._feedback_overdue(s, now, self.restart_after):
                 return None
             restart = lost = True
         hole = (k, s - 1) if k is not None and s != k else None
         seq.popleft()
         return self._release(s, restart, hole, lost)
+
+    def _feedback_here(self, slot: dict[str, Any]) -> bool:
+        """Every feedback input of ``slot`` is here or has no publisher to wait for (then its
+        initial value is put in ``slot``)."""
+        missing = [n for n in self.feedback if n not in slot]
+        if not missing:
+            return True
+        if self.feedback_source is None or any(self.feedback_source(n) for n in missing):
+            return False
+        slot.update((n, self.feedback[n]) for n in missing)
+        return True
 
     def _feedback_overdue(self, k: int, now: float, timeout: float | None) -> bool:
         """Sample k's required inputs have been here ``timeout`` s since the previous sample
