@@ -48,6 +48,10 @@ def test_params_file_as_help_prints_it_works_from_another_directory(tmp_path):
     assert out.returncode == 0
     shown = str(REPO / "config/plant_sim.yaml")
     assert f"--params-file {shown}" in out.stdout
+    # topics as the node resolves them: relative (a namespace moves them), /diagnostics not
+    assert re.search(r"^  plant/y +measurements", out.stdout, re.M), out.stdout
+    assert "/plant/" not in out.stdout
+    assert re.search(r"^  /diagnostics ", out.stdout, re.M)
     out = run_node(["plant_sim", "--ros-args", "--params-file", "config/plant_sim.yaml",
                     "-p", "rate_factor:=0.0", "-p", "duration:=0.5"], tmp_path)
     assert out.returncode == 0, out.stderr

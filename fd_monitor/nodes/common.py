@@ -552,7 +552,9 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
             rng = (f", range [{p.low:g}, {p.high:g}]" if p.low is not None and p.high is not None
                    and not isinstance(p.default, bool) else "")
             lines.append(f"  {p.name:<{width}}  {p.description} (default {p.default!r}{rng})")
-        for head, topics in (("subscribes", u.subscribes), ("publishes", u.publishes)):
+        for head, declared in (("subscribes", u.subscribes), ("publishes", u.publishes)):
+            # The names as the node resolves them: data topics relative to its namespace.
+            topics = [(t if t == "/diagnostics" else t.lstrip("/"), m) for t, m in declared]
             if topics:
                 lines += ["", f"{head} ({u.name}):"]
                 tw = max(len(t) for t, _ in topics)

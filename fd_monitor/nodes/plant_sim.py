@@ -57,12 +57,12 @@ PARAMS = (
     Param("duration", 0.0, "s of plant time to simulate; 0.0 = the scenario's duration",
           low=0.0, high=1.0e9),
     Param("keep_going", False, "keep simulating after the scenario's end (until shut down)"),
-    Param("publish_truth", True, "publish /plant/truth (true mode, state, fault signals)"),
-    Param("min_subscribers_u", 0, "wait for this many subscriptions on /plant/u before "
+    Param("publish_truth", True, "publish plant/truth (true mode, state, fault signals)"),
+    Param("min_subscribers_u", 0, "wait for this many subscriptions on plant/u before "
           "the first sample", low=0, high=1000),
-    Param("min_subscribers_y", 0, "wait for this many subscriptions on /plant/y", low=0,
+    Param("min_subscribers_y", 0, "wait for this many subscriptions on plant/y", low=0,
           high=1000),
-    Param("min_subscribers_truth", 0, "wait for this many subscriptions on /plant/truth",
+    Param("min_subscribers_truth", 0, "wait for this many subscriptions on plant/truth",
           low=0, high=1000),
     Param("subscriber_timeout", 30.0, "s to wait for the subscribers, then exit with an "
           "error; 0.0 = wait forever", low=0.0, high=1.0e6),
