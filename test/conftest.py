@@ -35,6 +35,10 @@ if "ROS_DOMAIN_ID" not in os.environ:
         from fd_monitor.nodes.domain import free_domain
 
         os.environ["ROS_DOMAIN_ID"] = str(free_domain())
+        # ... and stays visibly taken between tests, for the probe of another run
+        from fd_monitor.nodes.domain import hold_domain
+
+        _ANCHOR = hold_domain()
     else:
         os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="fd_monitor_roslog_"))

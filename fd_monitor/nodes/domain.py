@@ -15,20 +15,78 @@ import subprocess
 import sys
 from collections.abc import Mapping
 
-__all__ = ["free_domain"]
+__all__ = ["domain_is_free", "free_domain", "hold_domain"]
 
-#: Child process: exit 1 when another node shows up within 1.5 s (discovery, bounded poll).
+#: Child process: exit 1 when another participant shows up within 3 s (measured here:
+#: discovery takes 0.05-2.4 s on loopback; a node's name may come after its topics).
 _PROBE = """
 import sys, time, rclpy
 from rclpy.node import Node
 rclpy.init()
 node = Node("fd_monitor_domain_probe")
-end = time.monotonic() + 1.5
+end = time.monotonic() + 3.0
 while time.monotonic() < end:
-    rclpy.spin_once(node, timeout_sec=0.1)
-others = [n for n, _ in node.get_node_names_and_namespaces() if n != node.get_name()]
-sys.exit(1 if others else 0)
+    rclpy.spin_once(node, timeout_sec=0.05)
+    others = [n for n in node.get_node_names() if n != node.get_name()]
+    if others or node.count_publishers("/rosout") > 1:
+        sys.exit(1)
+sys.exit(0)
 """
+
+
+#: Child process: one idle node, so a probe of another run sees this domain as taken.
+_ANCHOR = """
+import time, rclpy
+from rclpy.node import Node
+rclpy.init()                 # SIGTERM/SIGINT shut the context down: a clean exit follows
+node = Node("fd_monitor_domain_anchor")
+print("ready", flush=True)
+while rclpy.ok():
+    time.sleep(0.2)
+node.destroy_node()          # its participant leaves the graph now, not at lease expiry
+rclpy.try_shutdown()
+"""
+
+
+def _die_with_parent() -> None:
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+
+
+def hold_domain(env: Mapping[str, str] | None = None) -> subprocess.Popen:
+    """Keep ``env``'s ROS domain visibly taken while a run uses it.
+
+    A run (a test session, a demo) that has no node alive for a moment -- between two tests
+    -- would look free to :func:`free_domain` of another run on the machine. This starts an
+    idle node there (``fd_monitor_domain_anchor``), which dies with the caller; terminate it
+    when the run ends.
+
+    Returns
+    -------
+    subprocess.Popen
+        The anchor process (its first line of output is ``ready``).
+    """
+    p = subprocess.Popen([sys.executable, "-c", _ANCHOR],
+                         env=dict(os.environ if env is None else env),
+                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                         preexec_fn=_die_with_parent)
+    assert p.stdout is not None
+    p.stdout.readline()                  # the node exists (or the child failed: EOF)
+    return p
+
+
+def domain_is_free(domain: int, env: Mapping[str, str] | None = None) -> bool:
+    """Whether a probe node in ``domain`` sees no other ROS node within 3 s."""
+    base = dict(os.environ if env is None else env)
+    try:
+        return subprocess.run([sys.executable, "-c", _PROBE],
+                              env={**base, "ROS_DOMAIN_ID": str(domain)}, timeout=30,
+                              capture_output=True).returncode == 0
+    except subprocess.TimeoutExpired:
+        return False
 
 
 def free_domain(env: Mapping[str, str] | None = None, tries: int = 5) -> int:
@@ -39,18 +97,13 @@ def free_domain(env: Mapping[str, str] | None = None, tries: int = 5) -> int:
     env : mapping, optional
         Environment of the probe (discovery range, RMW); default ``os.environ``.
     tries : int
-        Domains probed at most (about 2 s each); the last one is returned if all are busy.
+        Domains probed at most (3 s each when free); the last one is returned if all
+        are taken.
     """
     rng = random.SystemRandom()
-    base = dict(os.environ if env is None else env)
     domain = rng.randint(1, 100)
     for _ in range(max(1, tries)):
-        try:
-            if subprocess.run([sys.executable, "-c", _PROBE],
-                              env={**base, "ROS_DOMAIN_ID": str(domain)}, timeout=30,
-                              capture_output=True).returncode == 0:
-                return domain
-        except subprocess.TimeoutExpired:
-            pass
+        if domain_is_free(domain, env):
+            return domain
         domain = rng.randint(1, 100)
     return domain
