@@ -330,8 +330,7 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
         Messages (bag timestamp ``k Ts`` in ns, topic, stamp, labels, values), and the
         scenario.
     """
-    from fd_monitor.core.simulator import simulate
-    from fd_monitor.nodes.conversions import truth_labels
+    from fd_monitor.core.simulator import simulate, truth_labels, truth_values
     from fd_monitor.scenario import load_scenario
 
     sc = load_scenario(spec.scenario)
@@ -339,11 +338,9 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
     dt = sys_.sample_time
     K = max(1, round(spec.duration / dt))
     traj = simulate(sc, spec.seed, K)
-    truth = np.concatenate([traj.mode[0][:, None].astype(float), traj.x[0], traj.faults[0]],
-                           axis=1)
     topics = {"/plant/u": (tuple(sys_.inputs), traj.u[0]),
               "/plant/y": (tuple(sys_.outputs), traj.y[0]),
-              "/plant/truth": (truth_labels(sys_), truth)}
+              "/plant/truth": (truth_labels(sc), truth_values(traj))}
     msgs = [_Msg(round(k * dt * 1e9), topic, int(k), labels, vals[k].copy())
             for k in range(K) for topic, (labels, vals) in topics.items()]
     for c in spec.corruptions:
