@@ -736,8 +736,9 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
     -------
     dict
         ``method``, ``channels``, ``alarms``, ``isolated``, ``bias_estimate`` (empty),
-        ``samples``, ``input_errors`` and ``restarts`` (empty: library bags of these methods
-        carry no corruption).
+        ``modes`` (the plant's mode for a bank; the switching signal it was given for the
+        switched observer), ``samples``, ``input_errors`` and ``restarts`` (empty: library
+        bags of these methods carry no corruption).
     """
     from fd_monitor.bags import read_bag
     from fd_monitor.gains import load_gains
@@ -756,11 +757,13 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
         sig = bank.run(u.values, y.values)
         alarm = sig > bank.thresholds
         channels = list(bank.faults)
+        modes = np.full(len(k), system.initial_mode)    # a bank has one (LTI / LPV) mode
     elif gf.method == "hminus_switched":
         from fd_monitor.core.generalized_observer import GeneralizedObserver
 
         obs = GeneralizedObserver(system, gf)
-        _, r = obs.run(u.values, y.values, tr.column("mode").astype(int))
+        modes = tr.column("mode").astype(int)
+        _, r = obs.run(u.values, y.values, modes)
         alarm = (np.linalg.norm(r, axis=1) > obs.threshold)[:, None]
         channels = ["r_norm"]
     else:
@@ -775,7 +778,8 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
                            "time": round(int(k[hits[0]]) * float(system.sample_time), 9)})
     return {"method": gf.method, "channels": channels, "alarms": alarms,
             "isolated": [c for i, c in enumerate(channels) if alarm[-1, i]],
-            "bias_estimate": {}, "samples": len(k), "input_errors": {}, "restarts": []}
+            "bias_estimate": {}, "samples": len(k), "input_errors": {}, "restarts": [],
+            "modes": collapse([system.mode_names[int(q)] for q in modes])}
 
 
 def read_bag_truth(bag: str | Path) -> Any:
