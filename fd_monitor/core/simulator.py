@@ -163,7 +163,8 @@ class PlantSimulator:
             params = dict(sched.params)
             return np.array([self._rho_map(xi, params) for xi in x], dtype=float).reshape(
                 x.shape[0], len(sched.names))
-        return np.tile([p.value(t) for p in sched.profiles], (x.shape[0], 1))
+        return np.broadcast_to(np.array([p.value(t) for p in sched.profiles]),
+                               (x.shape[0], len(sched.profiles)))
 
     def _scheduled_mode(self, t: float) -> int | None:
         sw = self.scenario.switching
