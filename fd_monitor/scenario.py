@@ -65,7 +65,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -514,7 +514,10 @@ def _with_fault_channels(origin: str, system: System, raw: Any) -> System:
     doc = dict(read_yaml(Path(system.source)))
     doc["faults"] = list(doc.get("faults") or []) + list(raw)
     try:
-        return parse_system(doc, system.source)
+        # The plant keeps its identity (what a gain file is bound to): the added channels
+        # exist in the simulation only.
+        return replace(parse_system(doc, system.source), canonical=system.canonical,
+                       sha256=system.sha256)
     except SystemFileError as exc:
         # Renumber the plant's message: faults[i] of the merged list is fault_channels[j].
         n0 = len(system.faults)

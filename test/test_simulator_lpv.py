@@ -17,6 +17,7 @@ from fd_monitor.core.generalized_observer import simulate_switched
 from fd_monitor.core.residual_bank import SCHEDULING_MAPS, AffineModel, simulate_affine_plant
 from fd_monitor.core.simulator import simulate, truth_labels, truth_values
 from fd_monitor.errors import ScenarioError
+from fd_monitor.gains import load_gains
 from fd_monitor.paths import find_config_file
 from fd_monitor.scenario import load_scenario, parse_scenario
 from fd_monitor.system import load_system, parse_system
@@ -119,6 +120,9 @@ def test_switched_schedule_and_fault_channel_equal_simulate_switched():
     des = yaml.safe_load((SYS / "farhat_koenig.design.yaml").read_text())
     fault = des["hminus_switched"]["fault"]
     ch = system.fault("f")
+    # the added channel is the simulation's: the plant keeps its identity (the gain file's)
+    assert system.sha256 == load_system("farhat_koenig").sha256
+    assert load_gains("farhat_koenig_hminus_switched", system).certificate_status == "verified"
     for q, m in enumerate(system.modes):       # the scenario's numbers are the design file's
         np.testing.assert_array_equal(ch.direction(q, 3), np.ravel(fault["E_f"][m.name]))
     np.testing.assert_array_equal(ch.E, np.ravel(fault["F_f"]))
