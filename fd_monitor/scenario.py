@@ -45,6 +45,11 @@ imposes the mode instead (the mode of the last entry at or before t; the initial
 the first), e.g. for a plant with arbitrary switching (Farhat & Koenig)::
 
     switching: {schedule: [[0, mode1], [4.0, mode2], [9.5, mode1]]}
+    switching: {random: {min_dwell: 0.5, max_dwell: 4.0}}   # arbitrary switching, per run
+
+``random`` draws, per run and from the run's seed (a generator of its own, so the noise of
+the run is unchanged), dwell times uniform in [min_dwell, max_dwell] s and at each switch one
+of the other modes uniformly.
 
 Fault channels the plant file cannot carry without changing its identity (the Farhat &
 Koenig fault lives in its design file) are declared in the scenario, in the plant-file
@@ -245,6 +250,8 @@ class Scenario:
         rho(t) (``scheduling`` key).
     switching : tuple of (float, int) or None
         Imposed mode schedule ``(time s, mode index)`` (``switching.schedule``); None: guards.
+    switching_dwell : tuple of float or None
+        ``(min_dwell, max_dwell)`` s of random switching (``switching.random``).
     """
 
     name: str
@@ -263,6 +270,7 @@ class Scenario:
     source: str = "<dict>"
     scheduling: Scheduling | None = None
     switching: tuple[tuple[float, int], ...] | None = None
+    switching_dwell: tuple[float, float] | None = None
 
     @property
     def rho_names(self) -> tuple[str, ...]:
@@ -499,10 +507,10 @@ def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = No
     if not isinstance(description, str):
         _fail(origin, "description", "a string", type(description).__name__)
     scheduling = _scheduling(origin, system, data.get("scheduling"), np.asarray(x0, float))
-    switching = _switching(origin, system, data.get("switching"))
+    switching, dwell = _switching(origin, system, data.get("switching"))
     return Scenario(name, description, system, duration, int(seed), q0,
                     np.asarray(x0, dtype=float), nscale, ndist, uscale, udist, tuple(inputs),
-                    tuple(faults), origin, scheduling, switching)
+                    tuple(faults), origin, scheduling, switching, dwell)
 
 
 def _with_fault_channels(origin: str, system: System, raw: Any) -> System:
@@ -584,11 +592,28 @@ def _scheduling(origin: str, system: System, raw: Any, x0: np.ndarray) -> Schedu
     return Scheduling(tuple(names), tuple(profiles))
 
 
-def _switching(origin: str, system: System, raw: Any) -> tuple[tuple[float, int], ...] | None:
+def _switching(origin: str, system: System, raw: Any
+               ) -> tuple[tuple[tuple[float, int], ...] | None, tuple[float, float] | None]:
     if raw is None:
-        return None
-    if not isinstance(raw, Mapping) or set(raw) != {"schedule"}:
-        _fail(origin, "switching", "{schedule: [[time, mode], ...]}", raw)
+        return None, None
+    if not isinstance(raw, Mapping) or len(raw) != 1 or set(raw) > {"schedule", "random"}:
+        _fail(origin, "switching", "{schedule: [[time, mode], ...]} or {random: {min_dwell, "
+              "max_dwell}}", raw)
+    if "random" in raw:
+        rnd = raw["random"]
+        if not isinstance(rnd, Mapping) or set(rnd) != {"min_dwell", "max_dwell"}:
+            _fail(origin, "switching.random", "{min_dwell, max_dwell} (s)", rnd)
+        lo = _num(origin, "switching.random.min_dwell", rnd["min_dwell"], positive=True)
+        hi = _num(origin, "switching.random.max_dwell", rnd["max_dwell"], positive=True)
+        if lo < system.sample_time:
+            _fail(origin, "switching.random.min_dwell", f"at least one sample "
+                  f"({system.sample_time:g} s)", lo)
+        if hi < lo:
+            _fail(origin, "switching.random.max_dwell", "max_dwell >= min_dwell", hi)
+        if len(system.modes) < 2:
+            _fail(origin, "switching.random", f"a plant with two modes or more ({system.name!r} "
+                  f"has one)", show=False)
+        return None, (lo, hi)
     sched = raw["schedule"]
     if not isinstance(sched, list) or not sched:
         _fail(origin, "switching.schedule", "a non-empty list of [time, mode] pairs", sched)
@@ -605,4 +630,4 @@ def _switching(origin: str, system: System, raw: Any) -> tuple[tuple[float, int]
         if pair[1] not in system.mode_names:
             _fail(origin, f"{key}[1]", f"one of the modes {list(system.mode_names)}", pair[1])
         out.append((t, system.mode_index(pair[1])))
-    return tuple(out)
+    return tuple(out), None

@@ -159,6 +159,36 @@ def test_without_schedule_the_plant_rule_holds():
     assert len(set(guarded.mode[0])) > 1 and set(forced.mode[0]) == {0}
 
 
+def test_random_switching_per_run_from_its_seed():
+    """switching.random: dwell times within [min, max] (to a sample), the other mode at each
+    switch, different sequences per seed, a run independent of its batch, and the run is the
+    switched plant driven by its recorded mode sequence."""
+    from fd_monitor.core.simulator import simulate_batch
+
+    doc = _scenario_doc("bag_farhat_koenig_fault")
+    doc["switching"] = {"random": {"min_dwell": 0.5, "max_dwell": 2.0}}
+    sc = parse_scenario(doc, str(SCEN / "x.yaml"))
+    tr = simulate_batch(sc, [1, 2])
+    assert not np.array_equal(tr.mode[0], tr.mode[1])
+    for q in tr.mode:
+        edges = np.flatnonzero(np.diff(q)) + 1
+        assert edges.size >= 30                       # 60 s / <= 2 s
+        dwell = np.diff(np.r_[0, edges])
+        assert dwell.min() >= 5 - 1 and dwell.max() <= 20 + 1, (dwell.min(), dwell.max())
+    alone = simulate(sc, 2)
+    np.testing.assert_array_equal(alone.mode[0], tr.mode[1])
+    np.testing.assert_allclose(alone.y[0], tr.y[1], rtol=1e-12)   # BLAS: batch-size rounding
+    system = sc.system
+    ch = system.fault("f")
+    x, y = simulate_switched([m.A for m in system.modes], [m.B for m in system.modes],
+                             [m.C for m in system.modes],
+                             [ch.direction(q, 3)[:, None] for q in range(2)],
+                             [ch.E[:, None]] * 2, tr.mode[0], system.initial_state,
+                             f=tr.faults[0])
+    np.testing.assert_allclose(tr.x[0], x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(tr.y[0], y, rtol=1e-12, atol=1e-12)
+
+
 def test_incipient_leak_on_the_lpv_three_tank():
     """Parameter fault (leak area) with the incipient profile of thesis eq. 1.4: the truth
     column follows delta (1 - exp(-alpha (t - t_f))) from the onset sample."""
@@ -191,7 +221,10 @@ BAD = [
     ("bag_farhat_koenig_fault", lambda d: d["switching"]["schedule"].append([1.0, "mode1"]),
      r"switching\.schedule\[23\]\[0\]: expected times in increasing order"),
     ("bag_farhat_koenig_fault", lambda d: d.update(switching=[[0, "mode1"]]),
-     r"switching: expected \{schedule: \[\[time, mode\], \.\.\.\]\}"),
+     r"switching: expected \{schedule: \[\[time, mode\], \.\.\.\]\} or \{random: "),
+    ("bag_farhat_koenig_fault",
+     lambda d: d.update(switching={"random": {"min_dwell": 0.05, "max_dwell": 1.0}}),
+     r"switching\.random\.min_dwell: expected at least one sample \(0\.1 s\)"),
     ("bag_farhat_koenig_fault", lambda d: d["fault_channels"][0]["F"].update(mode1=[1.0]),
      r"fault_channels\[0\]\.F\.mode1: expected"),
     ("bag_farhat_koenig_fault", lambda d: d["fault_channels"][0].update(kind="leak"),

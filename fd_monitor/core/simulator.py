@@ -13,7 +13,8 @@ One sample ``k`` (time ``t_k = k Ts``) of every run, in this order:
 
 So an autonomous guard fires at the first sample whose state satisfies it, and a controlled
 guard takes effect at the sample after the input that enables it. A scenario's
-``switching.schedule`` replaces the guards: ``q_k`` is the scheduled mode at ``t_k``.
+``switching.schedule`` replaces the guards: ``q_k`` is the scheduled mode at ``t_k``;
+``switching.random`` switches each run at dwell times drawn from its own generator.
 
 The scheduling signal ``rho_k`` of a scenario (a profile of time, or a map of the true
 state, thesis eq. 7.19) is recorded with the truth; a parameter-dependent plant (``A_rho``,
@@ -150,6 +151,12 @@ class PlantSimulator:
         kinds = [f.kind for f in sys_.faults]
         self._idx = {kind: [i for i, k in enumerate(kinds) if k == kind] for kind in set(kinds)}
         self._proc_cols = self._idx.get("process", [])
+        dwell = scenario.switching_dwell
+        # Random switching draws from generators of their own (the noise stays the same).
+        self._sw_rngs = ([np.random.default_rng(np.random.SeedSequence([s, 1]))
+                          for s in self.seeds] if dwell is not None else [])
+        self._next_switch = np.array([r.uniform(*dwell) for r in self._sw_rngs]) \
+            if dwell is not None else np.zeros(0)
         sched = scenario.scheduling
         self._rho_map = (SCHEDULING_MAPS[sched.state_map]
                          if sched is not None and sched.state_map is not None else None)
@@ -165,6 +172,16 @@ class PlantSimulator:
                 x.shape[0], len(sched.names))
         return np.broadcast_to(np.array([p.value(t) for p in sched.profiles]),
                                (x.shape[0], len(sched.profiles)))
+
+    def _random_switch(self, t: float) -> None:
+        dwell = self.scenario.switching_dwell
+        assert dwell is not None
+        n_modes = len(self.system.modes)
+        for i, rng in enumerate(self._sw_rngs):
+            if t >= self._next_switch[i] - 1e-9 * self.dt:
+                j = int(rng.integers(n_modes - 1))
+                self.q[i] = j + (j >= self.q[i])          # one of the other modes
+                self._next_switch[i] += rng.uniform(*dwell)
 
     def _scheduled_mode(self, t: float) -> int | None:
         sw = self.scenario.switching
@@ -208,6 +225,9 @@ class PlantSimulator:
         q_forced = self._scheduled_mode(t)
         if q_forced is not None:
             self.q[:] = q_forced
+        elif self._sw_rngs:
+            self._random_switch(t)
+        imposed = q_forced is not None or bool(self._sw_rngs)   # no guards then
         faults = np.tile(self.fault_signals(t), (N, 1))
         for i in self._idx.get("state_jump", []):
             self.x[:, sys_.faults[i].index] += faults[:, i] - self._prev_faults[:, i]
@@ -239,15 +259,14 @@ class PlantSimulator:
             name = sys_.faults[i].parameter
             if name is not None:
                 params_delta[name] = faults[:, i]
-        q_mid = (self.plant.next_mode(self.q, self.x, u, "controlled") if q_forced is None
-                 else self.q)
+        q_mid = self.q if imposed else self.plant.next_mode(self.q, self.x, u, "controlled")
         rho = self.rho(t, self.x)
         x_next = self.plant.step(self.q, self.x, u_applied, w,
                                  faults[:, self._proc_cols] if self._proc_cols else None,
                                  params_delta or None, self.rho, t)
         x_next += eta * self._unc[self.q]
         sample = Sample(k, t, u, y, self.x.copy(), self.q.copy(), faults, rho)
-        if q_forced is None:
+        if not imposed:
             self.q = self.plant.next_mode(q_mid, x_next, u, "autonomous")
         self.x = x_next
         self._prev_faults = faults
