@@ -26,6 +26,39 @@ step at or before t; 0 before the first); ``{ramp: {start, end, from, to}}``;
 (a PI level controller on a measured output with conditional-integration anti-windup; the
 reference is itself a profile).
 
+LPV / uncertain plants (``A_rho``, ``B_rho``) need the scheduling signal rho(t); any plant may
+record one as a side signal (``rho.<name>`` on ``/plant/truth``)::
+
+    scheduling:                   # one profile per lpv parameter of the plant ...
+      rho1: {sine: {amplitude: 1.0, period: 1.0}}
+      rho2: {steps: [[0, 0.2], [5, -0.4]]}
+    scheduling: {map: three_tank_sqrt, names: [rho1, rho2, rho3],   # ... or a function of
+                 params: {min_difference: 1.0e-3}}                  # the true state (7.19)
+
+Profiles must stay inside the plant's parameter box (``lpv.parameters`` min/max); a map is
+one of :data:`fd_monitor.core.residual_bank.SCHEDULING_MAPS`, evaluated on the true state
+(inside each sample, too, for a plant that depends on it); ``names`` default to the plant's
+lpv parameters.
+
+Switching signal: by default the plant's guards. ``switching: {schedule: [[t, mode], ...]}``
+imposes the mode instead (the mode of the last entry at or before t; the initial mode before
+the first), e.g. for a plant with arbitrary switching (Farhat & Koenig)::
+
+    switching: {schedule: [[0, mode1], [4.0, mode2], [9.5, mode1]]}
+    switching: {random: {min_dwell: 0.5, max_dwell: 4.0}}   # arbitrary switching, per run
+
+``random`` draws, per run and from the run's seed (a generator of its own, so the noise of
+the run is unchanged), dwell times uniform in [min_dwell, max_dwell] s and at each switch one
+of the other modes uniformly.
+
+Fault channels the plant file cannot carry without changing its identity (the Farhat &
+Koenig fault lives in its design file) are declared in the scenario, in the plant-file
+syntax, and added after the plant's own channels::
+
+    fault_channels:
+      - {name: f, kind: process, F: {mode1: [0.06, 1.2, 0.18], mode2: [0.07, 1.4, 0.49]},
+         E: [0.01, 0.01]}
+
 Fault profiles ``beta(k - K0)``: ``abrupt`` (Heracleous et al. eq. 4; magnitude from sample
 ``K0 = round(time / Ts)`` on) and ``incipient`` (thesis eq. 1.4: ``magnitude (1 -
 exp(-rate (t - t_f)))``). An actuator fault with ``relative: true`` is the loss of
@@ -35,8 +68,9 @@ effectiveness ``f = -beta u`` (thesis Sec. 1.2); otherwise it adds ``beta`` to t
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,9 +78,9 @@ import numpy as np
 
 from fd_monitor.errors import ScenarioError, SystemFileError
 from fd_monitor.paths import find_config_file
-from fd_monitor.system import System, load_system, read_yaml, require_memory
+from fd_monitor.system import System, load_system, parse_system, read_yaml, require_memory
 
-__all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "check_horizon",
+__all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "Scheduling", "check_horizon",
            "load_scenario", "parse_scenario"]
 
 _DISTRIBUTIONS = ("uniform", "extreme")
@@ -88,6 +122,41 @@ class Profile:
             return v0 + (v1 - v0) * (t - start) / (end - start)
         amplitude, period, offset, phase = d
         return offset + amplitude * math.sin(2.0 * math.pi * t / period + phase)
+
+    def bounds(self) -> tuple[float, float]:
+        """(min, max) of the profile over all t >= 0."""
+        d = self.data
+        if self.kind == "constant":
+            return d[0], d[0]
+        if self.kind == "steps":
+            vals = list(d[1::2]) + ([0.0] if d[0] > 0 else [])
+            return min(vals), max(vals)
+        if self.kind == "ramp":
+            return min(d[2], d[3]), max(d[2], d[3])
+        return d[2] - abs(d[0]), d[2] + abs(d[0])
+
+
+@dataclass(frozen=True)
+class Scheduling:
+    """The scheduling signal rho of a scenario: per parameter a profile of time, or a named
+    map of the true state.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Parameter names (d).
+    profiles : tuple of Profile
+        One per name (empty with a map).
+    state_map : str or None
+        A key of :data:`fd_monitor.core.residual_bank.SCHEDULING_MAPS`.
+    params : dict
+        Parameters of the map.
+    """
+
+    names: tuple[str, ...]
+    profiles: tuple[Profile, ...] = ()
+    state_map: str | None = None
+    params: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -177,6 +246,12 @@ class Scenario:
         Per input, a Profile or a PIController.
     faults : tuple of FaultEvent
     source : str
+    scheduling : Scheduling or None
+        rho(t) (``scheduling`` key).
+    switching : tuple of (float, int) or None
+        Imposed mode schedule ``(time s, mode index)`` (``switching.schedule``); None: guards.
+    switching_dwell : tuple of float or None
+        ``(min_dwell, max_dwell)`` s of random switching (``switching.random``).
     """
 
     name: str
@@ -193,6 +268,14 @@ class Scenario:
     inputs: tuple[Profile | PIController, ...]
     faults: tuple[FaultEvent, ...] = field(default_factory=tuple)
     source: str = "<dict>"
+    scheduling: Scheduling | None = None
+    switching: tuple[tuple[float, int], ...] | None = None
+    switching_dwell: tuple[float, float] | None = None
+
+    @property
+    def rho_names(self) -> tuple[str, ...]:
+        """Names of the scheduling parameters (empty without ``scheduling``)."""
+        return self.scheduling.names if self.scheduling is not None else ()
 
     @property
     def n_samples(self) -> int:
@@ -292,7 +375,7 @@ def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = No
     if not isinstance(data, Mapping):
         _fail(origin, "(top level)", "a mapping of scenario keys", type(data).__name__)
     allowed = {"name", "description", "system", "duration", "seed", "initial", "noise",
-               "uncertainty", "inputs", "faults"}
+               "uncertainty", "inputs", "faults", "scheduling", "switching", "fault_channels"}
     for k in data:
         if k not in allowed:
             _fail(origin, str(k), f"one of the keys {sorted(allowed)} (unknown key)", show=False)
@@ -305,6 +388,8 @@ def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = No
             system = load_system(rel if rel.is_file() else ref)
         except SystemFileError as exc:
             raise ScenarioError(f"{origin}: system: {exc}") from None
+    if data.get("fault_channels"):
+        system = _with_fault_channels(origin, system, data["fault_channels"])
     name = str(data.get("name", Path(origin).stem))
     if "duration" not in data:
         _fail(origin, "duration", "the run length in s (missing key)", show=False)
@@ -421,6 +506,128 @@ def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = No
     description = data.get("description", "")
     if not isinstance(description, str):
         _fail(origin, "description", "a string", type(description).__name__)
+    scheduling = _scheduling(origin, system, data.get("scheduling"), np.asarray(x0, float))
+    switching, dwell = _switching(origin, system, data.get("switching"))
     return Scenario(name, description, system, duration, int(seed), q0,
                     np.asarray(x0, dtype=float), nscale, ndist, uscale, udist, tuple(inputs),
-                    tuple(faults), origin)
+                    tuple(faults), origin, scheduling, switching, dwell)
+
+
+def _with_fault_channels(origin: str, system: System, raw: Any) -> System:
+    """The plant with the scenario's ``fault_channels`` appended (plant-file syntax)."""
+    if not isinstance(raw, list):
+        _fail(origin, "fault_channels", "a list of fault channels (plant-file syntax)", raw)
+    if not Path(system.source).is_file():
+        _fail(origin, "fault_channels", "a plant read from a file", system.source)
+    doc = dict(read_yaml(Path(system.source)))
+    doc["faults"] = list(doc.get("faults") or []) + list(raw)
+    try:
+        # The plant keeps its identity (what a gain file is bound to): the added channels
+        # exist in the simulation only.
+        return replace(parse_system(doc, system.source), canonical=system.canonical,
+                       sha256=system.sha256)
+    except SystemFileError as exc:
+        # Renumber the plant's message: faults[i] of the merged list is fault_channels[j].
+        n0 = len(system.faults)
+        msg = str(exc).split(": ", 1)[-1]
+        m = re.match(r"faults\[(\d+)\](.*)", msg)
+        if m and int(m.group(1)) >= n0:
+            msg = f"fault_channels[{int(m.group(1)) - n0}]{m.group(2)}"
+        else:
+            msg = f"fault_channels: {msg}"
+        raise ScenarioError(f"{origin}: {msg}") from None
+
+
+def _scheduling(origin: str, system: System, raw: Any, x0: np.ndarray) -> Scheduling | None:
+    from fd_monitor.core.residual_bank import SCHEDULING_MAPS
+
+    lpv = {p.name: p for p in system.lpv}
+    needs = any(m.A_rho is not None or m.B_rho is not None for m in system.modes)
+    if raw is None:
+        if needs:
+            _fail(origin, "scheduling", f"rho(t) for the lpv parameters {list(lpv)} of plant "
+                  f"{system.name!r} (missing key)", show=False)
+        return None
+    if not isinstance(raw, Mapping) or not raw:
+        _fail(origin, "scheduling", "a profile per parameter, or {map, names, params}", raw)
+    if "map" in raw:
+        extra = set(raw) - {"map", "names", "params"}
+        if extra:
+            _fail(origin, f"scheduling.{sorted(extra)[0]}", "map, names or params (unknown key)",
+                  show=False)
+        if raw["map"] not in SCHEDULING_MAPS:
+            _fail(origin, "scheduling.map", f"one of {sorted(SCHEDULING_MAPS)}", raw["map"])
+        params = raw.get("params") or {}
+        if not isinstance(params, Mapping):
+            _fail(origin, "scheduling.params", "a mapping", params)
+        try:
+            d = int(np.asarray(SCHEDULING_MAPS[raw["map"]](x0, dict(params))).size)
+        except (IndexError, ValueError, TypeError) as exc:
+            _fail(origin, "scheduling.map", f"a map of the {system.n} states of plant "
+                  f"{system.name!r} ({exc})", raw["map"])
+        names = raw.get("names", list(lpv) if lpv else [f"rho{i + 1}" for i in range(d)])
+        if (not isinstance(names, list) or len(names) != d
+                or not all(isinstance(n, str) and n for n in names)):
+            _fail(origin, "scheduling.names", f"{d} parameter names (the map gives {d})", names)
+        if lpv and list(names) != list(lpv):
+            _fail(origin, "scheduling.names", f"the plant's lpv parameters {list(lpv)}", names)
+        return Scheduling(tuple(names), (), str(raw["map"]), dict(params))
+    profiles = []
+    if lpv and set(raw) != set(lpv):
+        missing = sorted(set(lpv) - set(raw))
+        key = f"scheduling.{missing[0]}" if missing else \
+            f"scheduling.{sorted(set(raw) - set(lpv))[0]}"
+        _fail(origin, key, f"a profile for each lpv parameter {list(lpv)} of plant "
+              f"{system.name!r} and no other", show=False)
+    names = list(lpv) if lpv else [str(k) for k in raw]
+    for nm in names:
+        prof = _profile(origin, f"scheduling.{nm}", raw[nm])
+        if nm in lpv:
+            lo, hi = prof.bounds()
+            if lo < lpv[nm].min or hi > lpv[nm].max:
+                _fail(origin, f"scheduling.{nm}", f"values inside the parameter box "
+                      f"[{lpv[nm].min:g}, {lpv[nm].max:g}] (the profile spans "
+                      f"[{lo:g}, {hi:g}])", show=False)
+        profiles.append(prof)
+    return Scheduling(tuple(names), tuple(profiles))
+
+
+def _switching(origin: str, system: System, raw: Any
+               ) -> tuple[tuple[tuple[float, int], ...] | None, tuple[float, float] | None]:
+    if raw is None:
+        return None, None
+    if not isinstance(raw, Mapping) or len(raw) != 1 or set(raw) > {"schedule", "random"}:
+        _fail(origin, "switching", "{schedule: [[time, mode], ...]} or {random: {min_dwell, "
+              "max_dwell}}", raw)
+    if "random" in raw:
+        rnd = raw["random"]
+        if not isinstance(rnd, Mapping) or set(rnd) != {"min_dwell", "max_dwell"}:
+            _fail(origin, "switching.random", "{min_dwell, max_dwell} (s)", rnd)
+        lo = _num(origin, "switching.random.min_dwell", rnd["min_dwell"], positive=True)
+        hi = _num(origin, "switching.random.max_dwell", rnd["max_dwell"], positive=True)
+        if lo < system.sample_time:
+            _fail(origin, "switching.random.min_dwell", f"at least one sample "
+                  f"({system.sample_time:g} s)", lo)
+        if hi < lo:
+            _fail(origin, "switching.random.max_dwell", "max_dwell >= min_dwell", hi)
+        if len(system.modes) < 2:
+            _fail(origin, "switching.random", f"a plant with two modes or more ({system.name!r} "
+                  f"has one)", show=False)
+        return None, (lo, hi)
+    sched = raw["schedule"]
+    if not isinstance(sched, list) or not sched:
+        _fail(origin, "switching.schedule", "a non-empty list of [time, mode] pairs", sched)
+    out: list[tuple[float, int]] = []
+    last = -math.inf
+    for i, pair in enumerate(sched):
+        key = f"switching.schedule[{i}]"
+        if not isinstance(pair, list) or len(pair) != 2:
+            _fail(origin, key, "a [time, mode] pair", pair)
+        t = _num(origin, f"{key}[0]", pair[0], nonneg=True)
+        if t < last:
+            _fail(origin, f"{key}[0]", "times in increasing order", pair[0])
+        last = t
+        if pair[1] not in system.mode_names:
+            _fail(origin, f"{key}[1]", f"one of the modes {list(system.mode_names)}", pair[1])
+        out.append((t, system.mode_index(pair[1])))
+    return tuple(out), None

@@ -77,8 +77,10 @@ def test_switching_and_lpv_parse_and_enter_the_sha():
     np.testing.assert_array_equal(s.modes[0].A_of(np.array([0.5])), [[0.5, 0.5], [-0.5, 0.5]])
     assert s.modes[1].A_rho is None
     assert s.sha256 != base.sha256
-    with pytest.raises(ValueError, match=r"parameter-dependent modes"):
-        SampledPlant(s)
+    plant = SampledPlant(s)                 # simulated with rho (test_simulator_lpv.py)
+    assert plant.lpv_modes == (True, False)
+    with pytest.raises(ValueError, match=r"mode 'm1': parameter-dependent .*give rho"):
+        plant.step(np.array([0]), np.zeros((1, 2)), np.zeros((1, 1)))
 
 
 @pytest.mark.parametrize("mut, match", [

@@ -2,7 +2,8 @@
 
 Runs the core simulator (no ROS) and writes ``/plant/u``, ``/plant/y`` and ``/plant/truth``
 exactly as the ``plant_sim`` node publishes them (same labels, stamps and values for the
-same scenario and seed), with bag timestamps t_k = k Ts.
+same scenario and seed), with bag timestamps t_k = k Ts. The truth carries the true mode,
+state, fault signals and the scheduling parameters (``rho.<name>``) of an LPV scenario.
 """
 
 from __future__ import annotations
@@ -42,8 +43,7 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
                     duration: float | None = None) -> dict:
     """Simulate and write the bag; return a summary mapping."""
     from fd_monitor.bags import arrays_from, write_bag
-    from fd_monitor.core.simulator import simulate
-    from fd_monitor.nodes.conversions import truth_labels
+    from fd_monitor.core.simulator import simulate, truth_labels, truth_values
     from fd_monitor.scenario import check_horizon, load_scenario
 
     sc = load_scenario(scenario_source)
@@ -61,12 +61,10 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     traj = simulate(sc, seed, K)
     sys_ = sc.system
     ns = np.rint(traj.k * dt * 1e9).astype(np.int64)
-    truth = np.concatenate([traj.mode[0][:, None].astype(float), traj.x[0], traj.faults[0]],
-                           axis=1)
     path = write_bag(output, [
         arrays_from("/plant/u", sys_.inputs, traj.k, traj.u[0], ns),
         arrays_from("/plant/y", sys_.outputs, traj.k, traj.y[0], ns),
-        arrays_from("/plant/truth", truth_labels(sys_), traj.k, truth, ns),
+        arrays_from("/plant/truth", truth_labels(sc), traj.k, truth_values(traj), ns),
     ])
     return {"bag": str(path), "scenario": sc.name, "system": sys_.name,
             "seed": traj.seeds[0], "samples": K, "sample_time": dt, "duration": K * dt,

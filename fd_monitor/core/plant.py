@@ -4,7 +4,10 @@ Linear continuous-time modes are discretised exactly with a zero-order hold on t
 the disturbance, the affine term and process faults (all held over the sample):
 ``Ad = e^{A Ts}``, ``Gd = int_0^Ts e^{A s} ds [B D offset F]``, computed from the matrix
 exponential of the augmented matrix ``[[A, G], [0, 0]] Ts`` (Van Loan). Discrete-time modes
-are used as written; nonlinear modes call their model's discrete map.
+are used as written; nonlinear modes call their model's discrete map. Parameter-dependent
+(LPV / uncertain) modes, ``A(rho) = A + sum_j rho_j A_j`` (``A_rho``, ``B_rho``), are
+integrated per sample with the scheduling signal rho(t, x) the caller gives
+(:meth:`SampledPlant.step`).
 
 All functions take a batch: states (N, n), inputs (N, nu), modes (N,) int, so Monte Carlo
 runs in one array pass per mode.
@@ -12,16 +15,20 @@ runs in one array pass per mode.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import expm
 
 from fd_monitor.core.models import get_model
+from fd_monitor.core.residual_bank import rk4_step
 from fd_monitor.system import Mode, System
 
-__all__ = ["DiscreteMode", "SampledPlant", "zoh"]
+__all__ = ["LPV_SUBSTEPS", "DiscreteMode", "SampledPlant", "zoh"]
+
+#: Runge-Kutta substeps per sample of a continuous-time parameter-dependent mode.
+LPV_SUBSTEPS = 10
 
 
 def zoh(A: np.ndarray, G: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -88,10 +95,9 @@ class SampledPlant:
         self.system = system
         self.dt = system.sample_time
         self.process_faults = [f for f in system.faults if f.kind == "process"]
-        if any(m.A_rho is not None or m.B_rho is not None for m in system.modes):
-            raise ValueError(f"plant {system.name!r} has parameter-dependent modes (A_rho/"
-                             f"B_rho): the sampled plant simulates fixed matrices only; use "
-                             f"fd_monitor.core.residual_bank.simulate_affine_plant")
+        #: per mode: True when A or B depend on the LPV parameters (A_rho / B_rho).
+        self.lpv_modes = tuple(m.A_rho is not None or m.B_rho is not None
+                               for m in system.modes)
 
         def f_of(q: int) -> np.ndarray:
             # (n, n_process): the process-fault directions in mode q (per-mode F allowed)
@@ -104,6 +110,9 @@ class SampledPlant:
 
     def _discretise(self, mode: Mode, F: np.ndarray) -> DiscreteMode:
         n = self.system.n
+        if mode.A_rho is not None or mode.B_rho is not None:
+            # Parameter-dependent: integrated per sample (step), nothing to precompute.
+            return DiscreteMode(None, mode.B, mode.D, mode.offset, F)
         if mode.dynamics == "nonlinear":
             # Nonlinear maps are discrete already; process faults enter per sample as
             # dt * F f (an Euler step of the fault term), disturbances as D w.
@@ -119,8 +128,16 @@ class SampledPlant:
 
     def step(self, q: np.ndarray, x: np.ndarray, u: np.ndarray, w: np.ndarray | None = None,
              f_process: np.ndarray | None = None,
-             params_delta: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+             params_delta: Mapping[str, np.ndarray] | None = None,
+             rho: Callable[[float, np.ndarray], np.ndarray] | None = None,
+             t: float = 0.0) -> np.ndarray:
         """Advance a batch of states by one sample.
+
+        A parameter-dependent mode (``A_rho`` / ``B_rho``) reads ``rho``: in continuous time
+        ``dx/dt = A(rho) x + B(rho) u + D w + offset + F f`` is integrated over
+        ``[t, t + Ts]`` by :func:`~fd_monitor.core.residual_bank.rk4_step` (10 substeps;
+        ``rho`` evaluated inside the sample, ``u``, ``w``, ``f`` held); in discrete time
+        ``x_{k+1} = A(rho_k) x_k + B(rho_k) u_k + D w_k + offset + F f_k``.
 
         Parameters
         ----------
@@ -136,6 +153,11 @@ class SampledPlant:
             (N, n_process) values of the process-fault channels.
         params_delta : mapping, optional
             Parameter name -> (N,) additive change (``parameter`` faults).
+        rho : callable, optional
+            ``(t, x) -> rho``: (M, n) states at time ``t`` (s) -> (M, d) parameters; required
+            when a run is in a parameter-dependent mode.
+        t : float
+            Time of the sample, s.
 
         Returns
         -------
@@ -148,6 +170,11 @@ class SampledPlant:
             dm = self.modes[int(i)]
             xs, us = x[sel], u[sel]
             mdl = self._models[int(i)]
+            if self.lpv_modes[int(i)]:
+                out[sel] = self._step_lpv(int(i), t, xs, us, rho,
+                                          None if w is None else w[sel],
+                                          None if f_process is None else f_process[sel])
+                continue
             if mdl is None:
                 assert dm.Ad is not None
                 xn = xs @ dm.Ad.T + us @ dm.Bd.T + dm.cd
@@ -163,6 +190,35 @@ class SampledPlant:
                 xn = xn + f_process[sel] @ dm.Fd.T
             out[sel] = xn
         return out
+
+    def _step_lpv(self, q: int, t: float, x: np.ndarray, u: np.ndarray,
+                  rho: Callable[[float, np.ndarray], np.ndarray] | None,
+                  w: np.ndarray | None, f: np.ndarray | None) -> np.ndarray:
+        m, dm = self.system.modes[q], self.modes[q]
+        if rho is None:
+            raise ValueError(f"plant {self.system.name!r}, mode {m.name!r}: parameter-dependent "
+                             f"(A_rho/B_rho), give rho")
+        assert m.A is not None
+        A0, A_rho, B_rho = m.A, m.A_rho, m.B_rho
+        held = np.broadcast_to(m.offset, x.shape).copy()
+        if w is not None and m.D.size:
+            held += w @ m.D.T
+        if f is not None and dm.Fd.size:
+            held += f @ dm.Fd.T
+
+        def rhs(tt: float, xx: np.ndarray) -> np.ndarray:
+            r = rho(tt, xx)                                   # (M, d)
+            # A(rho) x = A0 x + sum_j rho_j A_j x (einsum: much cheaper than tensordot here)
+            dx = xx @ A0.T + u @ m.B.T + held
+            if A_rho is not None:
+                dx += np.einsum("md,dij,mj->mi", r, A_rho, xx)
+            if B_rho is not None:
+                dx += np.einsum("md,dij,mj->mi", r, B_rho, u)
+            return dx
+
+        if m.time == "discrete":
+            return rhs(t, x)
+        return rk4_step(rhs, t, x, self.dt, LPV_SUBSTEPS)
 
     def output(self, q: np.ndarray, x: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
         """Noise-free outputs ``C_q x + E_q w`` of a batch: (N,) modes, (N, n) states -> (N, ny)."""

@@ -52,6 +52,7 @@ __all__ = [
     "lmi_matrix",
     "monte_carlo_thresholds",
     "region_matrix",
+    "rk4_step",
     "simulate_affine_plant",
     "vertices",
 ]
@@ -822,27 +823,52 @@ def simulate_affine_plant(model: AffineModel, t: np.ndarray,
     n = model.n
     K = t.size
     dt = float(t[1] - t[0]) if K > 1 else 1.0
-    h = dt / substeps
     x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).copy()
     xs = np.empty((K, n))
     us = np.empty((K, model.B0.shape[1]))
     rs = np.empty((K, model.d))
-
-    def rhs(tt: float, xx: np.ndarray, uk: np.ndarray) -> np.ndarray:
-        r = rho(tt)
-        return model.A(r) @ xx + model.B(r) @ uk + F @ f(tt)
 
     for k in range(K):
         xs[k] = x
         uk = np.asarray(u(t[k]), dtype=float)
         us[k] = uk
         rs[k] = rho(t[k])
-        tt = float(t[k])
-        for _ in range(substeps):
-            k1 = rhs(tt, x, uk)
-            k2 = rhs(tt + h / 2, x + h / 2 * k1, uk)
-            k3 = rhs(tt + h / 2, x + h / 2 * k2, uk)
-            k4 = rhs(tt + h, x + h * k3, uk)
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            tt += h
+
+        def rhs(tt: float, xx: np.ndarray, uk: np.ndarray = uk) -> np.ndarray:
+            r = rho(tt)
+            return model.A(r) @ xx + model.B(r) @ uk + F @ f(tt)
+
+        x = rk4_step(rhs, float(t[k]), x, dt, substeps)
     return xs, xs @ model.C.T, us, rs
+
+
+def rk4_step(rhs: Callable[[float, np.ndarray], np.ndarray], t: float, x: np.ndarray,
+             dt: float, substeps: int = 10) -> np.ndarray:
+    """Advance ``dx/dt = rhs(t, x)`` from ``t`` over one sample ``dt`` by ``substeps`` classical
+    Runge-Kutta steps (the integrator of :func:`simulate_affine_plant` and of the plant
+    simulator's parameter-dependent modes).
+
+    Parameters
+    ----------
+    rhs : callable
+        ``(t, x) -> dx/dt`` of the same shape as ``x``.
+    x : numpy.ndarray
+        State at ``t``: (n,) or a batch (N, n).
+    dt : float
+        Sample time, s.
+
+    Returns
+    -------
+    numpy.ndarray
+        State at ``t + dt``, shape of ``x``.
+    """
+    h = dt / substeps
+    tt = t
+    for _ in range(substeps):
+        k1 = rhs(tt, x)
+        k2 = rhs(tt + h / 2, x + h / 2 * k1)
+        k3 = rhs(tt + h / 2, x + h / 2 * k2)
+        k4 = rhs(tt + h, x + h * k3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        tt += h
+    return x

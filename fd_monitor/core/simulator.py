@@ -12,7 +12,15 @@ One sample ``k`` (time ``t_k = k Ts``) of every run, in this order:
    ``|eta_i| <= uncertainty_i(q_k)``, then autonomous guards on ``x_{k+1}``: ``q_{k+1}``.
 
 So an autonomous guard fires at the first sample whose state satisfies it, and a controlled
-guard takes effect at the sample after the input that enables it.
+guard takes effect at the sample after the input that enables it. A scenario's
+``switching.schedule`` replaces the guards: ``q_k`` is the scheduled mode at ``t_k``;
+``switching.random`` switches each run at dwell times drawn from its own generator.
+
+The scheduling signal ``rho_k`` of a scenario (a profile of time, or a map of the true
+state, thesis eq. 7.19) is recorded with the truth; a parameter-dependent plant (``A_rho``,
+``B_rho``) is integrated with it inside the sample (:meth:`SampledPlant.step`). The truth of
+a sample (:func:`truth_labels`, :func:`truth_values`) is ``mode``, ``x.<state>``,
+``f.<fault>`` and ``rho.<name>``.
 
 Each run has its own generator, seeded from ``SeedSequence(seed)``; noise is drawn in blocks
 of :data:`BLOCK` samples in a fixed order (w, v, eta), so a run is the same whichever batch it
@@ -22,14 +30,16 @@ is in. Time is an argument: nothing here reads a clock.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.residual_bank import SCHEDULING_MAPS
 from fd_monitor.scenario import PIController, Profile, Scenario
 
-__all__ = ["BLOCK", "PlantSimulator", "Sample", "Trajectory", "simulate", "simulate_batch"]
+__all__ = ["BLOCK", "PlantSimulator", "Sample", "Trajectory", "simulate", "simulate_batch",
+           "truth_labels", "truth_values"]
 
 BLOCK = 256
 
@@ -54,6 +64,8 @@ class Sample:
         (N,) true modes.
     faults : numpy.ndarray
         (N, nf) fault signals per plant fault channel.
+    rho : numpy.ndarray
+        (N, d) scheduling parameters (d = 0 without a scenario ``scheduling``).
     """
 
     k: int
@@ -63,6 +75,7 @@ class Sample:
     x: np.ndarray
     mode: np.ndarray
     faults: np.ndarray
+    rho: np.ndarray = field(default_factory=lambda: np.zeros((1, 0)))
 
 
 @dataclass(frozen=True)
@@ -87,6 +100,8 @@ class Trajectory:
         (N, K) int
     faults : numpy.ndarray
         (N, K, nf)
+    rho : numpy.ndarray
+        (N, K, d) scheduling parameters (d = 0 without a scenario ``scheduling``).
     """
 
     scenario: Scenario
@@ -98,6 +113,7 @@ class Trajectory:
     x: np.ndarray
     mode: np.ndarray
     faults: np.ndarray
+    rho: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 0)))
 
 
 def _unit(rng: np.random.Generator, shape: tuple[int, ...], dist: str) -> np.ndarray:
@@ -135,6 +151,47 @@ class PlantSimulator:
         kinds = [f.kind for f in sys_.faults]
         self._idx = {kind: [i for i, k in enumerate(kinds) if k == kind] for kind in set(kinds)}
         self._proc_cols = self._idx.get("process", [])
+        dwell = scenario.switching_dwell
+        # Random switching draws from generators of their own (the noise stays the same).
+        self._sw_rngs = ([np.random.default_rng(np.random.SeedSequence([s, 1]))
+                          for s in self.seeds] if dwell is not None else [])
+        self._next_switch = np.array([r.uniform(*dwell) for r in self._sw_rngs]) \
+            if dwell is not None else np.zeros(0)
+        sched = scenario.scheduling
+        self._rho_map = (SCHEDULING_MAPS[sched.state_map]
+                         if sched is not None and sched.state_map is not None else None)
+
+    def rho(self, t: float, x: np.ndarray) -> np.ndarray:
+        """(M, d) scheduling parameters at time ``t`` (s) for states ``x`` (M, n)."""
+        sched = self.scenario.scheduling
+        if sched is None:
+            return np.zeros((x.shape[0], 0))
+        if self._rho_map is not None:
+            params = dict(sched.params)
+            return np.array([self._rho_map(xi, params) for xi in x], dtype=float).reshape(
+                x.shape[0], len(sched.names))
+        return np.broadcast_to(np.array([p.value(t) for p in sched.profiles]),
+                               (x.shape[0], len(sched.profiles)))
+
+    def _random_switch(self, t: float) -> None:
+        dwell = self.scenario.switching_dwell
+        assert dwell is not None
+        n_modes = len(self.system.modes)
+        for i, rng in enumerate(self._sw_rngs):
+            if t >= self._next_switch[i] - 1e-9 * self.dt:
+                j = int(rng.integers(n_modes - 1))
+                self.q[i] = j + (j >= self.q[i])          # one of the other modes
+                self._next_switch[i] += rng.uniform(*dwell)
+
+    def _scheduled_mode(self, t: float) -> int | None:
+        sw = self.scenario.switching
+        if sw is None:
+            return None
+        q = None
+        for tk, qk in sw:
+            if t >= tk:
+                q = qk
+        return self.scenario.initial_mode if q is None else q
 
     def _draw(self) -> None:
         sys_, sc = self.system, self.scenario
@@ -165,6 +222,12 @@ class PlantSimulator:
         j = k - self._block_start
         w, v, eta = self._w[:, j], self._v[:, j], self._eta[:, j]
 
+        q_forced = self._scheduled_mode(t)
+        if q_forced is not None:
+            self.q[:] = q_forced
+        elif self._sw_rngs:
+            self._random_switch(t)
+        imposed = q_forced is not None or bool(self._sw_rngs)   # no guards then
         faults = np.tile(self.fault_signals(t), (N, 1))
         for i in self._idx.get("state_jump", []):
             self.x[:, sys_.faults[i].index] += faults[:, i] - self._prev_faults[:, i]
@@ -196,13 +259,15 @@ class PlantSimulator:
             name = sys_.faults[i].parameter
             if name is not None:
                 params_delta[name] = faults[:, i]
-        q_mid = self.plant.next_mode(self.q, self.x, u, "controlled")
+        q_mid = self.q if imposed else self.plant.next_mode(self.q, self.x, u, "controlled")
+        rho = self.rho(t, self.x)
         x_next = self.plant.step(self.q, self.x, u_applied, w,
                                  faults[:, self._proc_cols] if self._proc_cols else None,
-                                 params_delta or None)
+                                 params_delta or None, self.rho, t)
         x_next += eta * self._unc[self.q]
-        sample = Sample(k, t, u, y, self.x.copy(), self.q.copy(), faults)
-        self.q = self.plant.next_mode(q_mid, x_next, u, "autonomous")
+        sample = Sample(k, t, u, y, self.x.copy(), self.q.copy(), faults, rho)
+        if not imposed:
+            self.q = self.plant.next_mode(q_mid, x_next, u, "autonomous")
         self.x = x_next
         self._prev_faults = faults
         self.k += 1
@@ -238,14 +303,30 @@ def simulate_batch(scenario: Scenario, seeds: Sequence[int],
     x = np.empty((N, K, sys_.n))
     q = np.empty((N, K), dtype=int)
     f = np.empty((N, K, len(sys_.faults)))
+    r = np.empty((N, K, len(scenario.rho_names)))
     for k in range(K):
         s = sim.step()
         u[:, k], y[:, k], x[:, k], q[:, k], f[:, k] = s.u, s.y, s.x, s.mode, s.faults
+        r[:, k] = s.rho
     ks = np.arange(K)
-    return Trajectory(scenario, sim.seeds, ks, ks * sys_.sample_time, u, y, x, q, f)
+    return Trajectory(scenario, sim.seeds, ks, ks * sys_.sample_time, u, y, x, q, f, r)
 
 
 def simulate(scenario: Scenario, seed: int | None = None,
              n_samples: int | None = None) -> Trajectory:
     """Simulate a single run (batch of one); default seed: the scenario's."""
     return simulate_batch(scenario, [scenario.seed if seed is None else seed], n_samples)
+
+
+def truth_labels(scenario: Scenario) -> tuple[str, ...]:
+    """Channel names of ``/plant/truth``: ``mode``, ``x.<state>``..., ``f.<fault>``...,
+    ``rho.<parameter>``... (the scenario's scheduling parameters, if any)."""
+    sys_ = scenario.system
+    return ("mode", *(f"x.{s}" for s in sys_.states), *(f"f.{f.name}" for f in sys_.faults),
+            *(f"rho.{n}" for n in scenario.rho_names))
+
+
+def truth_values(traj: Trajectory, run: int = 0) -> np.ndarray:
+    """(K, m) ``/plant/truth`` values of one run, columns as :func:`truth_labels`."""
+    return np.concatenate([traj.mode[run][:, None].astype(float), traj.x[run],
+                           traj.faults[run], traj.rho[run]], axis=1)

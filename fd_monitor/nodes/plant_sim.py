@@ -7,7 +7,8 @@ a batch of one run), stamped and labelled Float64MultiArray messages (see
 - ``/plant/u`` — the commanded inputs u_k (labels: the plant's inputs);
 - ``/plant/y`` — the measurements y_k, sensor faults included (labels: the outputs);
 - ``/plant/truth`` — ``mode`` (index), ``x.<state>`` (true state), ``f.<fault>`` (fault
-  signals): for evaluation only.
+  signals), ``rho.<name>`` (scheduling parameters of an LPV scenario): for evaluation and
+  as side signals (:func:`fd_monitor.core.simulator.truth_labels`).
 
 Pacing: ``rate_factor`` times the sample rate (1.0 = real time, 100.0 = a hundred times
 faster; a timer ticks once per sample, at most every millisecond), or ``0.0`` = as fast
@@ -27,7 +28,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray
 
-from fd_monitor.core.simulator import PlantSimulator, Sample
+from fd_monitor.core.simulator import PlantSimulator, Sample, truth_labels
 from fd_monitor.errors import FdMonitorError
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
@@ -43,7 +44,7 @@ from fd_monitor.nodes.common import (
     run_node,
     wait_for_subscribers,
 )
-from fd_monitor.nodes.conversions import to_msg, truth_labels
+from fd_monitor.nodes.conversions import to_msg
 from fd_monitor.scenario import load_scenario
 
 __all__ = ["PARAMS", "PlantSimNode", "USAGE", "main"]
@@ -116,7 +117,7 @@ class PlantSimNode(Node):
         sc = simulator.scenario
         sys_ = sc.system
         self.labels_u, self.labels_y = sys_.inputs, sys_.outputs
-        self.labels_truth = truth_labels(sys_)
+        self.labels_truth = truth_labels(sc)
         duration = p.duration if p.duration > 0 else sc.duration
         #: samples of a run (k = 0 .. n_samples-1), unless keep_going.
         self.n_samples = max(1, round(duration / sys_.sample_time))
@@ -190,7 +191,8 @@ class PlantSimNode(Node):
         self.pub_y.publish(to_msg(self.labels_y, k, s.y[0]))
         if self.pub_truth is not None:
             self.pub_truth.publish(to_msg(self.labels_truth, k,
-                                          [float(s.mode[0]), *s.x[0], *s.faults[0]]))
+                                          [float(s.mode[0]), *s.x[0], *s.faults[0],
+                                           *s.rho[0]]))
         self.published += 1
         self.diag.touch("simulation")
         if not self._pacer.published():

@@ -1,0 +1,125 @@
+"""The library bags of the hinf_sc and hminus_switched gain files, checked independently of
+`analyze` (which does not run these methods in this version): regeneration bit for bit,
+sample counts, truth columns (rho, mode, faults at their onsets), noise within the plant's
+bounds, and expected.yaml against the method's core runtime and the truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fd_monitor.bags import read_bag
+from fd_monitor.core.residual_bank import SCHEDULING_MAPS
+from fd_monitor.gains import load_gains
+from fd_monitor.library import (
+    check_expected,
+    core_summary,
+    generate_bag,
+    load_expected,
+    load_library,
+    truth_facts,
+)
+from fd_monitor.scenario import load_scenario
+
+LIB = load_library()
+NEW = ["three_tank_lpv_leaks_abrupt", "three_tank_lpv_leaks_incipient", "f16xl_overlap",
+       "farhat_koenig_fault"]
+#: fault -> onset sample (first non-zero truth sample), from the scenarios
+ONSETS = {"three_tank_lpv_leaks_abrupt": {"leak1": 1000, "leak2": 1500, "leak3": 2000},
+          "three_tank_lpv_leaks_incipient": {"leak1": 1001, "leak2": 1501, "leak3": 2001},
+          "f16xl_overlap": {"f_delta": 500, "f_wg": 1200, "f_theta": 2000},
+          "farhat_koenig_fault": {"f": 300}}
+
+
+def test_library_holds_the_new_bags_with_their_methods():
+    methods = {n: load_gains(LIB[n].gains, verify=False).method for n in NEW}
+    assert methods == {"three_tank_lpv_leaks_abrupt": "hinf_sc",
+                       "three_tank_lpv_leaks_incipient": "hinf_sc",
+                       "f16xl_overlap": "hinf_sc", "farhat_koenig_fault": "hminus_switched"}
+
+
+@pytest.mark.parametrize("name", NEW)
+def test_bag_regenerates_bit_for_bit(tmp_path, name):
+    spec = LIB[name]
+    out = generate_bag(spec, tmp_path / name)
+    for f in ("metadata.yaml", f"{name}.mcap"):
+        assert (out / f).read_bytes() == (spec.folder / f).read_bytes(), f
+    assert (spec.folder / f"{name}.mcap").stat().st_size < 600_000
+
+
+@pytest.mark.parametrize("name", NEW)
+def test_sample_counts_and_truth_faults_at_their_onsets(name):
+    spec = LIB[name]
+    sc = load_scenario(spec.scenario)
+    b = read_bag(spec.folder)
+    K = round(spec.duration / sc.system.sample_time)
+    for t in ("/plant/u", "/plant/y", "/plant/truth"):
+        assert len(b[t]) == K, t
+        np.testing.assert_array_equal(b[t].stamps, np.arange(K))
+    facts = truth_facts(spec.folder, sc.system)
+    assert {f: v["onset_sample"] for f, v in facts["faults"].items()} == ONSETS[name]
+    tr = b["/plant/truth"]
+    for ev in sc.faults:
+        ch = sc.system.faults[ev.channel].name
+        col = tr.column(f"f.{ch}")
+        k0 = round(ev.time / sc.system.sample_time)
+        assert not col[:k0].any()
+        np.testing.assert_allclose(col[k0:], ev.beta(tr.stamps[k0:] * sc.system.sample_time,
+                                                     sc.system.sample_time))
+
+
+@pytest.mark.parametrize("name", ["three_tank_lpv_leaks_abrupt",
+                                  "three_tank_lpv_leaks_incipient"])
+def test_three_tank_truth_carries_rho_of_eq_7_19_and_noise_within_bounds(name):
+    spec = LIB[name]
+    sc = load_scenario(spec.scenario)
+    b = read_bag(spec.folder)
+    tr, y = b["/plant/truth"], b["/plant/y"]
+    x = np.column_stack([tr.column(f"x.{s}") for s in sc.system.states])
+    rho = np.column_stack([tr.column(f"rho.rho{i}") for i in (1, 2, 3)])
+    want = np.array([SCHEDULING_MAPS["three_tank_sqrt"](xi, {"min_difference": 1e-3})
+                     for xi in x])
+    np.testing.assert_array_equal(rho, want)
+    assert 1.5 < rho.min() and rho.max() < 4.0     # inside the design box (7.19 data)
+    v = y.values - x                               # C = I, no sensor fault: y - x = noise
+    bound = sc.system.measurement_noise
+    assert (np.abs(v) <= bound).all()
+    assert (np.abs(v).max(axis=0) > 0.9 * bound).all()   # uniform over the whole bound
+
+
+def test_f16xl_truth_is_noise_free_with_the_sensor_bias():
+    spec = LIB["f16xl_overlap"]
+    b = read_bag(spec.folder)
+    tr, y = b["/plant/truth"], b["/plant/y"]
+    x = np.column_stack([tr.column(f"x.{s}") for s in ("x_u", "x_w", "x_q", "x_theta")])
+    want = x.copy()
+    want[:, 3] += tr.column("f.f_theta")          # y_theta += f_theta (sensor bias)
+    np.testing.assert_array_equal(y.values, want)  # the plant file bounds no noise: none
+
+
+def test_farhat_koenig_truth_mode_follows_the_schedule():
+    spec = LIB["farhat_koenig_fault"]
+    sc = load_scenario(spec.scenario)
+    tr = read_bag(spec.folder, ["/plant/truth"])["/plant/truth"]
+    t = tr.stamps * sc.system.sample_time
+    want = np.zeros(len(tr))
+    assert sc.switching is not None
+    for tk, q in sc.switching:
+        want[t >= tk - 1e-9] = q
+    np.testing.assert_array_equal(tr.column("mode"), want)
+    assert len(set(want)) == 2
+
+
+@pytest.mark.parametrize("name", NEW)
+def test_expected_agrees_with_the_core_runtime_and_the_truth(name):
+    """expected.yaml: fault onset, isolated faults and modes are the truth; first alarms (the
+    core runtime's) after the onset; and the runtime reproduces them today."""
+    spec = LIB[name]
+    exp = load_expected(spec.expected_file)
+    assert exp["fault_onset_sample"] == min(ONSETS[name].values())
+    summary = core_summary(spec)
+    assert check_expected(exp, summary) == []
+    if name != "farhat_koenig_fault":              # its gain file has no threshold
+        assert sorted(exp["isolated"]) == sorted(ONSETS[name])
+        for f, a in exp["alarms"].items():
+            assert ONSETS[name][f] <= a["first_sample"] <= ONSETS[name][f] + 60
