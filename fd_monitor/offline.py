@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.core.runtime import runtime_for
 from fd_monitor.errors import BagError, FdMonitorError, ImplausibleError, MessageError
 
 __all__ = ["BagRun", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs",
@@ -373,7 +374,6 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
         Unknown or invalid gain file.
     """
     from fd_monitor.bags import read_bag
-    from fd_monitor.core.runtime import runtime_for
     from fd_monitor.gains import GainFile, load_gains
 
     if not Path(bag).exists():
@@ -456,8 +456,6 @@ def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
 def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
                    rep: InputReport, agei: bool = True) -> dict[str, Any]:
     """:func:`run_runtime` with the ``thresholds`` runtime (the diagnosis chain)."""
-    from fd_monitor.core.runtime import runtime_for
-
     return run_runtime(runtime_for(system, gf, agei=agei), ks, us, ys, rep)
 
 

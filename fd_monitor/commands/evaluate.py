@@ -1,7 +1,7 @@
 """``python -m fd_monitor evaluate GAINS -s SCENARIO [...]``: Monte Carlo campaigns.
 
 Simulates ``--runs`` seeded runs of each scenario, replays them through the gain file's method
-(looked up by its ``method``, see :data:`fd_monitor.evaluate.RUNNERS`) and prints the
+(looked up by its ``method``, see :data:`fd_monitor.core.runtime.RUNTIMES`) and prints the
 false-alarm rate, detection rate and delay per scenario, variant and threshold scale, as a
 table or as JSON. Table II of the QB paper::
 

@@ -47,7 +47,14 @@ import numpy as np
 
 from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.envelope import CertifiedRegion
+from fd_monitor.core.generalized_observer import GeneralizedObserver
+from fd_monitor.core.monitor import Monitor, validate_sample
+from fd_monitor.core.monitor import run_batch as monitor_run_batch
+from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
+from fd_monitor.core.qb import QBDetector, QBObserver
+from fd_monitor.core.qb import run_batch as qb_run_batch
+from fd_monitor.core.residual_bank import SCHEDULING_MAPS, ResidualBank
 from fd_monitor.errors import GainFileError, MessageError
 from fd_monitor.system import System
 
@@ -356,6 +363,15 @@ class Runtime:
                            mode_hat=np.stack([t.mode for t in traces]), extra=extra)
 
 
+def _settle_samples(system: System, gains: Any) -> int:
+    """Samples after a (re)start before the thresholds are armed: the gain file's
+    ``results.threshold_method.settle_s`` (Monte Carlo thresholds are taken after it), else 0."""
+    res = gains.results if hasattr(gains, "results") else gains
+    tm = res.get("threshold_method") if isinstance(res, Mapping) else None
+    settle = float((tm or {}).get("settle_s", 0.0) or 0.0) if isinstance(tm, Mapping) else 0.0
+    return round(settle / float(system.sample_time))
+
+
 def _indexed(v: Any, ks: Sequence[int]) -> Callable[[int], Any]:
     """Sample index -> value, from a mapping or from an array aligned with ``ks``."""
     if isinstance(v, Mapping):
@@ -392,8 +408,6 @@ class ThresholdsRuntime(Runtime):
     SIGNED = True
 
     def __init__(self, system: System, gains: Any, agei: bool = True) -> None:
-        from fd_monitor.core.monitor import Monitor
-
         super().__init__(system, gains)
         self.agei = bool(agei)
         self.monitor = Monitor(system, gains, agei=agei)
@@ -423,9 +437,7 @@ class ThresholdsRuntime(Runtime):
     @classmethod
     def run_batch(cls, system: System, gains: Any, traj: Any, **options: Any) -> BatchResult:
         """N runs in lock step (:func:`fd_monitor.core.monitor.run_batch`, same arithmetic)."""
-        from fd_monitor.core.monitor import run_batch
-
-        return run_batch(system, gains, traj, **options)
+        return monitor_run_batch(system, gains, traj, **options)
 
 
 def _units(system: System) -> str:
@@ -461,8 +473,6 @@ class QBRuntime(Runtime):
 
     def __init__(self, system: System, gains: Any, rho: float = 1.0,
                  state_bound: str = "component") -> None:
-        from fd_monitor.core.qb import QBDetector
-
         super().__init__(system, gains)
         self.detector = QBDetector(system, gains, rho=rho, state_bound=state_bound)
         self.channels = tuple(self.detector.channels)
@@ -474,8 +484,6 @@ class QBRuntime(Runtime):
 
     def reset(self) -> None:
         """A new observer (x^ = 0, the plant's initial mode)."""
-        from fd_monitor.core.qb import QBObserver
-
         self.observer = QBObserver(self.system, self.gains)
 
     def step(self, k: int, u: Any, y: Any,
@@ -520,9 +528,7 @@ class QBRuntime(Runtime):
     def run_batch(cls, system: System, gains: Any, traj: Any, **options: Any) -> BatchResult:
         """Vectorised over runs (:func:`fd_monitor.core.qb.run_batch`, also the Kalman
         baseline)."""
-        from fd_monitor.core.qb import run_batch
-
-        return run_batch(system, gains, traj, **options)
+        return qb_run_batch(system, gains, traj, **options)
 
 
 # --------------------------------------------------------------------------------------
@@ -557,8 +563,6 @@ class HinfScRuntime(Runtime):
     SIDE_SIGNALS = ("rho",)
 
     def __init__(self, system: System, gains: Any, discretisation: str = "auto") -> None:
-        from fd_monitor.core.residual_bank import ResidualBank
-
         super().__init__(system, gains)
         self.bank = ResidualBank(system, gains, discretisation=discretisation)
         model = self.bank.model
@@ -570,9 +574,7 @@ class HinfScRuntime(Runtime):
         self.region_names = tuple(names) if self.lpv else ()
         self.side_inputs = ("rho",) if self.lpv and not model.scheduling else ()
         self._rho_names = tuple(names)
-        tm = gains.results.get("threshold_method") if hasattr(gains, "results") else None
-        settle = float((tm or {}).get("settle_s", 0.0) or 0.0)
-        self.settle = round(settle / float(system.sample_time))
+        self.settle = _settle_samples(system, gains)
         self._Cpinv = np.linalg.pinv(model.C)
         self._plaus = Plausibility(system)
         self.reset()
@@ -587,8 +589,6 @@ class HinfScRuntime(Runtime):
         self._k0: int | None = None
 
     def _rho(self, k: int, y: np.ndarray, side: Mapping[str, Any] | None) -> np.ndarray:
-        from fd_monitor.core.residual_bank import SCHEDULING_MAPS
-
         model = self.bank.model
         if side is not None and side.get("rho") is not None:
             return _vector("rho", side["rho"], model.d, k)
@@ -602,8 +602,6 @@ class HinfScRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step`; side ``rho`` (d,) for an LPV bank without a scheduling
         map (given, it overrides the map)."""
-        from fd_monitor.core.monitor import validate_sample
-
         k, uu, yy = validate_sample(self.system, k, u, y)
         self._plaus.check(k, uu, yy)
         outside = rho = None
@@ -634,7 +632,8 @@ class HminusSwitchedRuntime(Runtime):
 
     One channel ``r_norm``: ``||r_k||`` (output units) against ``results.threshold`` (+inf
     when the gain file has none: the shipped file has none, its designer writes
-    ``threshold: {method: none}``). Estimates: ``x_hat`` (n,).
+    ``threshold: {method: none}``), armed ``results.threshold_method.settle_s`` after every
+    (re)start as for ``hinf_sc``. Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
 
     The switching signal alpha(k), in order of precedence: the side signal ``mode`` when
     given; an input channel named ``mode``; the plant file's guards applied to x^_k and u_k
@@ -659,9 +658,6 @@ class HminusSwitchedRuntime(Runtime):
 
     def __init__(self, system: System, gains: Any, design: str = "hminus",
                  threshold: float | None = None) -> None:
-        from fd_monitor.core.generalized_observer import GeneralizedObserver
-        from fd_monitor.core.plant import SampledPlant
-
         super().__init__(system, gains)
         self.observer = GeneralizedObserver(system, gains, design, threshold)
         self.n_modes = len(self.observer.modes)
@@ -679,12 +675,14 @@ class HminusSwitchedRuntime(Runtime):
         self.side_inputs = ("mode",) if self.mode_source == "side" else ()
         self._plant = SampledPlant(system) if self.mode_source == "guards" else None
         self._plaus = Plausibility(system)
+        self.settle = _settle_samples(system, gains)
         self.reset()
 
     def reset(self) -> None:
-        """Observer state z = 0, the plant's initial mode."""
+        """Observer state z = 0, the plant's initial mode; threshold re-armed."""
         self.observer.reset()
         self._mode = int(self.system.initial_mode)
+        self._k0: int | None = None
 
     def _measured_mode(self, k: int, uu: np.ndarray,
                        side: Mapping[str, Any] | None) -> float | None:
@@ -701,8 +699,6 @@ class HminusSwitchedRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step`; side ``mode`` (mode index) when the plant has no
         switching rule."""
-        from fd_monitor.core.monitor import validate_sample
-
         k, uu, yy = validate_sample(self.system, k, u, y)
         self._plaus.check(k, uu, yy)
         m = self._measured_mode(k, uu, side)
@@ -713,9 +709,11 @@ class HminusSwitchedRuntime(Runtime):
             if excess == 0.0:
                 self._mode = int(near)
         q = self._mode
+        if self._k0 is None:
+            self._k0 = k
         r = self.observer.step(k, uu, yy, q)
         nrm = float(np.linalg.norm(r))
-        thr = self.observer.threshold
+        thr = self.observer.threshold if k - self._k0 >= self.settle else float("inf")
         if self._plant is not None:   # the guards give the mode of the next sample
             qn = self._plant.next_mode(np.array([q]), self.observer.xhat[None], uu[None],
                                        "controlled")
