@@ -505,7 +505,8 @@ def summarize_run(run: BagRun) -> dict[str, Any]:
         ``alarms`` (list of ``{channel, first_sample, time}`` after the transient),
         ``isolated`` (channel names flagged at the last sample), ``bias_estimate``
         (``{name: final value}``), ``modes`` (estimated mode names, repeats collapsed),
-        ``input_errors`` (kind -> stamps), ``restarts``, ``samples``.
+        ``input_errors`` (kind -> stamps), ``restarts``, ``samples``, ``channels`` (the
+        runtime's alarm channels) and ``estimate_kind`` (what ``bias_estimate`` estimates).
     """
     sys_ = run.system
     dt = float(sys_.sample_time)
@@ -528,4 +529,5 @@ def summarize_run(run: BagRun) -> dict[str, Any]:
             "modes": collapse([names[int(q)] for q in run.mode_hat]),
             "mode_segments": _segments(run.k, [names[int(q)] for q in run.mode_hat]),
             "input_errors": run.inputs.by_kind(), "restarts": list(run.inputs.restarts),
-            "transient_s": run.transient}
+            "transient_s": run.transient, "channels": list(run.channels),
+            "estimate_kind": run.estimate_kind}

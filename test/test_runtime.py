@@ -347,3 +347,32 @@ def test_evaluate_runs_an_hinf_sc_campaign():
     assert nominal.variant == "hinf_sc" and nominal.false_alarm_rate == 0.0
     assert abrupt.false_alarm_rate == 0.0 and abrupt.detection_rate == 1.0
     assert abrupt.delay_max_s is not None and abrupt.delay_max_s < 2.0
+
+
+def test_regression_library_takes_an_hinf_sc_bag(tmp_path):
+    """A library bag with an ``hinf_sc`` gain file: generated, its expectations proposed from
+    one analysis and the truth, honest (check_truth: no alarm before the onsets, the leaking
+    tanks isolated) and met (check_expected)."""
+    from fd_monitor.library import (
+        analyze_summary,
+        check_expected,
+        check_truth,
+        generate_bag,
+        load_library,
+        propose_expected,
+    )
+
+    (tmp_path / "library.yaml").write_text(yaml.safe_dump({"format_version": 1, "bags": [
+        {"name": "lpv_leaks", "scenario": "three_tank_lpv_abrupt", "seed": 2,
+         "duration": 300.0, "gains": "three_tank_lpv_hinf_sc", "transient": 60.0,
+         "description": "leaks at 100, 150, 200 s"}]}))
+    spec = load_library(tmp_path / "library.yaml")["lpv_leaks"]
+    generate_bag(spec)
+    system = load_system("three_tank_lpv")
+    summary = analyze_summary(spec.folder, spec.gains, transient=spec.transient)
+    assert summary["channels"] == ["leak1", "leak2", "leak3"]
+    doc = propose_expected(spec, summary, system)
+    assert set(doc["alarms"]) == {"leak1", "leak2", "leak3"} and doc["no_alarm"] == []
+    assert doc["isolated"] == ["leak1", "leak2", "leak3"] and doc["bias_estimate"] == {}
+    assert check_truth(spec, doc, system) == []
+    assert check_expected(doc, summary) == []
