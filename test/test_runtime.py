@@ -376,3 +376,36 @@ def test_regression_library_takes_an_hinf_sc_bag(tmp_path):
     assert doc["isolated"] == ["leak1", "leak2", "leak3"] and doc["bias_estimate"] == {}
     assert check_truth(spec, doc, system) == []
     assert check_expected(doc, summary) == []
+
+
+def test_hminus_mode_from_the_plants_guards():
+    """A switched plant whose plant file has guards: the runtime follows them on its estimate
+    (no side signal needed) and, once the observer has converged, uses the true mode."""
+    from fd_monitor.core.plant import SampledPlant
+    from fd_monitor.system import parse_system, read_yaml
+
+    _s, gf = _loaded("farhat_koenig_hminus_switched")
+    doc = dict(read_yaml(Path(__file__).resolve().parents[1] / "config" / "systems" /
+                         "farhat_koenig.yaml"))
+    doc["guards"] = [
+        {"from": "mode1", "to": "mode2", "kind": "autonomous",
+         "when": [{"var": "x1", "op": ">", "value": 0.0}]},
+        {"from": "mode2", "to": "mode1", "kind": "autonomous",
+         "when": [{"var": "x1", "op": "<=", "value": 0.0}]}]
+    doc["initial"] = {"mode": "mode1", "state": [-1.0, 2.0, 3.0]}
+    system = parse_system(doc, "<fk with guards>")
+    plant = SampledPlant(system)
+    Kg = 300
+    x, q = np.array([[-1.0, 2.0, 3.0]]), np.array([0])
+    xs, qs = np.empty((Kg, 3)), np.empty(Kg, int)
+    for k in range(Kg):
+        xs[k], qs[k] = x[0], q[0]
+        # a slow forced oscillation of x1 around 0 so the guards fire repeatedly
+        x = plant.step(q, x, np.zeros((1, 0))) + np.array([[0.3 * np.sin(0.1 * k), 0, 0]])
+        q = plant.next_mode(q, x, np.zeros((1, 0)), "autonomous")
+    assert np.count_nonzero(np.diff(qs)) >= 6          # the guards fire repeatedly
+    rt = HminusSwitchedRuntime(system, gf)
+    assert rt.mode_source == "guards" and rt.side_inputs == ()
+    y = xs @ system.modes[0].C.T
+    tr = rt.run(np.arange(Kg), np.zeros((Kg, 0)), y)
+    assert np.mean(tr.mode[100:] == qs[100:]) > 0.9

@@ -636,8 +636,9 @@ class HminusSwitchedRuntime(Runtime):
     (re)start as for ``hinf_sc``. Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
 
     The switching signal alpha(k), in order of precedence: the side signal ``mode`` when
-    given; an input channel named ``mode``; the plant file's guards applied to x^_k and u_k
-    (the mode at k + 1); the only mode of a one-mode plant. A plant with several modes and
+    given; an input channel named ``mode``; the plant file's guards (controlled ones on u_k,
+    autonomous ones on the model prediction ``A_q x^_k + B_q u_k`` of x_{k+1}) giving the mode
+    at k + 1; the only mode of a one-mode plant. A plant with several modes and
     none of these (arbitrary switching, as Farhat & Koenig's) needs the side signal.
     ``outside``: (1,) ``mode - nearest design mode`` for a mode the design does not have
     (the observer then keeps the last valid mode), else 0.
@@ -714,11 +715,13 @@ class HminusSwitchedRuntime(Runtime):
         r = self.observer.step(k, uu, yy, q)
         nrm = float(np.linalg.norm(r))
         thr = self.observer.threshold if k - self._k0 >= self.settle else float("inf")
-        if self._plant is not None:   # the guards give the mode of the next sample
-            qn = self._plant.next_mode(np.array([q]), self.observer.xhat[None], uu[None],
-                                       "controlled")
-            self._mode = int(self._plant.next_mode(qn, self.observer.xhat[None], uu[None],
-                                                   "autonomous")[0])
+        if self._plant is not None:
+            # the plant's guards give the mode of k + 1 as in the plant (controlled on u_k,
+            # autonomous on x_{k+1}), here on the one-step model prediction of x^
+            qa, xa, ua = np.array([q]), self.observer.xhat[None], uu[None]
+            qn = self._plant.next_mode(qa, xa, ua, "controlled")
+            x_pred = self._plant.step(qa, xa, ua)
+            self._mode = int(self._plant.next_mode(qn, x_pred, ua, "autonomous")[0])
         return RuntimeOutput(k, np.array([nrm]), np.array([thr]), np.array([nrm > thr]),
                              np.array([excess]), q,
                              {"x_hat": self.observer.xhat.copy(), "r": r}, self.observer)
