@@ -37,8 +37,9 @@ import numpy as np
 from fd_monitor.core.runtime import runtime_for
 from fd_monitor.errors import BagError, FdMonitorError, ImplausibleError, MessageError
 
-__all__ = ["BagRun", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs",
-           "read_streams", "run_bag", "run_runtime", "run_thresholds", "side_topic",
+__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs",
+           "read_streams", "run_bag", "run_runtime", "run_thresholds", "scan_bag",
+           "side_topic",
            "stamp_runs", "summarize_run", "truth_at"]
 
 #: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml).
@@ -83,6 +84,83 @@ def _classify(exc: MessageError) -> str:
     return "malformed"
 
 
+@dataclass
+class BagScan:
+    """One pass over a bag (an analysis opens and reads it once).
+
+    Attributes
+    ----------
+    bag : str
+    present : dict
+        topic -> (message type, number of readable messages), every topic of the bag.
+    records : list
+        ``(topic, type, timestamp_ns, cdr_bytes)`` in file order of the ``/plant/...``
+        topics (inputs, measurements, side signals, truth).
+    """
+
+    bag: str
+    present: dict[str, tuple[str, int]]
+    records: list[tuple[str, str, int, bytes]]
+
+    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, timestamp_ns, message)`` of ``topics`` in file order (as
+        :func:`fd_monitor.bags.read_messages`)."""
+        from fd_monitor.bags import messages_from_raw
+
+        want = set(topics)
+        yield from messages_from_raw(self.bag, (r for r in self.records if r[0] in want))
+
+    def first_labels(self, topic: str) -> tuple[str, ...] | None:
+        """Channel labels of the first message of a Float64MultiArray ``topic`` (None when
+        it has none or no message); BagError when the topic has another type."""
+        from fd_monitor.bags import FLOAT64_MULTI_ARRAY
+
+        if topic in self.present and self.present[topic][0] != FLOAT64_MULTI_ARRAY:
+            raise BagError(f"{self.bag}: {topic} is {self.present[topic][0]}, not "
+                           f"{FLOAT64_MULTI_ARRAY}")
+        for _topic, _t, msg in self.messages([topic]):
+            dims = msg.layout.dim
+            return tuple(dims[0].label.split(",")) if dims and dims[0].label else None
+        return None
+
+    def truth(self) -> Any:
+        """``/plant/truth`` as :class:`~fd_monitor.bags.TopicArrays`, or None (absent or
+        unreadable)."""
+        from fd_monitor.bags import FLOAT64_MULTI_ARRAY, arrays_from_raw
+
+        if self.present.get("/plant/truth", ("", 0))[0] != FLOAT64_MULTI_ARRAY:
+            return None
+        try:
+            with _bag_errors(self.bag):
+                return arrays_from_raw(self.bag, (r for r in self.records
+                                                  if r[0] == "/plant/truth"))["/plant/truth"]
+        except BagError:
+            return None
+
+
+def scan_bag(bag: str | Path) -> BagScan:
+    """Read a bag once: every topic's type and count, and the ``/plant/...`` records.
+
+    Raises
+    ------
+    BagError
+        Missing bag, not a bag, unreadable data (the bag named).
+    """
+    from fd_monitor.bags import read_raw
+
+    if not Path(bag).exists():
+        raise BagError(f"{bag}: no such bag")
+    present: dict[str, tuple[str, int]] = {}
+    records: list[tuple[str, str, int, bytes]] = []
+    with _bag_errors(bag):
+        for rec in read_raw(bag):
+            topic, ty = rec[0], rec[1]
+            present[topic] = (ty, present.get(topic, (ty, 0))[1] + 1)
+            if topic.startswith("/plant/"):
+                records.append(rec)
+    return BagScan(str(bag), present, records)
+
+
 def side_topic(name: str) -> str:
     """Topic of a runtime's side signal ``name`` (``rho`` -> ``/plant/rho``): stamped
     Float64MultiArray, labels the runtime's :attr:`~fd_monitor.core.runtime.Runtime.side_labels`."""
@@ -109,7 +187,7 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
 
 
 def read_streams(bag: str | Path, system: Any,
-                 side: dict[str, tuple[str, ...]] | None = None
+                 side: dict[str, tuple[str, ...]] | None = None, scan: BagScan | None = None
                  ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray],
                             dict[str, dict[int, np.ndarray]], InputReport]:
     """:func:`read_inputs` plus side-signal topics, by the same rules.
@@ -121,14 +199,18 @@ def read_streams(bag: str | Path, system: Any,
     side : dict, optional
         Side signal name -> its labels (read from :func:`side_topic`); a stamp without a
         valid value of every side signal is not a usable sample (reported as missing).
+    scan : BagScan, optional
+        The bag already read (:func:`scan_bag`); default: read it now.
 
     Returns
     -------
     (dict, dict, dict, InputReport)
         stamp -> u (nu,), stamp -> y (ny,), name -> (stamp -> value), the report.
     """
-    from fd_monitor.bags import FLOAT64_MULTI_ARRAY, bag_topics, read_messages
+    from fd_monitor.bags import FLOAT64_MULTI_ARRAY
 
+    if scan is None:
+        scan = scan_bag(bag)
     rep = InputReport()
     side = dict(side or {})
     streams: dict[str, dict[int, np.ndarray]] = {"/plant/u": {}, "/plant/y": {}}
@@ -140,8 +222,7 @@ def read_streams(bag: str | Path, system: Any,
     topics = (["/plant/y"] + (["/plant/u"] if system.nu else [])
               + [side_topic(n) for n in side])
 
-    with _bag_errors(bag):
-        present = bag_topics(bag)
+    present = scan.present
     missing = [t for t in topics if t not in present]
     if missing:
         raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
@@ -151,8 +232,7 @@ def read_streams(bag: str | Path, system: Any,
             raise BagError(f"{bag}: {t} is recorded as {present[t][0]}, expected "
                            f"{FLOAT64_MULTI_ARRAY}")
     with _bag_errors(bag):
-        _read_streams(read_messages(bag, topics, msgtype=FLOAT64_MULTI_ARRAY), labels, streams,
-                      top, rep)
+        _read_streams(scan.messages(topics), labels, streams, top, rep)
     sides = {n: streams[side_topic(n)] for n in side}
     us, ys, rep = _after_read(system, streams, rep, list(sides.values()))
     return us, ys, sides, rep
@@ -344,7 +424,8 @@ def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, An
 
 
 def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
-            system: Any = None, agei: bool = True, **options: Any) -> BagRun:
+            system: Any = None, agei: bool = True, scan: BagScan | None = None,
+            **options: Any) -> BagRun:
     """Run the runtime of a gain file over a bag's ``/plant/u`` and ``/plant/y``.
 
     The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so
@@ -363,6 +444,8 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     system : System, optional
     agei : bool
         ``thresholds`` only: run with the AGEI module (False: the ablation).
+    scan : BagScan, optional
+        The bag already read once (:func:`scan_bag`); default: read it here, once.
     **options
         Further runtime options (:func:`~fd_monitor.core.runtime.runtime_for`).
 
@@ -373,7 +456,6 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     GainFileError
         Unknown or invalid gain file.
     """
-    from fd_monitor.bags import read_bag
     from fd_monitor.gains import GainFile, load_gains
 
     if not Path(bag).exists():
@@ -391,14 +473,11 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     if not agei:
         options["agei"] = False
     rt = runtime_for(system, gf, **options)
+    if scan is None:
+        scan = scan_bag(bag)
     us, ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
-                                                    for n in rt.side_inputs})
-    truth = None
-    try:
-        with _bag_errors(bag):
-            truth = read_bag(bag, ["/plant/truth"])["/plant/truth"]
-    except BagError:
-        truth = None
+                                                    for n in rt.side_inputs}, scan)
+    truth = scan.truth()
     ks = sorted(set(us).intersection(ys, *sides.values()))
     if not ks:
         raise BagError(f"{bag}: no valid (u, y) sample on /plant/u and /plant/y"

@@ -409,3 +409,21 @@ def test_hminus_mode_from_the_plants_guards():
     y = xs @ system.modes[0].C.T
     tr = rt.run(np.arange(Kg), np.zeros((Kg, 0)), y)
     assert np.mean(tr.mode[100:] == qs[100:]) > 0.9
+
+
+def test_analyze_reads_the_bag_once(monkeypatch):
+    """`analyze` opens and reads a bag once (topics, labels, inputs, truth from one pass)."""
+    import fd_monitor.bags as bags
+
+    calls = []
+    real = bags.read_raw
+
+    def counting(*a, **kw):
+        calls.append(a[0])
+        return real(*a, **kw)
+
+    monkeypatch.setattr(bags, "read_raw", counting)
+    bag = Path(__file__).resolve().parents[1] / "bags" / "three_tank_bias_h1"
+    doc = analyze_bag(str(bag), "three_tank_thresholds")
+    assert doc["isolated"] == ["h1"] and doc["transitions_true"] is not None
+    assert len(calls) == 1

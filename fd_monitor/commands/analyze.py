@@ -43,6 +43,7 @@ from fd_monitor.offline import (
     InputReport,
     run_bag,
     run_runtime,
+    scan_bag,
     summarize_run,
     truth_at,
 )
@@ -81,16 +82,6 @@ def _transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
                     "from": names[a] if 0 <= a < len(names) else str(a),
                     "to": names[b] if 0 <= b < len(names) else str(b)})
     return out
-
-
-def _first_labels(bag: str, topic: str) -> tuple[str, ...] | None:
-    """Channel labels of the first message of ``topic`` (None when it has none)."""
-    from fd_monitor.bags import FLOAT64_MULTI_ARRAY, read_messages
-
-    for _topic, _t, msg in read_messages(bag, [topic], msgtype=FLOAT64_MULTI_ARRAY):
-        dims = msg.layout.dim
-        return tuple(dims[0].label.split(",")) if dims and dims[0].label else None
-    return None
 
 
 def analyze_run(run: BagRun) -> dict[str, Any]:
@@ -212,7 +203,6 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     GainFileError
         Gain file missing, for another plant, or its certificate fails.
     """
-    from fd_monitor.bags import bag_topics
     from fd_monitor.gains import load_gains
     from fd_monitor.system import load_system
 
@@ -221,7 +211,8 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     gains = load_gains(gains_source, system)   # plant SHA-256 and certificate
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
-    present = bag_topics(bag)
+    scan = scan_bag(bag)                        # the one read of the bag
+    present = scan.present
     needed = ["/plant/y"] + (["/plant/u"] if system.nu else [])
     for t in needed:
         if t not in present:
@@ -230,12 +221,12 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     # A bag of another plant would have every message rejected: say so at once instead.
     for t, names, what in (("/plant/u", system.inputs, "inputs"),
                            ("/plant/y", system.outputs, "outputs")):
-        labels = _first_labels(bag, t) if t in present else None
+        labels = scan.first_labels(t) if t in present else None
         if labels and tuple(labels) != tuple(names):
             raise BagError(f"{bag}: {t} has channels {list(labels)} but plant {system.name} "
                            f"(gain file {gains.path}) has {what} {list(names)}: wrong gain "
                            f"file for this bag?")
-    run = run_bag(bag, gains, system=system, agei=agei)
+    run = run_bag(bag, gains, system=system, agei=agei, scan=scan)
     return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
             "method": gains.method, "agei": agei, **analyze_run(run)}
 
