@@ -1,9 +1,9 @@
 """Regression suite: every library bag analysed offline matches its expected.yaml.
 
-``thresholds`` bags go through ``analyze``'s chain (:func:`fd_monitor.library.analyze_summary`
-calls :func:`fd_monitor.commands.analyze.analyze_arrays`); ``pwa_cascade`` bags through the QB
-runtime (:mod:`fd_monitor.core.qb`), which ``analyze`` does not run. A test shows that a
-threshold 20 % higher in the gain file makes the suite fail.
+Every bag goes through ``analyze``'s offline run (:func:`fd_monitor.library.analyze_summary`
+calls :func:`fd_monitor.offline.run_bag`: the gain file's runtime from the registry of
+:mod:`fd_monitor.core.runtime`, whatever its method). A test shows that a threshold 20 %
+higher in the gain file makes the suite fail.
 """
 
 from __future__ import annotations
