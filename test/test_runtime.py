@@ -427,3 +427,25 @@ def test_analyze_reads_the_bag_once(monkeypatch):
     doc = analyze_bag(str(bag), "three_tank_thresholds")
     assert doc["isolated"] == ["h1"] and doc["transitions_true"] is not None
     assert len(calls) == 1
+
+
+@pytest.mark.parametrize("name", GAIN_FILES)
+def test_invalid_sample_is_a_message_error_and_changes_nothing(name):
+    """Every runtime refuses a NaN and a hole without reset() with a MessageError naming the
+    sample, and its state is unchanged (the next valid sample gives the same output)."""
+    system, gf = _loaded(name)
+    u, y, side = _stream(system, gf, 3)
+    sd = [{n: v[k] for n, v in side.items()} or None for k in range(3)]
+    rt = runtime_for(system, gf)
+    rt.step(0, u[0], y[0], sd[0])
+    bad = y[1].copy()
+    bad[0] = np.nan
+    with pytest.raises(MessageError, match="sample 1"):
+        rt.step(1, u[1], bad, sd[1])
+    with pytest.raises(MessageError, match="consecutive"):
+        rt.step(2, u[2], y[2], sd[2])
+    a = rt.step(1, u[1], y[1], sd[1])
+    ref = runtime_for(system, gf)
+    ref.step(0, u[0], y[0], sd[0])
+    b = ref.step(1, u[1], y[1], sd[1])
+    np.testing.assert_array_equal(a.residual, b.residual)

@@ -489,6 +489,8 @@ class QBRuntime(Runtime):
     def step(self, k: int, u: Any, y: Any,
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step` (no side signal)."""
+        last = self.observer.k
+        validate_sample(self.system, k, u, y, None if last is None else last + 1)
         q, xh = self.observer.step(k, u, y)
         det = self.detector
         r = self.observer.residual(q, xh, y)
@@ -587,6 +589,7 @@ class HinfScRuntime(Runtime):
     def reset(self) -> None:
         """Observers re-initialised from the next measurement; thresholds re-armed."""
         self._k0: int | None = None
+        self._k_next: int | None = None
 
     def _rho(self, k: int, y: np.ndarray, side: Mapping[str, Any] | None) -> np.ndarray:
         model = self.bank.model
@@ -602,7 +605,7 @@ class HinfScRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step`; side ``rho`` (d,) for an LPV bank without a scheduling
         map (given, it overrides the map)."""
-        k, uu, yy = validate_sample(self.system, k, u, y)
+        k, uu, yy = validate_sample(self.system, k, u, y, self._k_next)
         self._plaus.check(k, uu, yy)
         outside = rho = None
         if self.lpv:
@@ -614,6 +617,7 @@ class HinfScRuntime(Runtime):
             self.bank.reset(self._Cpinv @ yy)
             self._k0 = k
         norms = self.bank.step(k, uu, yy, rho)
+        self._k_next = k + 1
         armed = k - self._k0 >= self.settle
         thr = self.bank.thresholds if armed else np.full(len(self.channels), np.inf)
         est: dict[str, Any] = {"x_hat": self.bank.xhat.copy()}
@@ -684,6 +688,7 @@ class HminusSwitchedRuntime(Runtime):
         self.observer.reset()
         self._mode = int(self.system.initial_mode)
         self._k0: int | None = None
+        self._k_next: int | None = None
 
     def _measured_mode(self, k: int, uu: np.ndarray,
                        side: Mapping[str, Any] | None) -> float | None:
@@ -700,7 +705,7 @@ class HminusSwitchedRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step`; side ``mode`` (mode index) when the plant has no
         switching rule."""
-        k, uu, yy = validate_sample(self.system, k, u, y)
+        k, uu, yy = validate_sample(self.system, k, u, y, self._k_next)
         self._plaus.check(k, uu, yy)
         m = self._measured_mode(k, uu, side)
         excess = 0.0
@@ -713,6 +718,7 @@ class HminusSwitchedRuntime(Runtime):
         if self._k0 is None:
             self._k0 = k
         r = self.observer.step(k, uu, yy, q)
+        self._k_next = k + 1
         nrm = float(np.linalg.norm(r))
         thr = self.observer.threshold if k - self._k0 >= self.settle else float("inf")
         if self._plant is not None:
