@@ -219,7 +219,8 @@ def test_analyze_and_report_hinf_sc_bag(tmp_path):
 
 def test_lpv_run_outside_its_design_range_is_marked(tmp_path):
     """h2 driven to 0.5 m: rho3 = 1/sqrt(h2) = 1.41 < rho_min 1.5; the leak alarm is raised and
-    its episode marked outside the certified region (rho3 below)."""
+    its episode marked outside the certified region (rho3 below), as are the false alarms the
+    bank raises off its design range."""
     system = load_system("three_tank_lpv")
     gf = load_gains("three_tank_lpv_hinf_sc", system)
     pi = {"kp": 5e-3, "ki": 4e-4, "min": 0.0, "max": 1.5e-4}
@@ -234,6 +235,8 @@ def test_lpv_run_outside_its_design_range_is_marked(tmp_path):
     doc = analyze_arrays(system, gf, tr.k, tr.u[0], tr.y[0])
     eps = [e for e in doc["alarms"] if e["channel"] == "leak1" and e["first_sample"] >= 1500]
     assert eps and eps[0]["outside_certified_region"] is True
+    # off design the bank also raises alarms of the healthy tanks: all of them marked
+    assert all(e["outside_certified_region"] for e in doc["alarms"])
     assert "rho3 below by" in eps[0]["outside_detail"]
     rt = runtime_for(system, gf)
     o = rt.run(tr.k, tr.u[0], tr.y[0])
