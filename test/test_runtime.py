@@ -452,3 +452,19 @@ def test_invalid_sample_is_a_message_error_and_changes_nothing(name):
     ref.step(0, u[0], y[0], sd[0])
     b = ref.step(1, u[1], y[1], sd[1])
     np.testing.assert_array_equal(a.residual, b.residual)
+
+
+def test_evaluate_flags_checked_against_the_runtimes_batch_options():
+    """``evaluate --estimator`` / ``--state-bound`` on a method without them: one line."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "fd_monitor", "evaluate",
+                          "three_tank_lpv_hinf_sc", "-s", "three_tank_lpv_nominal", "--runs",
+                          "1", "--state-bound", "rho_max"], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2
+    assert out.stderr.strip() == ("fd_monitor: error: --state-bound: method 'hinf_sc' has no "
+                                  "state_bound option (its batch options: discretisation)")
+    assert "estimator" in RUNTIMES["qb"].batch_options()
+    assert "estimator" not in RUNTIMES["thresholds"].batch_options()

@@ -169,6 +169,9 @@ class Runtime:
     SIGNED : bool
         True when the residual is signed and alarms at ``|r| > R`` (plots show +-R); False
         when it is a magnitude compared with a positive bound (class attribute).
+    BATCH_OPTIONS : tuple of str
+        Keyword options :meth:`run_batch` takes (class attribute; default: the
+        constructor's).
     channels : tuple of str
         (m,) alarm channel names.
     units : tuple of str
@@ -187,6 +190,7 @@ class Runtime:
     SIDE_SIGNALS: ClassVar[tuple[str, ...]] = ()
     ESTIMATE_KIND: ClassVar[str] = "none"
     SIGNED: ClassVar[bool] = False
+    BATCH_OPTIONS: ClassVar[tuple[str, ...] | None] = None
 
     channels: tuple[str, ...]
     units: tuple[str, ...]
@@ -246,6 +250,17 @@ class Runtime:
         """Method-specific figures of an offline run (default none); ``truth`` is the bag's
         ``/plant/truth`` (:class:`~fd_monitor.bags.TopicArrays`) or None."""
         return {}
+
+    @classmethod
+    def options(cls) -> tuple[str, ...]:
+        """Keyword options of the constructor (:func:`runtime_for`)."""
+        return tuple(p for p in inspect.signature(cls.__init__).parameters
+                     if p not in ("self", "system", "gains"))
+
+    @classmethod
+    def batch_options(cls) -> tuple[str, ...]:
+        """Keyword options of :meth:`run_batch` (``evaluate`` checks its flags with it)."""
+        return cls.options() if cls.BATCH_OPTIONS is None else cls.BATCH_OPTIONS
 
     def _side(self, side: Mapping[str, Any] | None, name: str, k: int) -> Any:
         if side is None or name not in side or side[name] is None:
@@ -406,6 +421,7 @@ class ThresholdsRuntime(Runtime):
     method = "thresholds"
     ESTIMATE_KIND = "sensor_bias"
     SIGNED = True
+    BATCH_OPTIONS = ("agei", "keep")
 
     def __init__(self, system: System, gains: Any, agei: bool = True) -> None:
         super().__init__(system, gains)
@@ -470,6 +486,7 @@ class QBRuntime(Runtime):
 
     method = "qb"
     ESTIMATE_KIND = "state"
+    BATCH_OPTIONS = ("rho", "state_bound", "estimator", "kalman", "x0")
 
     def __init__(self, system: System, gains: Any, rho: float = 1.0,
                  state_bound: str = "component") -> None:
@@ -774,8 +791,7 @@ def runtime_for(system: System, gains: Any, **options: Any) -> Runtime:
     """
     method = getattr(gains, "method", None)
     cls = runtime_class(str(method) if method is not None else "<none>")
-    known = [p for p in inspect.signature(cls.__init__).parameters
-             if p not in ("self", "system", "gains")]
+    known = cls.options()
     bad = sorted(set(options) - set(known))
     if bad:
         raise GainFileError(f"method {cls.method!r}: no option {', '.join(bad)} (options: "
