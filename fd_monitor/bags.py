@@ -70,8 +70,10 @@ __all__ = [
     "TopicArrays",
     "array_msg",
     "arrays_from",
+    "arrays_from_raw",
     "bag_topics",
     "mcap_file",
+    "messages_from_raw",
     "read_bag",
     "read_messages",
     "read_raw",
@@ -816,8 +818,15 @@ def read_messages(path: str | Path, topics: Sequence[str] | None = None, *,
 
     ``msgtype``: see :func:`read_raw`.
     """
+    yield from messages_from_raw(path, read_raw(path, topics, msgtype=msgtype))
+
+
+def messages_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, bytes]]
+                      ) -> Iterator[tuple[str, int, Any]]:
+    """:func:`read_messages` of records already read with :func:`read_raw` (``path`` names
+    the bag in errors)."""
     store = _typestore()
-    for topic, ty, t, raw in read_raw(path, topics, msgtype=msgtype):
+    for topic, ty, t, raw in records:
         try:
             msg = store.deserialize_cdr(raw, ty)
         except Exception as exc:  # rosbags raises assorted errors on CDR of another type
@@ -843,13 +852,20 @@ def read_bag(path: str | Path, topics: Sequence[str] | None = None
     BagError
         Missing bag, not a bag, missing topic, or a malformed message (topic and stamp named).
     """
+    return arrays_from_raw(path, read_raw(path, topics,
+                                          msgtype=FLOAT64_MULTI_ARRAY if topics else None))
+
+
+def arrays_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, bytes]]
+                    ) -> dict[str, TopicArrays]:
+    """:func:`read_bag` of records already read with :func:`read_raw` (``path`` names the
+    bag in errors); records of other types than Float64MultiArray are skipped."""
     acc: dict[str, tuple[list[int], list[np.ndarray], list[int]]] = {}
     labels: dict[str, tuple[str, ...]] = {}
     stampers: dict[str, ArrivalStamper] = {}
     store = _typestore()
     order: list[str] = []
-    for topic, ty, t, raw in read_raw(path, topics,
-                                      msgtype=FLOAT64_MULTI_ARRAY if topics else None):
+    for topic, ty, t, raw in records:
         if ty != FLOAT64_MULTI_ARRAY:
             continue
         if topic not in acc:

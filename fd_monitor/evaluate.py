@@ -2,9 +2,13 @@
 
 A campaign simulates ``runs`` seeded runs of each scenario (vectorised, in chunks of runs so
 memory stays bounded), replays them through the detection method of a gain file, and reduces
-the alarms to metrics. The method's batch runner is looked up by the gain file's ``method`` in
-:data:`RUNNERS`; every runner has the signature
-``run_batch(system, gains, traj, **options) -> fd_monitor.core.batch.BatchResult``.
+the alarms to metrics. The method's batch runner is its runtime's
+:meth:`~fd_monitor.core.runtime.Runtime.run_batch`, looked up by the gain file's ``method`` in
+the one runtime registry (:data:`fd_monitor.core.runtime.RUNTIMES`), so every method runs;
+every runner has the signature
+``run_batch(system, gains, traj, **options) -> fd_monitor.core.batch.BatchResult``. A
+runtime's side signals come from the trajectory's arrays of the same name (``mode``: the
+true, measured switching signal; ``rho`` when the simulator provides it).
 
 Metrics, per scenario, variant (runner options) and threshold scale rho:
 
@@ -22,7 +26,6 @@ evaluated from the same signals.
 
 from __future__ import annotations
 
-import importlib
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -31,31 +34,22 @@ from typing import Any, TextIO
 import numpy as np
 
 from fd_monitor.core.batch import BatchResult
+from fd_monitor.core.runtime import RUNTIMES, runtime_class
 from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.errors import FdMonitorError, GainFileError
 from fd_monitor.gains import GainFile
 from fd_monitor.scenario import Scenario
 
-__all__ = ["RUNNERS", "CampaignRow", "ProgressBar", "get_runner", "run_campaign"]
-
-#: gain-file method -> "module:function" of its batch runner.
-RUNNERS: dict[str, str] = {
-    "qb": "fd_monitor.core.qb:run_batch",
-    "thresholds": "fd_monitor.core.monitor:run_batch",
-}
+__all__ = ["CampaignRow", "ProgressBar", "get_runner", "run_campaign"]
 
 
 def get_runner(method: str) -> Callable[..., BatchResult]:
-    """The batch runner of ``method``; raise GainFileError naming the known methods."""
-    if method not in RUNNERS:
+    """The batch runner of ``method`` (its runtime's ``run_batch``); GainFileError naming the
+    known methods."""
+    if method not in RUNTIMES:
         raise GainFileError(f"method {method!r}: no batch runner for evaluation; known: "
-                            f"{sorted(RUNNERS)}")
-    mod, fn = RUNNERS[method].split(":")
-    try:
-        return getattr(importlib.import_module(mod), fn)  # type: ignore[no-any-return]
-    except (ImportError, AttributeError) as exc:
-        raise GainFileError(f"method {method!r}: batch runner {RUNNERS[method]} is not "
-                            f"available ({exc})") from None
+                            f"{sorted(RUNTIMES)}")
+    return runtime_class(method).run_batch
 
 
 class ProgressBar:

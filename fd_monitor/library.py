@@ -331,7 +331,12 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
         Messages (bag timestamp ``k Ts`` in ns, topic, stamp, labels, values), and the
         scenario.
     """
-    from fd_monitor.core.simulator import simulate, truth_labels, truth_values
+    from fd_monitor.core.simulator import (
+        measured_signals,
+        simulate,
+        truth_labels,
+        truth_values,
+    )
     from fd_monitor.scenario import load_scenario
 
     sc = load_scenario(spec.scenario)
@@ -341,6 +346,7 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
     traj = simulate(sc, spec.seed, K)
     topics = {"/plant/u": (tuple(sys_.inputs), traj.u[0]),
               "/plant/y": (tuple(sys_.outputs), traj.y[0]),
+              **measured_signals(traj),
               "/plant/truth": (truth_labels(sc), truth_values(traj))}
     msgs = [_Msg(round(k * dt * 1e9), topic, int(k), labels, vals[k].copy())
             for k in range(K) for topic, (labels, vals) in topics.items()]
@@ -499,7 +505,7 @@ def settled_modes(segments: Sequence[Sequence[Any]], min_dwell: int) -> list[str
 def analyze_summary(bag: str | Path, gains: str | Path, *,
                     transient: float = 0.0) -> dict[str, Any]:
     """The summary the regression suite checks: :func:`fd_monitor.offline.run_bag` (what
-    ``python -m fd_monitor analyze`` runs, for ``thresholds`` and ``qb`` gain files alike)
+    ``python -m fd_monitor analyze`` runs, for every gain-file method alike)
     summarised by :func:`fd_monitor.offline.summarize_run`.
 
     Returns
@@ -652,8 +658,10 @@ def truth_facts(bag: str | Path, system: Any = None) -> dict[str, Any]:
         v = tr.column(lab)
         nz = np.flatnonzero(v != 0.0)
         if nz.size:
+            # what an isolation names: the biased output, the jumping state, else the fault
+            # itself (an hinf_sc bank has one channel per fault)
             target = (system.outputs[f.index] if f.kind == "sensor_bias"
-                      else system.states[f.index] if f.kind == "state_jump" else None)
+                      else system.states[f.index] if f.kind == "state_jump" else f.name)
             faults[f.name] = {"onset_sample": int(tr.stamps[nz[0]]), "final": float(v[-1]),
                               "kind": f.kind, "target": target}
     modes = collapse([system.mode_names[int(q)] for q in tr.column("mode")])
@@ -676,14 +684,11 @@ def propose_expected(spec: BagSpec, summary: Mapping[str, Any], system: Any, *,
     from fd_monitor.gains import load_gains
 
     facts = truth_facts(spec.folder, system)
-    qb = summary.get("method") == "qb"
+    # fault-model states estimated with a guaranteed band (qb): looser alarm tolerance
+    qb = summary.get("estimate_kind") == "state"
     tol_k = alarm_tolerance if alarm_tolerance is not None else (20 if qb else 10)
     first = {a["channel"]: int(a["first_sample"]) for a in summary["alarms"]}
-    channels = list(summary.get("channels") or [])
-    if not channels:
-        channels = list(system.outputs) if not qb else [
-            *summary["bias_estimate"], "fault_norm", *(f"r_{o}" for o in system.outputs),
-            "r_norm"]
+    channels = list(summary.get("channels") or system.outputs)
     doc: dict[str, Any] = {"bag": spec.name, "gains": spec.gains,
                            "description": spec.description}
     onsets = [f["onset_sample"] for f in facts["faults"].values()]

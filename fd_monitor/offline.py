@@ -7,12 +7,13 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    receive them: a message that does not decode (NaN/Inf, wrong length, bad layout) is
    reported and left out, duplicates are reported (the first is kept), out-of-order stamps
    are reported and used in stamp order, holes in the stamps are reported as ``missing``.
-2. :func:`run_bag` runs the gain file's monitor over the valid samples — the diagnosis
-   chain (:class:`~fd_monitor.core.monitor.Monitor`) for ``thresholds`` gain files, the QB
-   observer and detector (:mod:`fd_monitor.core.qb`) for ``qb`` ones — and restarts it after
-   a hole (the state estimate is re-initialised from the next measurement and the filters
-   start again, so no stale estimate is carried across missing data). Nothing is lost: every
-   valid sample is processed and every rejected one is reported.
+2. :func:`run_bag` runs the gain file's runtime (:func:`fd_monitor.core.runtime.runtime_for`,
+   one registry keyed by the gain file's ``method``: ``thresholds``, ``qb``, ``hinf_sc``,
+   ``hminus_switched``) over the valid samples, with the side signals the runtime needs read
+   from ``/plant/<name>`` (:func:`side_topic`: ``/plant/rho``, ``/plant/mode``), and restarts
+   it after a hole (the state estimate is re-initialised from the next measurement and the
+   filters start again, so no stale estimate is carried across missing data). Nothing is
+   lost: every valid sample is processed and every rejected one is reported.
 3. :func:`summarize_run` (regression expectations) and
    :func:`fd_monitor.commands.analyze.analyze_run` (the ``analyze`` summary) read the
    resulting :class:`BagRun`.
@@ -33,10 +34,13 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.core.runtime import runtime_for
 from fd_monitor.errors import BagError, FdMonitorError, ImplausibleError, MessageError
 
-__all__ = ["BagRun", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs", "run_bag",
-           "run_thresholds", "stamp_runs", "summarize_run", "truth_at"]
+__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs",
+           "read_streams", "run_bag", "run_runtime", "run_thresholds", "scan_bag",
+           "side_topic",
+           "stamp_runs", "summarize_run", "truth_at"]
 
 #: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml).
 INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
@@ -80,6 +84,89 @@ def _classify(exc: MessageError) -> str:
     return "malformed"
 
 
+@dataclass
+class BagScan:
+    """One pass over a bag (an analysis opens and reads it once).
+
+    Attributes
+    ----------
+    bag : str
+    present : dict
+        topic -> (message type, number of readable messages), every topic of the bag.
+    records : list
+        ``(topic, type, timestamp_ns, cdr_bytes)`` in file order of the ``/plant/...``
+        topics (inputs, measurements, side signals, truth).
+    """
+
+    bag: str
+    present: dict[str, tuple[str, int]]
+    records: list[tuple[str, str, int, bytes]]
+
+    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, timestamp_ns, message)`` of ``topics`` in file order (as
+        :func:`fd_monitor.bags.read_messages`)."""
+        from fd_monitor.bags import messages_from_raw
+
+        want = set(topics)
+        yield from messages_from_raw(self.bag, (r for r in self.records if r[0] in want))
+
+    def first_labels(self, topic: str) -> tuple[str, ...] | None:
+        """Channel labels of the first message of a Float64MultiArray ``topic`` (None when
+        it has none or no message); BagError when the topic has another type."""
+        from fd_monitor.bags import FLOAT64_MULTI_ARRAY
+
+        if topic in self.present and self.present[topic][0] != FLOAT64_MULTI_ARRAY:
+            raise BagError(f"{self.bag}: {topic} is {self.present[topic][0]}, not "
+                           f"{FLOAT64_MULTI_ARRAY}")
+        for _topic, _t, msg in self.messages([topic]):
+            dims = msg.layout.dim
+            return tuple(dims[0].label.split(",")) if dims and dims[0].label else None
+        return None
+
+    def truth(self) -> Any:
+        """``/plant/truth`` as :class:`~fd_monitor.bags.TopicArrays`, or None (absent or
+        unreadable)."""
+        from fd_monitor.bags import FLOAT64_MULTI_ARRAY, arrays_from_raw
+
+        if self.present.get("/plant/truth", ("", 0))[0] != FLOAT64_MULTI_ARRAY:
+            return None
+        try:
+            with _bag_errors(self.bag):
+                return arrays_from_raw(self.bag, (r for r in self.records
+                                                  if r[0] == "/plant/truth"))["/plant/truth"]
+        except BagError:
+            return None
+
+
+def scan_bag(bag: str | Path) -> BagScan:
+    """Read a bag once: every topic's type and count, and the ``/plant/...`` records.
+
+    Raises
+    ------
+    BagError
+        Missing bag, not a bag, unreadable data (the bag named).
+    """
+    from fd_monitor.bags import read_raw
+
+    if not Path(bag).exists():
+        raise BagError(f"{bag}: no such bag")
+    present: dict[str, tuple[str, int]] = {}
+    records: list[tuple[str, str, int, bytes]] = []
+    with _bag_errors(bag):
+        for rec in read_raw(bag):
+            topic, ty = rec[0], rec[1]
+            present[topic] = (ty, present.get(topic, (ty, 0))[1] + 1)
+            if topic.startswith("/plant/"):
+                records.append(rec)
+    return BagScan(str(bag), present, records)
+
+
+def side_topic(name: str) -> str:
+    """Topic of a runtime's side signal ``name`` (``rho`` -> ``/plant/rho``): stamped
+    Float64MultiArray, labels the runtime's :attr:`~fd_monitor.core.runtime.Runtime.side_labels`."""
+    return f"/plant/{name}"
+
+
 def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
                                                        dict[int, np.ndarray], InputReport]:
     """Read ``/plant/u`` and ``/plant/y`` message by message, keeping the valid ones.
@@ -95,17 +182,47 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
     (dict, dict, InputReport)
         stamp -> u (nu,), stamp -> y (ny,), the report.
     """
-    from fd_monitor.bags import FLOAT64_MULTI_ARRAY, read_messages
+    us, ys, _side, rep = read_streams(bag, system)
+    return us, ys, rep
 
+
+def read_streams(bag: str | Path, system: Any,
+                 side: dict[str, tuple[str, ...]] | None = None, scan: BagScan | None = None
+                 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray],
+                            dict[str, dict[int, np.ndarray]], InputReport]:
+    """:func:`read_inputs` plus side-signal topics, by the same rules.
+
+    Parameters
+    ----------
+    bag : str or pathlib.Path
+    system : System
+    side : dict, optional
+        Side signal name -> its labels (read from :func:`side_topic`); a stamp without a
+        valid value of every side signal is not a usable sample (reported as missing).
+    scan : BagScan, optional
+        The bag already read (:func:`scan_bag`); default: read it now.
+
+    Returns
+    -------
+    (dict, dict, dict, InputReport)
+        stamp -> u (nu,), stamp -> y (ny,), name -> (stamp -> value), the report.
+    """
+    from fd_monitor.bags import FLOAT64_MULTI_ARRAY
+
+    if scan is None:
+        scan = scan_bag(bag)
     rep = InputReport()
+    side = dict(side or {})
     streams: dict[str, dict[int, np.ndarray]] = {"/plant/u": {}, "/plant/y": {}}
     labels = {"/plant/u": tuple(system.inputs), "/plant/y": tuple(system.outputs)}
+    for name, labs in side.items():
+        streams[side_topic(name)] = {}
+        labels[side_topic(name)] = tuple(labs)
     top: dict[str, int] = {}
-    topics = ["/plant/y"] + (["/plant/u"] if system.nu else [])
-    from fd_monitor.bags import bag_topics
+    topics = (["/plant/y"] + (["/plant/u"] if system.nu else [])
+              + [side_topic(n) for n in side])
 
-    with _bag_errors(bag):
-        present = bag_topics(bag)
+    present = scan.present
     missing = [t for t in topics if t not in present]
     if missing:
         raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
@@ -115,9 +232,10 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
             raise BagError(f"{bag}: {t} is recorded as {present[t][0]}, expected "
                            f"{FLOAT64_MULTI_ARRAY}")
     with _bag_errors(bag):
-        _read_streams(read_messages(bag, topics, msgtype=FLOAT64_MULTI_ARRAY), labels, streams,
-                      top, rep)
-    return _after_read(system, streams, rep)
+        _read_streams(scan.messages(topics), labels, streams, top, rep)
+    sides = {n: streams[side_topic(n)] for n in side}
+    us, ys, rep = _after_read(system, streams, rep, list(sides.values()))
+    return us, ys, sides, rep
 
 
 def _read_streams(messages: Any, labels: dict[str, tuple[str, ...]],
@@ -166,13 +284,14 @@ def _bag_errors(bag: str | Path) -> Iterator[None]:
                        f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from None
 
 
-def _after_read(system: Any, streams: dict[str, dict[int, np.ndarray]], rep: InputReport
+def _after_read(system: Any, streams: dict[str, dict[int, np.ndarray]], rep: InputReport,
+                sides: Sequence[dict[int, np.ndarray]] = ()
                 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], InputReport]:
-    """The end of :func:`read_inputs`: the (u, y) pairs and the missing stamps."""
+    """The end of :func:`read_streams`: the (u, y) pairs and the missing stamps."""
     us, ys = streams["/plant/u"], streams["/plant/y"]
     if not system.nu:
         us = {k: np.zeros(0) for k in ys}
-    ks = sorted(set(us) & set(ys))
+    ks = sorted(set(us).intersection(ys, *sides))
     rejected = sorted({e["sample"] for e in rep.errors if isinstance(e["sample"], int)})
     if ks:
         for a, b in _gaps(ks, rejected):
@@ -217,7 +336,7 @@ class BagRun:
     ----------
     bag : str
     method : str
-        Gain-file method (``thresholds`` or ``qb``).
+        Gain-file method (a key of :data:`fd_monitor.core.runtime.RUNTIMES`).
     gains : str
         Gain file path.
     system : System
@@ -234,10 +353,11 @@ class BagRun:
     mode_hat : numpy.ndarray
         (K,) estimated mode.
     estimate : dict
-        name -> (K,) estimated bias (``thresholds``: sigma^ per output; ``qb``: the fault-model
-        states).
+        name -> (K,) estimated bias (the runtime's
+        :meth:`~fd_monitor.core.runtime.Runtime.bias_estimates`: ``thresholds``: sigma^ per
+        output; ``qb``: the fault-model states; none for ``hinf_sc`` and ``hminus_switched``).
     isolated : numpy.ndarray or None
-        (K, ny) bool isolation flags (``thresholds``).
+        (K, ny) bool isolation flags (runtimes with an ``isolated`` estimate: ``thresholds``).
     truth : TopicArrays or None
         ``/plant/truth`` of the bag.
     inputs : InputReport
@@ -247,10 +367,20 @@ class BagRun:
         QB only: ``V`` (K,) e' P e with the true state (NaN without truth), ``error`` (K, n),
         ``component_bound`` (n,).
     outside : numpy.ndarray or None
-        (K, n + nu) excess of x^ and u over the gain file's certified region (0 inside);
-        None when the gain file has no region.
+        (K, r) excess over the gain file's certified region (0 inside): x^ and u (states then
+        inputs) for ``thresholds``/``qb``, rho for an LPV ``hinf_sc`` bank, the mode for
+        ``hminus_switched``; None when the gain file has no region.
     region_names : tuple of str
-        Names of the columns of ``outside`` (states, then inputs).
+        Names of the columns of ``outside``.
+    signed : bool
+        The residual is signed, alarms at ``|r| > R`` (:attr:`Runtime.SIGNED`).
+    estimate_kind : str
+        :attr:`~fd_monitor.core.runtime.Runtime.ESTIMATE_KIND` of ``estimate``.
+    traces : dict
+        Every per-sample estimate of the runtime, name -> (K, ...) (e.g. ``x_hat``, ``rho``).
+    isolating : tuple of str
+        Channels whose alarm isolates the fault they are named after
+        (:attr:`~fd_monitor.core.runtime.Runtime.isolating`), used without isolation flags.
     """
 
     bag: str
@@ -272,6 +402,10 @@ class BagRun:
     qb: dict[str, Any] = field(default_factory=dict)
     outside: np.ndarray | None = None
     region_names: tuple[str, ...] = ()
+    signed: bool = True
+    estimate_kind: str = "sensor_bias"
+    traces: dict[str, np.ndarray] = field(default_factory=dict)
+    isolating: tuple[str, ...] = ()
 
     @property
     def t(self) -> np.ndarray:
@@ -289,18 +423,15 @@ def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, An
     return system, load_gains(gains_source, system)
 
 
-def _units(system: Any) -> str:
-    return "m" if system.name == "three_tank" else "-"
-
-
 def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
-            system: Any = None, agei: bool = True) -> BagRun:
-    """Run the monitor of a gain file over a bag's ``/plant/u`` and ``/plant/y``.
+            system: Any = None, agei: bool = True, scan: BagScan | None = None,
+            **options: Any) -> BagRun:
+    """Run the runtime of a gain file over a bag's ``/plant/u`` and ``/plant/y``.
 
-    ``thresholds`` gain files run :class:`fd_monitor.core.monitor.Monitor` (restarted with
-    :meth:`~fd_monitor.core.monitor.Monitor.reset` after a hole in the stamps); ``qb`` gain
-    files run :class:`fd_monitor.core.qb.QBObserver` and :class:`~fd_monitor.core.qb.QBDetector`
-    (a new observer after a hole).
+    The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so
+    every gain-file method runs; the side signals it needs are read from
+    ``/plant/<name>`` (:func:`side_topic`). The runtime restarts (``reset``) after a hole in
+    the stamps.
 
     Parameters
     ----------
@@ -313,15 +444,18 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     system : System, optional
     agei : bool
         ``thresholds`` only: run with the AGEI module (False: the ablation).
+    scan : BagScan, optional
+        The bag already read once (:func:`scan_bag`); default: read it here, once.
+    **options
+        Further runtime options (:func:`~fd_monitor.core.runtime.runtime_for`).
 
     Raises
     ------
     BagError
-        Missing bag or topic.
+        Missing bag or topic (a side signal's topic included).
     GainFileError
         Unknown or invalid gain file.
     """
-    from fd_monitor.bags import read_bag
     from fd_monitor.gains import GainFile, load_gains
 
     if not Path(bag).exists():
@@ -336,122 +470,72 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
         system, gf = _load_system_for(bag, gains)
     else:
         gf = load_gains(gains, system)
-    us, ys, rep = read_inputs(bag, system)
-    truth = None
-    try:
-        with _bag_errors(bag):
-            truth = read_bag(bag, ["/plant/truth"])["/plant/truth"]
-    except BagError:
-        truth = None
-    ks = sorted(set(us) & set(ys))
+    if not agei:
+        options["agei"] = False
+    rt = runtime_for(system, gf, **options)
+    if scan is None:
+        scan = scan_bag(bag)
+    us, ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
+                                                    for n in rt.side_inputs}, scan)
+    truth = scan.truth()
+    ks = sorted(set(us).intersection(ys, *sides.values()))
     if not ks:
-        raise BagError(f"{bag}: no valid (u, y) sample on /plant/u and /plant/y")
-    if gf.method == "thresholds":
-        out = run_thresholds(system, gf, ks, us, ys, rep, agei=agei)
-    elif gf.method == "qb":
-        out = _run_qb(system, gf, ks, us, ys, rep, truth)
-    else:
-        raise FdMonitorError(f"{gf.path}: method {gf.method!r}: the bag report runs "
-                             f"'thresholds' and 'qb' gain files")
+        raise BagError(f"{bag}: no valid (u, y) sample on /plant/u and /plant/y"
+                       + "".join(f" and {side_topic(n)}" for n in sides))
+    out = run_runtime(rt, ks, us, ys, rep, sides, truth)
     return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
                   transient=float(transient), **out)
 
 
+def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
+                side: Any = None, truth: Any = None) -> dict[str, Any]:
+    """A runtime over samples ``ks`` (``us[k]``, ``ys[k]``, ``side[name][k]``); restarts after
+    a hole.
+
+    Returns the per-sample fields of a :class:`BagRun`. A sample the runtime refuses as
+    implausible (:mod:`fd_monitor.core.plausibility`) is reported in ``rep`` and left out,
+    and the runtime restarts at the next sample, as after a hole. Another invalid sample
+    raises :class:`~fd_monitor.errors.MessageError` naming its stamp (:func:`read_streams`
+    has already left such samples out of a bag).
+
+    Parameters
+    ----------
+    rt : Runtime
+        From :func:`fd_monitor.core.runtime.runtime_for` (fresh or reset).
+    ks : sequence of int
+        Increasing stamps.
+    us, ys : mapping
+        stamp -> (nu,), stamp -> (ny,).
+    rep : InputReport
+        Refused samples and restarts are added to it.
+    side : mapping, optional
+        name -> (stamp -> value) for the runtime's side signals.
+    truth : TopicArrays, optional
+        ``/plant/truth`` (method-specific figures, e.g. the QB error ellipsoid).
+    """
+    def refuse(k: int, exc: MessageError) -> None:
+        # Implausible samples are refused like a NaN message (a bag's NaN never gets here:
+        # read_streams leaves it out); any other invalid sample is the caller's error.
+        if not isinstance(exc, ImplausibleError):
+            raise exc
+        _refused(rep, k, exc)
+
+    tr = rt.run(ks, us, ys, side or None, on_refused=refuse)
+    rep.restarts.extend(tr.restarts)
+    iso = tr.estimates.get("isolated")
+    return {"method": rt.method, "k": tr.k, "channels": tuple(rt.channels),
+            "units": tuple(rt.units), "signal": tr.residual, "threshold": tr.threshold,
+            "alarm": tr.alarm, "mode_hat": tr.mode, "estimate": rt.bias_estimates(tr.estimates),
+            "isolated": None if iso is None else iso.astype(bool), "outside": tr.outside,
+            "region_names": tuple(rt.region_names), "qb": rt.offline_extra(tr, truth),
+            "signed": rt.SIGNED, "estimate_kind": rt.ESTIMATE_KIND,
+            "traces": dict(tr.estimates), "isolating": tuple(rt.isolating)}
+
+
 def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
                    rep: InputReport, agei: bool = True) -> dict[str, Any]:
-    """The diagnosis chain over samples ``ks`` (``us[k]``, ``ys[k]``); restarts after a hole.
-
-    Returns the per-sample fields of a :class:`BagRun`. A sample the monitor refuses as
-    implausible (:mod:`fd_monitor.core.plausibility`) is reported in ``rep`` and left out,
-    and the monitor restarts at the next sample, as after a hole. Another invalid sample
-    raises :class:`~fd_monitor.errors.MessageError` naming its stamp (:func:`read_inputs`
-    has already left such samples out of a bag).
-    """
-    from fd_monitor.core.monitor import Monitor
-
-    mon = Monitor(system, gf, agei=agei)
-    K, ny = len(ks), system.ny
-    sig, thr = np.zeros((K, ny)), np.zeros((K, ny))
-    alarm, iso = np.zeros((K, ny), bool), np.zeros((K, ny), bool)
-    sh = np.zeros((K, ny))
-    mode = np.zeros(K, int)
-    region = mon.gains.region
-    outside = None if region is None else np.zeros((K, system.n + system.nu))
-    prev: int | None = None
-    keep: list[int] = []
-    for j, k in enumerate(ks):
-        if prev is not None and k != prev + 1:
-            mon.reset()
-            rep.restarts.append(k)
-        try:
-            o = mon.step(k, us[k], ys[k])
-        except ImplausibleError as exc:
-            # Refused by the core (implausible): reported and left out like a NaN message;
-            # the next sample restarts the monitor (prev stays behind: a hole).
-            _refused(rep, k, exc)
-            continue
-        keep.append(j)
-        sig[j], thr[j], alarm[j] = o.detector.residual, o.detector.threshold, o.detector.alarm
-        sh[j], iso[j], mode[j] = o.estimator.sigma_hat, o.estimator.isolated, o.mode
-        if outside is not None:
-            outside[j] = o.outside
-        prev = k
-    sig, thr, alarm, iso, sh, mode = (a[keep] for a in (sig, thr, alarm, iso, sh, mode))
-    unit = _units(system)
-    return {"method": "thresholds", "k": np.asarray(ks)[keep],
-            "channels": tuple(system.outputs),
-            "units": (unit,) * ny, "signal": sig, "threshold": thr, "alarm": alarm,
-            "mode_hat": mode, "estimate": {o: sh[:, i] for i, o in enumerate(system.outputs)},
-            "isolated": iso, "outside": outside,
-            "region_names": () if region is None else region.names}
-
-
-def _run_qb(system: Any, gf: Any, ks: list[int], us: dict, ys: dict, rep: InputReport,
-            truth: Any) -> dict[str, Any]:
-    from fd_monitor.core.qb import QBDetector, QBObserver
-
-    det = QBDetector(system, gf)
-    K = len(ks)
-    m = len(det.channels)
-    sig, thr = np.zeros((K, m)), np.zeros((K, m))
-    X = np.zeros((K, system.n))
-    mode = np.zeros(K, int)
-    obs: QBObserver | None = None
-    prev: int | None = None
-    keep: list[int] = []
-    for j, k in enumerate(ks):
-        if obs is None or (prev is not None and k != prev + 1):
-            if obs is not None or prev is not None:
-                rep.restarts.append(k)
-            obs = QBObserver(system, gf)
-        try:
-            q, xh = obs.step(k, us[k], ys[k])
-        except ImplausibleError as exc:
-            _refused(rep, k, exc)
-            obs = None                       # restart at the next sample, as after a hole
-            continue
-        keep.append(j)
-        r = obs.residual(q, xh, ys[k])
-        sig[j] = det.signals(xh, r)
-        thr[j] = det.rho * det.bounds(q)
-        X[j], mode[j] = xh, q
-        prev = k
-    sig, thr, X, mode = sig[keep], thr[keep], X[keep], mode[keep]
-    ks = [ks[j] for j in keep]
-    P = np.asarray(gf.results["P"], dtype=float)
-    qb: dict[str, Any] = {"component_bound": np.asarray(gf.results["component_bound"], float),
-                          "rho_max": float(gf.results["rho_max"]), "x_hat": X}
-    if truth is not None:
-        x_true = truth_at(truth, ks, [f"x.{s}" for s in system.states])
-        e = x_true - X
-        qb["error"] = e
-        qb["V"] = np.einsum("ki,ij,kj->k", e, P, e)
-    names = [system.states[i] for i in det.fault_idx]
-    est = {n: X[:, system.states.index(n)] for n in names}
-    units = tuple(["-"] * m)
-    return {"method": "qb", "k": np.asarray(ks), "channels": tuple(det.channels),
-            "units": units, "signal": sig, "threshold": thr, "alarm": sig > thr,
-            "mode_hat": mode, "estimate": est, "isolated": None, "qb": qb}
+    """:func:`run_runtime` with the ``thresholds`` runtime (the diagnosis chain)."""
+    return run_runtime(runtime_for(system, gf, agei=agei), ks, us, ys, rep)
 
 
 def _refused(rep: InputReport, k: int, exc: MessageError) -> None:
@@ -500,7 +584,8 @@ def summarize_run(run: BagRun) -> dict[str, Any]:
         ``alarms`` (list of ``{channel, first_sample, time}`` after the transient),
         ``isolated`` (channel names flagged at the last sample), ``bias_estimate``
         (``{name: final value}``), ``modes`` (estimated mode names, repeats collapsed),
-        ``input_errors`` (kind -> stamps), ``restarts``, ``samples``.
+        ``input_errors`` (kind -> stamps), ``restarts``, ``samples``, ``channels`` (the
+        runtime's alarm channels) and ``estimate_kind`` (what ``bias_estimate`` estimates).
     """
     sys_ = run.system
     dt = float(sys_.sample_time)
@@ -514,8 +599,8 @@ def summarize_run(run: BagRun) -> dict[str, Any]:
     isolated: list[str] = []
     if run.isolated is not None and len(run.k):
         isolated = [c for c, f in zip(sys_.outputs, run.isolated[-1]) if f]
-    elif run.method == "qb":
-        isolated = [a["channel"] for a in alarms if a["channel"] in run.estimate]
+    else:
+        isolated = [a["channel"] for a in alarms if a["channel"] in run.isolating]
     names = sys_.mode_names
     return {"bag": run.bag, "gains": run.gains, "method": run.method,
             "samples": len(run.k), "alarms": alarms, "isolated": isolated,
@@ -523,4 +608,5 @@ def summarize_run(run: BagRun) -> dict[str, Any]:
             "modes": collapse([names[int(q)] for q in run.mode_hat]),
             "mode_segments": _segments(run.k, [names[int(q)] for q in run.mode_hat]),
             "input_errors": run.inputs.by_kind(), "restarts": list(run.inputs.restarts),
-            "transient_s": run.transient}
+            "transient_s": run.transient, "channels": list(run.channels),
+            "estimate_kind": run.estimate_kind}

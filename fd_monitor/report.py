@@ -1,13 +1,16 @@
 """Reports: PNG figures and a one-page ``summary.md`` for a bag, or for a Monte Carlo campaign.
 
-Bag report (:func:`bag_report`), from :func:`fd_monitor.offline.run_bag`:
+Bag report (:func:`bag_report`), from :func:`fd_monitor.offline.run_bag` (any gain-file
+method: the runtime comes from :func:`fd_monitor.core.runtime.runtime_for`):
 
 * ``residuals.png`` -- per alarm channel, the filtered residual against the threshold in force
-  (``+-R_k``; QB: the compared signal against its bound), alarm periods shaded, the fault
-  onset marked (from ``/plant/truth``), the transient greyed;
+  (``+-R_k``; ``qb``, ``hinf_sc``, ``hminus_switched``: the compared magnitude against its
+  bound), alarm periods shaded, the fault onset marked (from ``/plant/truth``), the transient
+  greyed;
 * ``modes.png`` -- true and estimated mode over time;
-* ``bias.png`` -- the bias estimate against the true bias (``thresholds``: sigma^ per sensor;
-  ``qb``: the fault-model states with their guaranteed band ``+-sqrt((P^-1)_jj)``);
+* ``bias.png`` (methods that estimate a bias) -- the bias estimate against the true bias
+  (``thresholds``: sigma^ per sensor; ``qb``: the fault-model states with their guaranteed
+  band ``+-sqrt((P^-1)_jj)``);
 * ``qb_bound.png`` (QB gain files) -- the error ellipsoid ``e' P e`` against its bound 1 and
   every ``|e_j|`` against ``sqrt((P^-1)_jj)``, with the true state (Alessandri et al. eq. 6);
 * ``summary.md`` -- the summary table, the ``expected.yaml`` check when the bag has one, the
@@ -102,13 +105,13 @@ def figure_residuals(run: Any, path: str | Path) -> Path:
     m = len(run.channels)
     fig, axes = plt.subplots(m, 1, figsize=(10, 1.9 * m + 1.0), sharex=True, squeeze=False)
     t = run.t
-    qb = run.method == "qb"
+    magnitude = not run.signed          # |signal| against a positive bound (log scale)
     for i, (c, unit) in enumerate(zip(run.channels, run.units)):
         ax = axes[i, 0]
         seen: dict[str, bool] = {}
         _decorate(ax, run, t, run.alarm[:, i], seen)
         sig, thr = run.signal[:, i], run.threshold[:, i]
-        if qb:
+        if magnitude:
             ax.plot(t, sig, lw=0.8, color="C0", label="|signal|")
             ax.plot(t, thr, lw=1.2, color="C1", label="bound in force")
             ax.set_yscale("log")
@@ -124,8 +127,8 @@ def figure_residuals(run: Any, path: str | Path) -> Path:
         ax.set_ylabel(f"{c} [{unit}]")
         ax.grid(True, alpha=0.3)
     axes[-1, 0].set_xlabel("time [s]")
-    what = "QB detection signals against their bounds" if qb else \
-        "filtered residuals against the threshold in force"
+    what = (f"{run.method} detection signals against their bounds" if magnitude
+            else "filtered residuals against the threshold in force")
     _legend(fig, axes, f"{Path(run.bag).name}: {what}")
     return _save(fig, path)
 
@@ -170,7 +173,7 @@ def figure_bias(run: Any, path: str | Path) -> Path:
     t = run.t
     from fd_monitor.offline import truth_at
 
-    qb = run.method == "qb"
+    qb = run.estimate_kind == "state"   # fault-model states against the true state
     for i, n in enumerate(names):
         ax = axes[i, 0]
         seen: dict[str, bool] = {}
@@ -189,7 +192,7 @@ def figure_bias(run: Any, path: str | Path) -> Path:
                     true = np.zeros(len(t))
         if true is not None:
             ax.plot(t, true, lw=2.5, color="0.6", label="true bias")
-        if qb:
+        if "component_bound" in run.qb:
             j = run.system.states.index(n)
             b = float(run.qb["component_bound"][j])
             ax.fill_between(t, run.estimate[n] - b, run.estimate[n] + b, color="C0",
@@ -330,8 +333,8 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
     out.mkdir(parents=True, exist_ok=True)
     figs = {"residuals": figure_residuals(run, out / "residuals.png"),
             "modes": figure_modes(run, out / "modes.png"),
-            "bias": figure_bias(run, out / "bias.png")}
-    if run.method == "qb" and "V" in run.qb:
+            **({"bias": figure_bias(run, out / "bias.png")} if run.estimate else {})}
+    if "V" in run.qb:
         figs["qb_bound"] = figure_qb_bound(run, out / "qb_bound.png")
     fails = check_expected(exp_doc, summary) if exp_doc is not None else None
     md = _bag_markdown(run, summary, figs, fails, exp_file if exp_doc is not None else None)

@@ -274,3 +274,48 @@ def test_simulate_cli_writes_rho_and_mode_to_the_truth(tmp_path):
     assert (tr.column("mode") == 0).all()
     assert find_config_file("thesis_5_3_overlap", "scenarios", ScenarioError).is_file()
     assert load_system("thesis_5_3").n_rho == 1
+
+
+@pytest.mark.parametrize("scenario, topics", [
+    ("thesis_6_5_overlap", {"/plant/rho": ("rho1", "rho2")}),     # measured parameters
+    ("thesis_5_3_overlap", {}),                                     # uncertain: not measured
+    ("bag_farhat_koenig_fault", {"/plant/mode": ("mode",)}),        # no guard decides it
+    ("three_tank_nominal", {}),                                     # guards decide the mode
+])
+def test_measured_side_signals_are_what_a_monitor_may_measure(scenario, topics):
+    """/plant/rho and /plant/mode (the runtimes' side signals) carry the true measured rho and
+    the exogenous mode; nothing for an uncertain parameter or a guard-switched plant."""
+    from fd_monitor.core.simulator import measured_signals
+
+    sc = load_scenario(scenario)
+    traj = simulate(sc, n_samples=300)
+    got = measured_signals(traj)
+    assert {t: labels for t, (labels, _) in got.items()} == topics
+    if "/plant/rho" in got:
+        np.testing.assert_array_equal(got["/plant/rho"][1], traj.rho[0])
+    if "/plant/mode" in got:
+        np.testing.assert_array_equal(got["/plant/mode"][1][:, 0], traj.mode[0])
+        assert len(set(traj.mode[0])) == 2                      # it does switch
+
+
+def test_simulate_cli_writes_the_measured_mode_that_analyze_reads(tmp_path):
+    """The switched plant's bag carries /plant/mode, and analyze runs the hminus_switched
+    gain file on it (the side signal read from the bag)."""
+    from fd_monitor.bags import read_bag
+
+    out = subprocess.run([sys.executable, "-m", "fd_monitor", "simulate",
+                          "bag_farhat_koenig_fault", "--duration", "20.0",
+                          "-o", str(tmp_path / "bag"), "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    b = read_bag(tmp_path / "bag", ["/plant/mode", "/plant/truth"])
+    np.testing.assert_array_equal(b["/plant/mode"].column("mode"),
+                                  b["/plant/truth"].column("mode"))
+    out = subprocess.run([sys.executable, "-m", "fd_monitor", "analyze", str(tmp_path / "bag"),
+                          "--gains", "farhat_koenig_hminus_switched", "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    import json
+
+    doc = json.loads(out.stdout)
+    assert doc["method"] == "hminus_switched" and doc["samples"] == 200

@@ -1,7 +1,10 @@
 """``python -m fd_monitor analyze BAG --gains GAINS [--json]``: the diagnosis chain offline.
 
 Reads ``/plant/u`` and ``/plant/y`` (and ``/plant/truth`` when present) from a rosbag2 bag,
-runs the core :class:`~fd_monitor.core.monitor.Monitor` over every sample (no ROS), and prints
+runs the gain file's runtime over every sample (no ROS) -- any method: the runtime comes from
+the registry :func:`fd_monitor.core.runtime.runtime_for` (``thresholds``, ``qb``, ``hinf_sc``,
+``hminus_switched``), its side signals from ``/plant/rho`` or ``/plant/mode`` when it needs
+them -- and prints
 
 * alarms: one entry per alarm episode and channel (``channel``, ``first_sample``, ``time``,
   ``last_sample``, ``samples``);
@@ -9,10 +12,11 @@ runs the core :class:`~fd_monitor.core.monitor.Monitor` over every sample (no RO
   truth, the true ones;
 * isolated sensors and the final bias estimate sigma^.
 
-An alarm episode during which the estimated state or an input left the gain file's certified
-region (``results.envelope``) is marked ``outside_certified_region: true`` with
-``outside_detail`` (which variable, by how much); the alarm is raised all the same, it is just
-not covered by the design's guarantee.
+An alarm episode during which the runtime was outside the region its certificate covers (the
+estimated state or an input outside ``results.envelope``; an LPV bank's rho outside its design
+box; a switching signal naming a mode the design does not have) is marked
+``outside_certified_region: true`` with ``outside_detail`` (which variable, by how much); the
+alarm is raised all the same, it is just not covered by the design's guarantee.
 
 The JSON (``--json``) has at least ``alarms`` (list of ``{channel, first_sample, time}``),
 ``isolated`` (channel names) and ``bias_estimate`` (``{channel: value}``).
@@ -32,12 +36,14 @@ import numpy as np
 
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.core.envelope import describe_excess
-from fd_monitor.errors import BagError, GainFileError
+from fd_monitor.core.runtime import runtime_for
+from fd_monitor.errors import BagError
 from fd_monitor.offline import (
     BagRun,
     InputReport,
     run_bag,
-    run_thresholds,
+    run_runtime,
+    scan_bag,
     summarize_run,
     truth_at,
 )
@@ -50,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """BAG, --gains, --system, --no-agei, --json."""
     parser.add_argument("bag", metavar="BAG", help="rosbag2 folder with /plant/u and /plant/y")
     parser.add_argument("--gains", required=True, metavar="GAINS",
-                        help="'thresholds' gain file (path or name in config/gains/)")
+                        help="gain file of any method (path or name in config/gains/)")
     parser.add_argument("--system", default=None, metavar="SYSTEM",
                         help="plant file (default: the plant named in the gain file)")
     parser.add_argument("--no-agei", action="store_true",
@@ -76,16 +82,6 @@ def _transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
                     "from": names[a] if 0 <= a < len(names) else str(a),
                     "to": names[b] if 0 <= b < len(names) else str(b)})
     return out
-
-
-def _first_labels(bag: str, topic: str) -> tuple[str, ...] | None:
-    """Channel labels of the first message of ``topic`` (None when it has none)."""
-    from fd_monitor.bags import FLOAT64_MULTI_ARRAY, read_messages
-
-    for _topic, _t, msg in read_messages(bag, [topic], msgtype=FLOAT64_MULTI_ARRAY):
-        dims = msg.layout.dim
-        return tuple(dims[0].label.split(",")) if dims and dims[0].label else None
-    return None
 
 
 def analyze_run(run: BagRun) -> dict[str, Any]:
@@ -142,8 +138,10 @@ def analyze_run(run: BagRun) -> dict[str, Any]:
 
 
 def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: np.ndarray,
-                   true_mode: np.ndarray | None = None, agei: bool = True) -> dict[str, Any]:
-    """Run the :class:`~fd_monitor.core.monitor.Monitor` over arrays and summarise.
+                   true_mode: np.ndarray | None = None, agei: bool = True,
+                   side: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+    """Run the gain file's runtime (:func:`~fd_monitor.core.runtime.runtime_for`) over arrays
+    and summarise.
 
     Parameters
     ----------
@@ -158,6 +156,9 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     true_mode : numpy.ndarray, optional
         (K,) true mode indices.
     agei : bool
+        ``thresholds`` only (False: the ablation without AGEI).
+    side : dict, optional
+        The runtime's side signals, name -> (K, ...) array (``rho``, ``mode``).
 
     Returns
     -------
@@ -175,7 +176,9 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     us = dict(zip(ks, np.asarray(u, dtype=float).reshape(len(ks), -1)))
     ys = dict(zip(ks, np.asarray(y, dtype=float).reshape(len(ks), -1)))
     rep = InputReport()
-    fields = run_thresholds(system, gains, ks, us, ys, rep, agei=agei)
+    rt = runtime_for(system, gains, **({} if agei else {"agei": False}))
+    sides = {n: dict(zip(ks, np.asarray(v))) for n, v in (side or {}).items()}
+    fields = run_runtime(rt, ks, us, ys, rep, sides)
     truth = None
     if true_mode is not None:
         truth = TopicArrays("/plant/truth", ("mode",), np.asarray(ks),
@@ -200,19 +203,16 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     GainFileError
         Gain file missing, for another plant, or its certificate fails.
     """
-    from fd_monitor.bags import bag_topics
     from fd_monitor.gains import load_gains
     from fd_monitor.system import load_system
 
     raw = load_gains(gains_source, verify=False)
-    if raw.method not in ("thresholds", "qb"):
-        raise GainFileError(f"{raw.path}: method {raw.method!r}: analyze runs 'thresholds' "
-                            f"(sensor-bias chain) and 'qb' gain files")
     system = load_system(system_source or raw.system_name)
     gains = load_gains(gains_source, system)   # plant SHA-256 and certificate
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
-    present = bag_topics(bag)
+    scan = scan_bag(bag)                        # the one read of the bag
+    present = scan.present
     needed = ["/plant/y"] + (["/plant/u"] if system.nu else [])
     for t in needed:
         if t not in present:
@@ -221,12 +221,12 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     # A bag of another plant would have every message rejected: say so at once instead.
     for t, names, what in (("/plant/u", system.inputs, "inputs"),
                            ("/plant/y", system.outputs, "outputs")):
-        labels = _first_labels(bag, t) if t in present else None
+        labels = scan.first_labels(t) if t in present else None
         if labels and tuple(labels) != tuple(names):
             raise BagError(f"{bag}: {t} has channels {list(labels)} but plant {system.name} "
                            f"(gain file {gains.path}) has {what} {list(names)}: wrong gain "
                            f"file for this bag?")
-    run = run_bag(bag, gains, system=system, agei=agei)
+    run = run_bag(bag, gains, system=system, agei=agei, scan=scan)
     return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
             "method": gains.method, "agei": agei, **analyze_run(run)}
 
@@ -277,8 +277,9 @@ def run(args: argparse.Namespace) -> int:
                     header=("input error", "topic", "sample", "message"),
                     title="bad input (left out; the monitor restarted after each hole at "
                           f"samples {doc['restarts'] or 'none'})")
-    print()
-    print_table([(n, f"{v:+.6f}", "yes" if n in doc["isolated"] else "no")
-                 for n, v in doc["bias_estimate"].items()],
-                header=("sensor", "bias_estimate", "isolated"), title="sensor biases")
+    if doc["bias_estimate"]:      # hinf_sc and hminus_switched estimate no bias
+        print()
+        print_table([(n, f"{v:+.6f}", "yes" if n in doc["isolated"] else "no")
+                     for n, v in doc["bias_estimate"].items()],
+                    header=("sensor", "bias_estimate", "isolated"), title="sensor biases")
     return 0

@@ -1,7 +1,7 @@
 """``python -m fd_monitor evaluate GAINS -s SCENARIO [...]``: Monte Carlo campaigns.
 
 Simulates ``--runs`` seeded runs of each scenario, replays them through the gain file's method
-(looked up by its ``method``, see :data:`fd_monitor.evaluate.RUNNERS`) and prints the
+(looked up by its ``method``, see :data:`fd_monitor.core.runtime.RUNTIMES`) and prints the
 false-alarm rate, detection rate and delay per scenario, variant and threshold scale, as a
 table or as JSON. Table II of the QB paper::
 
@@ -16,6 +16,7 @@ import argparse
 from typing import Any
 
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.core.runtime import runtime_class
 from fd_monitor.errors import FdMonitorError
 from fd_monitor.evaluate import run_campaign
 from fd_monitor.gains import load_gains
@@ -90,13 +91,16 @@ def run(args: argparse.Namespace) -> int:
                       runs=min(args.chunk, args.runs))
     system = scenarios[0].system
     gains = load_gains(args.gains, system)
+    takes = runtime_class(gains.method).batch_options()
+    for flag, opt in (("--state-bound", "state_bound"), ("--estimator", "estimator")):
+        if getattr(args, opt) and opt not in takes:
+            raise FdMonitorError(f"{flag}: method {gains.method!r} has no {opt} option "
+                                 f"(its batch options: {', '.join(takes) or 'none'})")
     common: dict[str, Any] = {}
     if args.state_bound is not None:
         common["state_bound"] = args.state_bound
     variants: dict[str, dict[str, Any]] = {}
     if args.estimator:
-        if gains.method != "qb":
-            raise FdMonitorError(f"--estimator: only for QB gain files, not {gains.method!r}")
         for est in args.estimator:
             if est not in ("qb", "kalman"):
                 raise FdMonitorError(f"--estimator: expected qb or kalman, got {est!r}")

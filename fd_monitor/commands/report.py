@@ -1,9 +1,10 @@
 """``python -m fd_monitor report BAG [--gains GAINS] -o DIR``: figures and a summary of a bag.
 
-Runs the gain file's monitor over the bag (``thresholds``: the diagnosis chain of ``analyze``;
-``qb``: the QB observer and detector) and writes into DIR ``residuals.png`` (residuals against
-the threshold in force, alarms shaded, fault onset marked), ``modes.png`` (true and estimated
-mode), ``bias.png`` (bias estimate against the true bias), ``qb_bound.png`` (QB gain files:
+Runs the gain file's runtime over the bag, as ``analyze`` does (any method, from the registry
+:func:`fd_monitor.core.runtime.runtime_for`), and writes into DIR ``residuals.png`` (residuals
+against the threshold in force, alarms shaded, fault onset marked), ``modes.png`` (true and
+estimated mode), ``bias.png`` (methods that estimate a bias: bias estimate against the true
+bias), ``qb_bound.png`` (QB gain files:
 the error ellipsoid bound against the estimation error) and ``summary.md`` (summary table,
 the check of the bag's ``expected.yaml`` when it has one, the figures). Without ``--gains``
 the gain file named by the bag's ``expected.yaml`` is used. Campaign reports are written by

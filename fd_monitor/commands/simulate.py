@@ -43,7 +43,12 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
                     duration: float | None = None) -> dict:
     """Simulate and write the bag; return a summary mapping."""
     from fd_monitor.bags import arrays_from, write_bag
-    from fd_monitor.core.simulator import simulate, truth_labels, truth_values
+    from fd_monitor.core.simulator import (
+        measured_signals,
+        simulate,
+        truth_labels,
+        truth_values,
+    )
     from fd_monitor.scenario import check_horizon, load_scenario
 
     sc = load_scenario(scenario_source)
@@ -61,14 +66,16 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     traj = simulate(sc, seed, K)
     sys_ = sc.system
     ns = np.rint(traj.k * dt * 1e9).astype(np.int64)
+    side = measured_signals(traj)
     path = write_bag(output, [
         arrays_from("/plant/u", sys_.inputs, traj.k, traj.u[0], ns),
         arrays_from("/plant/y", sys_.outputs, traj.k, traj.y[0], ns),
+        *(arrays_from(t, labels, traj.k, v, ns) for t, (labels, v) in side.items()),
         arrays_from("/plant/truth", truth_labels(sc), traj.k, truth_values(traj), ns),
     ])
     return {"bag": str(path), "scenario": sc.name, "system": sys_.name,
             "seed": traj.seeds[0], "samples": K, "sample_time": dt, "duration": K * dt,
-            "topics": ["/plant/u", "/plant/y", "/plant/truth"],
+            "topics": ["/plant/u", "/plant/y", *side, "/plant/truth"],
             "faults": [{"channel": sys_.faults[f.channel].name, "time": f.time,
                         "magnitude": f.magnitude, "profile": f.profile}
                        for f in sc.faults]}

@@ -4,8 +4,8 @@ Every detection method offers a batch runner with the signature::
 
     run_batch(system, gains, traj: Trajectory, **options) -> BatchResult
 
-registered by gain-file ``method`` in :data:`fd_monitor.evaluate.RUNNERS` (e.g.
-``"qb": "fd_monitor.core.qb:run_batch"``, ``"thresholds": "fd_monitor.core.monitor:run_batch"``).
+reached through the runtime registry (:meth:`fd_monitor.core.runtime.Runtime.run_batch` of
+``fd_monitor.core.runtime.RUNTIMES[method]``).
 The evaluation (false-alarm rate, detection rate and delay) reads only :attr:`BatchResult.alarm`
 and :attr:`BatchResult.channels`; the optional arrays are for plots and extra metrics.
 

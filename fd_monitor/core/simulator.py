@@ -39,7 +39,7 @@ from fd_monitor.core.residual_bank import SCHEDULING_MAPS
 from fd_monitor.scenario import PIController, Profile, Scenario
 
 __all__ = ["BLOCK", "PlantSimulator", "Sample", "Trajectory", "simulate", "simulate_batch",
-           "truth_labels", "truth_values"]
+           "truth_labels", "truth_values", "measured_signals"]
 
 BLOCK = 256
 
@@ -330,3 +330,29 @@ def truth_values(traj: Trajectory, run: int = 0) -> np.ndarray:
     """(K, m) ``/plant/truth`` values of one run, columns as :func:`truth_labels`."""
     return np.concatenate([traj.mode[run][:, None].astype(float), traj.x[run],
                            traj.faults[run], traj.rho[run]], axis=1)
+
+
+def measured_signals(traj: Trajectory, run: int = 0) -> dict[str, tuple[tuple[str, ...],
+                                                                          np.ndarray]]:
+    """What a monitor may measure besides u and y, as topics: ``/plant/rho`` (the measured
+    scheduling parameters of an LPV plant, thesis ch. 6) and ``/plant/mode`` (the mode of a
+    plant whose switching no guard decides -- ``switching: arbitrary``, or several modes and
+    no guards -- measured, as Farhat & Koenig assume, A.3).
+
+    Returns
+    -------
+    dict
+        Topic -> (labels, (K, m) values); empty for a plant with neither. The side signals of
+        :mod:`fd_monitor.core.runtime` (``rho``, ``mode``) are read from these topics.
+    """
+    sc = traj.scenario
+    sys_ = sc.system
+    out: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
+    measured = {p.name for p in sys_.lpv if p.measured}
+    cols = [j for j, n in enumerate(sc.rho_names) if n in measured]
+    if cols:
+        out["/plant/rho"] = (tuple(sc.rho_names[j] for j in cols), traj.rho[run][:, cols])
+    if len(sys_.modes) > 1 and (sys_.switching == "arbitrary" or not sys_.guards):
+        # no guard decides the mode: it is exogenous, and the monitor must be told it
+        out["/plant/mode"] = (("mode",), traj.mode[run][:, None].astype(float))
+    return out

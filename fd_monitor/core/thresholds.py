@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -159,6 +159,8 @@ class DiagnosisGains:
     presmoother_gain: float = 0.02
     presmoother_delay: int = 1
     region: CertifiedRegion | None = None
+    #: The gain-file method these gains belong to (the runtime registry's key).
+    method: ClassVar[str] = "thresholds"
 
     @property
     def noise_term(self) -> np.ndarray:

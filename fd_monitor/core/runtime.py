@@ -1,0 +1,799 @@
+"""One runtime contract for every gain-file method, found through one registry.
+
+Every gain file's ``method`` has a :class:`Runtime` subclass in :data:`RUNTIMES`; nodes,
+offline analysis (:mod:`fd_monitor.offline`), reports and Monte Carlo campaigns
+(:mod:`fd_monitor.evaluate`) all get theirs with :func:`runtime_for` and never branch on the
+method name. A runtime has the same small interface for every method:
+
+* :meth:`Runtime.reset` -- start again (the next sample may have any index);
+* :meth:`Runtime.step` -- one sample ``(k, u_k, y_k)`` plus the method's side signals
+  (``side``: ``{"rho": (d,)}`` scheduling variable, ``{"mode": int}`` switching signal) ->
+  a frozen :class:`RuntimeOutput`: per-channel residual, threshold in force, alarm, the
+  excess over the certified region (``outside``) and the method's estimates;
+* :meth:`Runtime.run` -- a whole stream (restarted at every hole in the sample indices), the
+  same arithmetic as :meth:`Runtime.step` sample by sample, as a :class:`RuntimeTrace`;
+* :meth:`Runtime.run_batch` -- N simulated runs (a Monte Carlo campaign) as a
+  :class:`~fd_monitor.core.batch.BatchResult`.
+
+=================  ===========================================  =====================  ==========
+method             what runs                                    side signals           outside
+=================  ===========================================  =====================  ==========
+thresholds         Monitor: hybrid observer, residual filter    none                   x^, u vs
+                   and thresholds, AGEI, bias estimator                                envelope
+qb                 QBObserver + QBDetector (LTI and PWA;        none                   x^, u vs
+                   continuous or sampled design)                                       envelope
+hinf_sc            ResidualBank (LTI, uncertain, LPV); one      rho (LPV without a     rho vs
+                   generator per fault, ``||r_i||`` vs J_i      scheduling map)        [min, max]
+hminus_switched    GeneralizedObserver, ``||r||`` vs threshold  mode (no guard and no  mode vs
+                                                                ``mode`` input)        design
+=================  ===========================================  =====================  ==========
+
+``outside`` follows :attr:`fd_monitor.core.monitor.MonitorOutput.outside`: a signed excess
+vector (0 inside, > 0 above, < 0 below, named by :attr:`Runtime.region_names`) or None when
+the gain file states no region. An alarm outside the region is raised all the same; it is
+only not covered by the design's guarantee.
+
+numpy only (no rclpy, no cvxpy).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fd_monitor.core.batch import BatchResult
+from fd_monitor.core.envelope import CertifiedRegion
+from fd_monitor.core.generalized_observer import GeneralizedObserver
+from fd_monitor.core.monitor import Monitor, validate_sample
+from fd_monitor.core.monitor import run_batch as monitor_run_batch
+from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.plausibility import Plausibility
+from fd_monitor.core.qb import QBDetector, QBObserver
+from fd_monitor.core.qb import run_batch as qb_run_batch
+from fd_monitor.core.residual_bank import SCHEDULING_MAPS, ResidualBank
+from fd_monitor.errors import GainFileError, MessageError
+from fd_monitor.system import System
+
+__all__ = ["RUNTIMES", "HinfScRuntime", "HminusSwitchedRuntime", "QBRuntime", "Runtime",
+           "RuntimeOutput", "RuntimeTrace", "ThresholdsRuntime", "runtime_class",
+           "runtime_for"]
+
+
+@dataclass(frozen=True)
+class RuntimeOutput:
+    """What a runtime produces at sample k.
+
+    Attributes
+    ----------
+    k : int
+        Sample index.
+    residual : numpy.ndarray
+        (m,) the signal each alarm channel compares with its threshold (channel units;
+        :attr:`Runtime.units`).
+    threshold : numpy.ndarray
+        (m,) the threshold in force (+inf: the channel cannot alarm, e.g. no threshold in the
+        gain file or before the thresholds are armed).
+    alarm : numpy.ndarray
+        (m,) bool alarm flag per channel.
+    outside : numpy.ndarray or None
+        (len(region_names),) signed excess over the certified region (0 inside); None when
+        the gain file states no region.
+    mode : int
+        The mode the runtime used at k (estimated, measured or the only one).
+    estimates : mapping
+        The method's estimates at k, name -> array (e.g. ``x_hat`` (n,), ``sigma_hat``
+        (ny,), ``isolated`` (ny,) bool, ``rho`` (d,)); see each runtime.
+    core : object
+        The core object's own output at k (e.g. :class:`~fd_monitor.core.monitor.MonitorOutput`),
+        for nodes that publish more than the common fields; None when there is none.
+    """
+
+    k: int
+    residual: np.ndarray
+    threshold: np.ndarray
+    alarm: np.ndarray
+    outside: np.ndarray | None
+    mode: int
+    estimates: Mapping[str, Any] = field(default_factory=dict)
+    core: Any = None
+
+    @property
+    def any_alarm(self) -> bool:
+        """Some channel alarms at k."""
+        return bool(np.any(self.alarm))
+
+
+@dataclass
+class RuntimeTrace:
+    """A whole stream run by :meth:`Runtime.run` (K processed samples).
+
+    Attributes
+    ----------
+    k : numpy.ndarray
+        (K,) processed sample indices (refused samples left out).
+    residual, threshold : numpy.ndarray
+        (K, m)
+    alarm : numpy.ndarray
+        (K, m) bool
+    outside : numpy.ndarray or None
+        (K, len(region_names)) or None.
+    mode : numpy.ndarray
+        (K,) int
+    estimates : dict
+        name -> (K, ...) stacked :attr:`RuntimeOutput.estimates`.
+    restarts : list of int
+        Samples at which the runtime restarted after a hole.
+    """
+
+    k: np.ndarray
+    residual: np.ndarray
+    threshold: np.ndarray
+    alarm: np.ndarray
+    outside: np.ndarray | None
+    mode: np.ndarray
+    estimates: dict[str, np.ndarray]
+    restarts: list[int]
+
+
+def _vector(name: str, v: Any, length: int, k: int) -> np.ndarray:
+    """(length,) finite float array or :class:`MessageError` naming the sample."""
+    try:
+        a = np.asarray(v, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise MessageError(f"{name} at sample {k}: expected {length} numbers") from None
+    if a.shape[0] != length:
+        raise MessageError(f"{name} at sample {k}: expected {length} values, got {a.shape[0]}")
+    if not np.all(np.isfinite(a)):
+        raise MessageError(f"{name} at sample {k}: non-finite value (NaN/Inf)")
+    return a
+
+
+class Runtime:
+    """The runtime of one gain-file method for one stream of samples (base class).
+
+    Subclasses set the class attributes and implement :meth:`reset` and :meth:`step`.
+
+    Attributes
+    ----------
+    method : str
+        The gain-file ``method`` (class attribute; the registry key).
+    SIDE_SIGNALS : tuple of str
+        Side signals the method can take (class attribute).
+    ESTIMATE_KIND : str
+        What :meth:`bias_estimates` are: ``sensor_bias`` (per output), ``state`` (fault-model
+        states, compared with the true state) or ``none`` (class attribute).
+    SIGNED : bool
+        True when the residual is signed and alarms at ``|r| > R`` (plots show +-R); False
+        when it is a magnitude compared with a positive bound (class attribute).
+    BATCH_OPTIONS : tuple of str
+        Keyword options :meth:`run_batch` takes (class attribute; default: the
+        constructor's).
+    channels : tuple of str
+        (m,) alarm channel names.
+    units : tuple of str
+        (m,) unit of each channel's residual.
+    side_inputs : tuple of str
+        The side signals this gain file needs at every step (a subset of SIDE_SIGNALS).
+    region_names : tuple of str
+        Names of the entries of ``outside`` (empty: no region).
+    isolating : tuple of str
+        Channels whose alarm isolates the fault they are named after (``qb``: the
+        fault-model states; ``hinf_sc``: every generator); ``thresholds`` isolates with its
+        estimator's flags instead (estimate ``isolated``).
+    """
+
+    method: ClassVar[str] = ""
+    SIDE_SIGNALS: ClassVar[tuple[str, ...]] = ()
+    ESTIMATE_KIND: ClassVar[str] = "none"
+    SIGNED: ClassVar[bool] = False
+    BATCH_OPTIONS: ClassVar[tuple[str, ...] | None] = None
+
+    channels: tuple[str, ...]
+    units: tuple[str, ...]
+    side_inputs: tuple[str, ...] = ()
+    region_names: tuple[str, ...] = ()
+    isolating: tuple[str, ...] = ()
+
+    def __init__(self, system: System, gains: Any) -> None:
+        self.system = system
+        self.gains = gains
+
+    def reset(self) -> None:
+        """Restart from scratch (the next sample may have any index)."""
+        raise NotImplementedError
+
+    def step(self, k: int, u: Any, y: Any,
+             side: Mapping[str, Any] | None = None) -> RuntimeOutput:
+        """Process sample k.
+
+        Parameters
+        ----------
+        k : int
+            Sample index; consecutive after the first call (call :meth:`reset` after a hole).
+        u : array_like
+            (nu,) inputs u_k, input units.
+        y : array_like
+            (ny,) measurements y_k, output units.
+        side : mapping, optional
+            Side signals at k by name (:attr:`side_inputs` are required): ``rho`` (d,) the
+            scheduling variable, ``mode`` the switching signal (mode index).
+
+        Returns
+        -------
+        RuntimeOutput
+
+        Raises
+        ------
+        MessageError
+            Invalid sample or missing side signal (``ImplausibleError`` for an implausible
+            one); no state has changed.
+        """
+        raise NotImplementedError
+
+    @property
+    def side_labels(self) -> dict[str, tuple[str, ...]]:
+        """Channel labels of each side signal (``rho``: the parameter names; ``mode``:
+        ``("mode",)``), as their messages carry them."""
+        return {"mode": ("mode",)}
+
+    def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The named estimates reported as ``bias_estimate``, from :attr:`RuntimeOutput.estimates`
+        (one sample) or :attr:`RuntimeTrace.estimates` (stacked, (K, ...)): name -> () or
+        (K,). Default none."""
+        return {}
+
+    def offline_extra(self, trace: RuntimeTrace, truth: Any) -> dict[str, Any]:
+        """Method-specific figures of an offline run (default none); ``truth`` is the bag's
+        ``/plant/truth`` (:class:`~fd_monitor.bags.TopicArrays`) or None."""
+        return {}
+
+    @classmethod
+    def options(cls) -> tuple[str, ...]:
+        """Keyword options of the constructor (:func:`runtime_for`)."""
+        return tuple(p for p in inspect.signature(cls.__init__).parameters
+                     if p not in ("self", "system", "gains"))
+
+    @classmethod
+    def batch_options(cls) -> tuple[str, ...]:
+        """Keyword options of :meth:`run_batch` (``evaluate`` checks its flags with it)."""
+        return cls.options() if cls.BATCH_OPTIONS is None else cls.BATCH_OPTIONS
+
+    def _side(self, side: Mapping[str, Any] | None, name: str, k: int) -> Any:
+        if side is None or name not in side or side[name] is None:
+            raise MessageError(f"sample {k}: side signal {name!r} missing (method "
+                               f"{self.method} on plant {self.system.name} needs "
+                               f"{', '.join(self.side_inputs)})")
+        return side[name]
+
+    def run(self, k: Sequence[int] | np.ndarray, u: Any, y: Any,
+            side: Mapping[str, Any] | None = None,
+            on_refused: Callable[[int, MessageError], None] | None = None) -> RuntimeTrace:
+        """Run a whole stream with :meth:`step`, restarting (:meth:`reset`) after a hole.
+
+        Parameters
+        ----------
+        k : sequence of int
+            (K,) increasing sample indices.
+        u : array_like or mapping
+            (K, nu) inputs, or a mapping index -> (nu,).
+        y : array_like or mapping
+            (K, ny) measurements, or a mapping index -> (ny,).
+        side : mapping, optional
+            name -> (K, ...) array or mapping index -> value, per side signal.
+        on_refused : callable, optional
+            Called with (k, error) for a sample :meth:`step` refuses (MessageError); the
+            sample is left out and the runtime restarts at the next one. Without it the
+            error propagates.
+
+        Returns
+        -------
+        RuntimeTrace
+        """
+        ks = [int(v) for v in np.asarray(k).reshape(-1)]
+        us, ys = _indexed(u, ks), _indexed(y, ks)
+        sides = {n: _indexed(v, ks) for n, v in (side or {}).items()}
+        outs: list[RuntimeOutput] = []
+        restarts: list[int] = []
+        prev: int | None = None
+        for kk in ks:
+            if prev is not None and kk != prev + 1:
+                self.reset()
+                restarts.append(kk)
+            try:
+                o = self.step(kk, us(kk), ys(kk),
+                              {n: f(kk) for n, f in sides.items()} if sides else None)
+            except MessageError as exc:
+                if on_refused is None:
+                    raise
+                # refused like a NaN message; prev stays behind, so the next sample restarts
+                on_refused(kk, exc)
+                continue
+            outs.append(o)
+            prev = kk
+        return self._stack(outs, restarts)
+
+    def _stack(self, outs: Sequence[RuntimeOutput], restarts: list[int]) -> RuntimeTrace:
+        m, K = len(self.channels), len(outs)
+        res, thr = np.zeros((K, m)), np.zeros((K, m))
+        alarm = np.zeros((K, m), bool)
+        mode = np.zeros(K, int)
+        outside = None if not self.region_names else np.zeros((K, len(self.region_names)))
+        est: dict[str, np.ndarray] = {}
+        for j, o in enumerate(outs):
+            res[j], thr[j], alarm[j], mode[j] = o.residual, o.threshold, o.alarm, o.mode
+            if outside is not None and o.outside is not None:
+                outside[j] = o.outside
+            for name, v in o.estimates.items():
+                a = np.asarray(v)
+                if name not in est:
+                    est[name] = np.zeros((K, *a.shape), dtype=a.dtype)
+                est[name][j] = a
+        return RuntimeTrace(np.array([o.k for o in outs], dtype=int), res, thr, alarm, outside,
+                            mode, est, restarts)
+
+    @classmethod
+    def run_batch(cls, system: System, gains: Any, traj: Any, **options: Any) -> BatchResult:
+        """Run N simulated runs (a Monte Carlo campaign).
+
+        Parameters
+        ----------
+        system : System
+        gains : GainFile
+        traj : Trajectory
+            ``u`` (N, K, nu), ``y`` (N, K, ny), ``k`` (K,); side signals as attributes of
+            the same name, (N, K, ...) (``mode``: the true mode, the measured switching
+            signal; ``rho`` when the trajectory carries it).
+        **options
+            The runtime's keyword options.
+
+        Returns
+        -------
+        BatchResult
+            ``alarm``, ``residual``, ``threshold`` (N, K, m), ``mode_hat`` (N, K); ``extra``
+            ``outside`` (N, K, r) when the gain file has a region.
+        """
+        u, y = np.asarray(traj.u, dtype=float), np.asarray(traj.y, dtype=float)
+        N, K = y.shape[:2]
+        ks = np.asarray(getattr(traj, "k", np.arange(K)), dtype=int)
+        rt = cls(system, gains, **options)
+        missing = [s for s in rt.side_inputs if getattr(traj, s, None) is None]
+        if missing:
+            raise MessageError(f"run_batch: method {cls.method} on plant {system.name} needs "
+                               f"side signal(s) {missing}, which the trajectory does not carry")
+        traces = []
+        for i in range(N):
+            rt.reset()
+            side = {s: np.asarray(getattr(traj, s))[i] for s in rt.side_inputs}
+            traces.append(rt.run(ks, u[i], y[i], side or None))
+        extra: dict[str, Any] = {}
+        if rt.region_names:
+            extra["outside"] = np.stack([np.asarray(t.outside) for t in traces])
+        return BatchResult(alarm=np.stack([t.alarm for t in traces]), channels=rt.channels,
+                           residual=np.stack([t.residual for t in traces]),
+                           threshold=np.stack([t.threshold for t in traces]),
+                           mode_hat=np.stack([t.mode for t in traces]), extra=extra)
+
+
+def _settle_samples(system: System, gains: Any) -> int:
+    """Samples after a (re)start before the thresholds are armed: the gain file's
+    ``results.threshold_method.settle_s`` (Monte Carlo thresholds are taken after it), else 0."""
+    res = gains.results if hasattr(gains, "results") else gains
+    tm = res.get("threshold_method") if isinstance(res, Mapping) else None
+    settle = float((tm or {}).get("settle_s", 0.0) or 0.0) if isinstance(tm, Mapping) else 0.0
+    return round(settle / float(system.sample_time))
+
+
+def _indexed(v: Any, ks: Sequence[int]) -> Callable[[int], Any]:
+    """Sample index -> value, from a mapping or from an array aligned with ``ks``."""
+    if isinstance(v, Mapping):
+        return v.__getitem__
+    a = np.asarray(v)
+    pos = {kk: j for j, kk in enumerate(ks)}
+    if a.shape[0] != len(ks):
+        raise MessageError(f"expected {len(ks)} samples, got an array of shape {a.shape}")
+    return lambda kk: a[pos[kk]]
+
+
+# --------------------------------------------------------------------------------------
+# thresholds: the Heracleous diagnosis chain
+
+
+class ThresholdsRuntime(Runtime):
+    """``thresholds``: :class:`~fd_monitor.core.monitor.Monitor` (observer, detector, AGEI,
+    bias estimator).
+
+    Channels: the outputs (signed filtered residual ``r`` against ``+-R``, output units).
+    Estimates: ``x_hat`` (n,), ``sigma_hat`` (ny,) (sigma^_{k+1}), ``isolated`` (ny,) bool.
+    ``outside``: x^_k and u_k against ``results.envelope`` (names: states then inputs).
+
+    Parameters
+    ----------
+    system : System
+    gains : GainFile or DiagnosisGains
+    agei : bool
+        False: the ablation without AGEI.
+    """
+
+    method = "thresholds"
+    ESTIMATE_KIND = "sensor_bias"
+    SIGNED = True
+    BATCH_OPTIONS = ("agei", "keep")
+
+    def __init__(self, system: System, gains: Any, agei: bool = True) -> None:
+        super().__init__(system, gains)
+        self.agei = bool(agei)
+        self.monitor = Monitor(system, gains, agei=agei)
+        self.channels = tuple(system.outputs)
+        self.units = (_units(system),) * system.ny
+        region = self.monitor.gains.region
+        self.region_names = () if region is None else region.names
+
+    def reset(self) -> None:
+        """See :meth:`Runtime.reset`."""
+        self.monitor.reset()
+
+    def step(self, k: int, u: Any, y: Any,
+             side: Mapping[str, Any] | None = None) -> RuntimeOutput:
+        """See :meth:`Runtime.step` (no side signal)."""
+        o = self.monitor.step(k, u, y)
+        d = o.detector
+        return RuntimeOutput(o.k, d.residual, d.threshold, d.alarm, o.outside, o.mode,
+                             {"x_hat": o.observer.x_hat, "sigma_hat": o.estimator.sigma_hat,
+                              "isolated": o.estimator.isolated}, o)
+
+    def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """sigma^ per output."""
+        sh = np.asarray(estimates.get("sigma_hat", np.zeros((0, self.system.ny))))
+        return {name: sh[..., i] for i, name in enumerate(self.system.outputs)}
+
+    @classmethod
+    def run_batch(cls, system: System, gains: Any, traj: Any, **options: Any) -> BatchResult:
+        """N runs in lock step (:func:`fd_monitor.core.monitor.run_batch`, same arithmetic)."""
+        return monitor_run_batch(system, gains, traj, **options)
+
+
+def _units(system: System) -> str:
+    return "m" if system.name == "three_tank" else "-"
+
+
+# --------------------------------------------------------------------------------------
+# qb: quadratic boundedness
+
+
+class QBRuntime(Runtime):
+    """``qb``: :class:`~fd_monitor.core.qb.QBObserver` and :class:`~fd_monitor.core.qb.QBDetector`
+    (LTI and PWA plants; continuous-time or sampled design).
+
+    Channels: :attr:`QBDetector.channels` (fault-model states, ``fault_norm``, ``r_<out>``,
+    ``r_norm``), magnitudes against ``rho`` times their guaranteed bounds. Estimates:
+    ``x_hat`` (n,). ``outside``: x^_k and u_k against ``results.envelope`` when the gain file
+    states one (the shipped QB files do not: their bounds assume only ``|w_j| <= 1``, which is
+    not measured), else None.
+
+    Parameters
+    ----------
+    system : System
+    gains : GainFile
+    rho : float
+        Threshold scale (1: the guaranteed bounds).
+    state_bound : str
+        ``component`` or ``rho_max`` (see :class:`~fd_monitor.core.qb.QBDetector`).
+    """
+
+    method = "qb"
+    ESTIMATE_KIND = "state"
+    BATCH_OPTIONS = ("rho", "state_bound", "estimator", "kalman", "x0")
+
+    def __init__(self, system: System, gains: Any, rho: float = 1.0,
+                 state_bound: str = "component") -> None:
+        super().__init__(system, gains)
+        self.detector = QBDetector(system, gains, rho=rho, state_bound=state_bound)
+        self.channels = tuple(self.detector.channels)
+        self.units = ("-",) * len(self.channels)
+        self.region = CertifiedRegion.from_results(system, gains.results)
+        self.region_names = () if self.region is None else self.region.names
+        self.isolating = tuple(system.states[i] for i in self.detector.fault_idx)
+        self.reset()
+
+    def reset(self) -> None:
+        """A new observer (x^ = 0, the plant's initial mode)."""
+        self.observer = QBObserver(self.system, self.gains)
+
+    def step(self, k: int, u: Any, y: Any,
+             side: Mapping[str, Any] | None = None) -> RuntimeOutput:
+        """See :meth:`Runtime.step` (no side signal)."""
+        last = self.observer.k
+        validate_sample(self.system, k, u, y, None if last is None else last + 1)
+        q, xh = self.observer.step(k, u, y)
+        det = self.detector
+        r = self.observer.residual(q, xh, y)
+        sig = det.signals(xh, r)
+        thr = det.rho * det.bounds(q)
+        out = None if self.region is None else self.region.excess(
+            q, xh, np.asarray(u, dtype=float).reshape(-1))
+        return RuntimeOutput(int(k), sig, thr, sig > thr, out, int(q), {"x_hat": xh})
+
+    def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The fault-model states of x^."""
+        xh = np.asarray(estimates.get("x_hat", np.zeros((0, self.system.n))))
+        return {self.system.states[i]: xh[..., i] for i in self.detector.fault_idx}
+
+    def offline_extra(self, trace: RuntimeTrace, truth: Any) -> dict[str, Any]:
+        """``component_bound`` (n,), ``rho_max``, ``x_hat`` (K, n); with truth ``error``
+        (K, n) and ``V`` (K,) = e' P e."""
+        res = self.gains.results
+        X = trace.estimates.get("x_hat", np.zeros((0, self.system.n)))
+        qb: dict[str, Any] = {"component_bound": np.asarray(res["component_bound"], float),
+                              "rho_max": float(res["rho_max"]), "x_hat": X}
+        if truth is not None:
+            idx = {int(s): i for i, s in enumerate(truth.stamps)}
+            cols = [truth.labels.index(f"x.{s}") for s in self.system.states]
+            x_true = np.full((len(trace.k), self.system.n), np.nan)
+            for j, kk in enumerate(trace.k):
+                i = idx.get(int(kk))
+                if i is not None:
+                    x_true[j] = truth.values[i, cols]
+            e = x_true - X
+            P = np.asarray(res["P"], dtype=float)
+            qb["error"] = e
+            qb["V"] = np.einsum("ki,ij,kj->k", e, P, e)
+        return qb
+
+    @classmethod
+    def run_batch(cls, system: System, gains: Any, traj: Any, **options: Any) -> BatchResult:
+        """Vectorised over runs (:func:`fd_monitor.core.qb.run_batch`, also the Kalman
+        baseline)."""
+        return qb_run_batch(system, gains, traj, **options)
+
+
+# --------------------------------------------------------------------------------------
+# hinf_sc: banks of H-infinity residual generators
+
+
+class HinfScRuntime(Runtime):
+    """``hinf_sc``: :class:`~fd_monitor.core.residual_bank.ResidualBank` (thesis ch. 4-7).
+
+    Channels: one per generator, named by its fault; ``||r_i||`` (output units) against the
+    gain file's ``results.thresholds`` (from its ``threshold_method``; +inf when the file has
+    none), armed ``threshold_method.settle_s`` after every (re)start (+inf before: the Monte
+    Carlo thresholds were taken after that settling time). Every observer starts at
+    ``x^ = C^+ y`` of the first sample. Estimates: ``x_hat`` (n_gen, n); ``rho`` (d,) in force
+    (LPV).
+
+    LPV banks take ``rho`` from the gain file's scheduling map of the measurements
+    (``model.scheduling``, e.g. thesis 7.19) or, without one, from the side signal ``rho``
+    (d,). ``outside``: ``rho - clip(rho, rho_min, rho_max)`` (names: the parameters) -- the
+    generator runs at the clipped value, the certificate covers only the box. LTI and
+    uncertain banks: None.
+
+    Parameters
+    ----------
+    system : System
+    gains : GainFile
+    discretisation : str
+        ``auto``, ``exact`` or ``hold`` (:class:`ResidualBank`).
+    """
+
+    method = "hinf_sc"
+    SIDE_SIGNALS = ("rho",)
+
+    def __init__(self, system: System, gains: Any, discretisation: str = "auto") -> None:
+        super().__init__(system, gains)
+        self.bank = ResidualBank(system, gains, discretisation=discretisation)
+        model = self.bank.model
+        self.channels = tuple(self.bank.faults)
+        self.isolating = self.channels          # generator i alarms: fault i isolated
+        self.units = (_units(system),) * len(self.channels)
+        self.lpv = self.bank.kind == "lpv"
+        names = model.rho_names or tuple(f"rho{j + 1}" for j in range(model.d))
+        self.region_names = tuple(names) if self.lpv else ()
+        self.side_inputs = ("rho",) if self.lpv and not model.scheduling else ()
+        self._rho_names = tuple(names)
+        self.settle = _settle_samples(system, gains)
+        self._Cpinv = np.linalg.pinv(model.C)
+        self._plaus = Plausibility(system)
+        self.reset()
+
+    @property
+    def side_labels(self) -> dict[str, tuple[str, ...]]:
+        """``rho``: the bank's parameter names."""
+        return {"rho": self._rho_names}
+
+    def reset(self) -> None:
+        """Observers re-initialised from the next measurement; thresholds re-armed."""
+        self._k0: int | None = None
+        self._k_next: int | None = None
+
+    def _rho(self, k: int, y: np.ndarray, side: Mapping[str, Any] | None) -> np.ndarray:
+        model = self.bank.model
+        if side is not None and side.get("rho") is not None:
+            return _vector("rho", side["rho"], model.d, k)
+        if model.scheduling:
+            sched = model.scheduling
+            return np.asarray(SCHEDULING_MAPS[str(sched["map"])](
+                y, dict(sched.get("params") or {})), dtype=float)
+        return _vector("rho", self._side(side, "rho", k), model.d, k)
+
+    def step(self, k: int, u: Any, y: Any,
+             side: Mapping[str, Any] | None = None) -> RuntimeOutput:
+        """See :meth:`Runtime.step`; side ``rho`` (d,) for an LPV bank without a scheduling
+        map (given, it overrides the map)."""
+        k, uu, yy = validate_sample(self.system, k, u, y, self._k_next)
+        self._plaus.check(k, uu, yy)
+        outside = rho = None
+        if self.lpv:
+            raw = self._rho(k, yy, side)
+            model = self.bank.model
+            rho = np.clip(raw, model.rho_min, model.rho_max)
+            outside = raw - rho
+        if self._k0 is None:
+            self.bank.reset(self._Cpinv @ yy)
+            self._k0 = k
+        norms = self.bank.step(k, uu, yy, rho)
+        self._k_next = k + 1
+        armed = k - self._k0 >= self.settle
+        thr = self.bank.thresholds if armed else np.full(len(self.channels), np.inf)
+        est: dict[str, Any] = {"x_hat": self.bank.xhat.copy()}
+        if rho is not None:
+            est["rho"] = rho
+        return RuntimeOutput(k, norms, thr.copy(), norms > thr, outside, 0, est, self.bank)
+
+
+# --------------------------------------------------------------------------------------
+# hminus_switched: generalized observers of switched plants
+
+
+class HminusSwitchedRuntime(Runtime):
+    """``hminus_switched``: :class:`~fd_monitor.core.generalized_observer.GeneralizedObserver`
+    (Farhat & Koenig).
+
+    One channel ``r_norm``: ``||r_k||`` (output units) against ``results.threshold`` (+inf
+    when the gain file has none: the shipped file has none, its designer writes
+    ``threshold: {method: none}``), armed ``results.threshold_method.settle_s`` after every
+    (re)start as for ``hinf_sc``. Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
+
+    The switching signal alpha(k), in order of precedence: the side signal ``mode`` when
+    given; an input channel named ``mode``; the plant file's guards (controlled ones on u_k,
+    autonomous ones on the model prediction ``A_q x^_k + B_q u_k`` of x_{k+1}) giving the mode
+    at k + 1; the only mode of a one-mode plant. A plant with several modes and
+    none of these (arbitrary switching, as Farhat & Koenig's) needs the side signal.
+    ``outside``: (1,) ``mode - nearest design mode`` for a mode the design does not have
+    (the observer then keeps the last valid mode), else 0.
+
+    Parameters
+    ----------
+    system : System
+    gains : GainFile
+    design : str
+        ``hminus`` (default) or ``stability``.
+    threshold : float, optional
+        Overrides the gain file's threshold, output units.
+    """
+
+    method = "hminus_switched"
+    SIDE_SIGNALS = ("mode",)
+    ESTIMATE_KIND = "none"
+
+    def __init__(self, system: System, gains: Any, design: str = "hminus",
+                 threshold: float | None = None) -> None:
+        super().__init__(system, gains)
+        self.observer = GeneralizedObserver(system, gains, design, threshold)
+        self.n_modes = len(self.observer.modes)
+        self.channels = ("r_norm",)
+        self.units = (_units(system),)
+        self.region_names = ("mode",)
+        if "mode" in system.inputs:
+            self.mode_source = "input"
+        elif system.guards:
+            self.mode_source = "guards"
+        elif self.n_modes == 1:
+            self.mode_source = "constant"
+        else:
+            self.mode_source = "side"
+        self.side_inputs = ("mode",) if self.mode_source == "side" else ()
+        self._plant = SampledPlant(system) if self.mode_source == "guards" else None
+        self._plaus = Plausibility(system)
+        self.settle = _settle_samples(system, gains)
+        self.reset()
+
+    def reset(self) -> None:
+        """Observer state z = 0, the plant's initial mode; threshold re-armed."""
+        self.observer.reset()
+        self._mode = int(self.system.initial_mode)
+        self._k0: int | None = None
+        self._k_next: int | None = None
+
+    def _measured_mode(self, k: int, uu: np.ndarray,
+                       side: Mapping[str, Any] | None) -> float | None:
+        if side is not None and side.get("mode") is not None:
+            v = _vector("mode", side["mode"], 1, k)
+            return float(v[0])
+        if self.mode_source == "input":
+            return float(uu[self.system.inputs.index("mode")])
+        if self.mode_source == "side":
+            self._side(side, "mode", k)
+        return None
+
+    def step(self, k: int, u: Any, y: Any,
+             side: Mapping[str, Any] | None = None) -> RuntimeOutput:
+        """See :meth:`Runtime.step`; side ``mode`` (mode index) when the plant has no
+        switching rule."""
+        k, uu, yy = validate_sample(self.system, k, u, y, self._k_next)
+        self._plaus.check(k, uu, yy)
+        m = self._measured_mode(k, uu, side)
+        excess = 0.0
+        if m is not None:
+            near = float(np.clip(np.rint(m), 0, self.n_modes - 1))
+            excess = m - near
+            if excess == 0.0:
+                self._mode = int(near)
+        q = self._mode
+        if self._k0 is None:
+            self._k0 = k
+        r = self.observer.step(k, uu, yy, q)
+        self._k_next = k + 1
+        nrm = float(np.linalg.norm(r))
+        thr = self.observer.threshold if k - self._k0 >= self.settle else float("inf")
+        if self._plant is not None:
+            # the plant's guards give the mode of k + 1 as in the plant (controlled on u_k,
+            # autonomous on x_{k+1}), here on the one-step model prediction of x^
+            qa, xa, ua = np.array([q]), self.observer.xhat[None], uu[None]
+            qn = self._plant.next_mode(qa, xa, ua, "controlled")
+            x_pred = self._plant.step(qa, xa, ua)
+            self._mode = int(self._plant.next_mode(qn, x_pred, ua, "autonomous")[0])
+        return RuntimeOutput(k, np.array([nrm]), np.array([thr]), np.array([nrm > thr]),
+                             np.array([excess]), q,
+                             {"x_hat": self.observer.xhat.copy(), "r": r}, self.observer)
+
+
+# --------------------------------------------------------------------------------------
+# the registry
+
+
+#: gain-file ``method`` -> runtime class (one entry per method).
+RUNTIMES: dict[str, type[Runtime]] = {
+    cls.method: cls for cls in (ThresholdsRuntime, QBRuntime, HinfScRuntime,
+                                HminusSwitchedRuntime)
+}
+
+
+def runtime_class(method: str) -> type[Runtime]:
+    """The runtime class of a gain-file method; GainFileError naming the known methods."""
+    try:
+        return RUNTIMES[method]
+    except (KeyError, TypeError):
+        raise GainFileError(f"method {method!r}: no runtime for it; known methods: "
+                            f"{', '.join(sorted(RUNTIMES))}") from None
+
+
+def runtime_for(system: System, gains: Any, **options: Any) -> Runtime:
+    """The runtime of a loaded gain file for ``system``.
+
+    Parameters
+    ----------
+    system : System
+    gains : GainFile
+        Loaded with :func:`fd_monitor.gains.load_gains` (its ``method`` picks the runtime).
+    **options
+        The runtime's keyword options (``agei`` for thresholds, ``rho`` and ``state_bound``
+        for qb, ``discretisation`` for hinf_sc, ``design`` and ``threshold`` for
+        hminus_switched).
+
+    Raises
+    ------
+    GainFileError
+        Unknown method (one line naming the known ones), or an option the runtime does not
+        take.
+    """
+    method = getattr(gains, "method", None)
+    cls = runtime_class(str(method) if method is not None else "<none>")
+    known = cls.options()
+    bad = sorted(set(options) - set(known))
+    if bad:
+        raise GainFileError(f"method {cls.method!r}: no option {', '.join(bad)} (options: "
+                            f"{', '.join(known) or 'none'})")
+    return cls(system, gains, **options)
