@@ -165,13 +165,21 @@ def test_plant_sim_publishes_rho_and_mode_of_lpv_and_switched_scenarios(scenario
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from fd_monitor.core.simulator import PlantSimulator, truth_labels, truth_values
+    from fd_monitor.core.simulator import (
+        PlantSimulator,
+        measured_signals,
+        truth_labels,
+        truth_values,
+    )
     from fd_monitor.nodes.plant_sim import PlantSimNode
 
     sc = load_scenario(scenario)
     K = 40
+    side = measured_signals(simulate(sc, None, K))
+    assert set(side) == {"thesis_6_5_overlap": {"/plant/rho"},
+                         "bag_farhat_koenig_fault": {"/plant/mode"}}[scenario]
     with ros_context() as ctx:
-        col = Collector(ctx, ["/plant/truth"])
+        col = Collector(ctx, ["/plant/truth", *side])
         node = PlantSimNode(PlantSimulator(sc), context=ctx, parameter_overrides=[
             Parameter("rate_factor", value=0.0),
             Parameter("duration", value=K * sc.system.sample_time),
@@ -179,7 +187,7 @@ def test_plant_sim_publishes_rho_and_mode_of_lpv_and_switched_scenarios(scenario
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(col.node)
         ex.add_node(node)
-        assert spin_until(ex, lambda: len(col.msgs["/plant/truth"]) >= K, 30.0)
+        assert spin_until(ex, lambda: all(len(m) >= K for m in col.msgs.values()), 30.0)
         ex.shutdown()
         node.destroy_node()
         col.node.destroy_node()
@@ -188,3 +196,8 @@ def test_plant_sim_publishes_rho_and_mode_of_lpv_and_switched_scenarios(scenario
     assert [d.stamp for d in got] == list(range(K))
     np.testing.assert_array_equal(np.array([d.values for d in got]),
                                   truth_values(simulate(sc, None, K)))
+    # the measured side signals (the runtimes read them live as from a bag)
+    for topic, (labels, values) in side.items():
+        got = col.decoded(topic)
+        assert got[0].labels == labels
+        np.testing.assert_array_equal(np.array([d.values for d in got]), values)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +40,8 @@ from fd_monitor.core.residual_bank import SCHEDULING_MAPS
 from fd_monitor.scenario import PIController, Profile, Scenario
 
 __all__ = ["BLOCK", "PlantSimulator", "Sample", "Trajectory", "simulate", "simulate_batch",
-           "truth_labels", "truth_values", "measured_signals"]
+           "truth_labels", "truth_values", "measured_layout", "measured_signals",
+           "measured_values"]
 
 BLOCK = 256
 
@@ -332,8 +334,8 @@ def truth_values(traj: Trajectory, run: int = 0) -> np.ndarray:
                            traj.faults[run], traj.rho[run]], axis=1)
 
 
-def measured_signals(traj: Trajectory, run: int = 0) -> dict[str, tuple[tuple[str, ...],
-                                                                          np.ndarray]]:
+def measured_layout(scenario: Scenario) -> dict[str, tuple[tuple[str, ...],
+                                                              tuple[int, ...] | None]]:
     """What a monitor may measure besides u and y, as topics: ``/plant/rho`` (the measured
     scheduling parameters of an LPV plant, thesis ch. 6) and ``/plant/mode`` (the mode of a
     plant whose switching no guard decides -- ``switching: arbitrary``, or several modes and
@@ -342,17 +344,32 @@ def measured_signals(traj: Trajectory, run: int = 0) -> dict[str, tuple[tuple[st
     Returns
     -------
     dict
-        Topic -> (labels, (K, m) values); empty for a plant with neither. The side signals of
-        :mod:`fd_monitor.core.runtime` (``rho``, ``mode``) are read from these topics.
+        Topic -> (labels, columns of the scenario's rho, or None for the mode); empty for a
+        plant with neither. The side signals of :mod:`fd_monitor.core.runtime` (``rho``,
+        ``mode``) are read from these topics.
     """
-    sc = traj.scenario
-    sys_ = sc.system
-    out: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
+    sys_ = scenario.system
+    out: dict[str, tuple[tuple[str, ...], tuple[int, ...] | None]] = {}
     measured = {p.name for p in sys_.lpv if p.measured}
-    cols = [j for j, n in enumerate(sc.rho_names) if n in measured]
+    cols = tuple(j for j, n in enumerate(scenario.rho_names) if n in measured)
     if cols:
-        out["/plant/rho"] = (tuple(sc.rho_names[j] for j in cols), traj.rho[run][:, cols])
+        out["/plant/rho"] = (tuple(scenario.rho_names[j] for j in cols), cols)
     if len(sys_.modes) > 1 and (sys_.switching == "arbitrary" or not sys_.guards):
         # no guard decides the mode: it is exogenous, and the monitor must be told it
-        out["/plant/mode"] = (("mode",), traj.mode[run][:, None].astype(float))
+        out["/plant/mode"] = (("mode",), None)
     return out
+
+
+def measured_values(cols: tuple[int, ...] | None, mode: Any, rho: Any) -> np.ndarray:
+    """Values of one :func:`measured_layout` topic: ``rho[..., cols]``, or the mode as a
+    column ((..., 1) float) when ``cols`` is None."""
+    if cols is None:
+        return np.asarray(mode, dtype=float)[..., None]
+    return np.asarray(rho)[..., list(cols)]
+
+
+def measured_signals(traj: Trajectory, run: int = 0) -> dict[str, tuple[tuple[str, ...],
+                                                                          np.ndarray]]:
+    """:func:`measured_layout` topics of one run: topic -> (labels, (K, m) values)."""
+    return {t: (labels, measured_values(cols, traj.mode[run], traj.rho[run]))
+            for t, (labels, cols) in measured_layout(traj.scenario).items()}

@@ -7,8 +7,11 @@ a batch of one run), stamped and labelled Float64MultiArray messages (see
 - ``/plant/u`` — the commanded inputs u_k (labels: the plant's inputs);
 - ``/plant/y`` — the measurements y_k, sensor faults included (labels: the outputs);
 - ``/plant/truth`` — ``mode`` (index), ``x.<state>`` (true state), ``f.<fault>`` (fault
-  signals), ``rho.<name>`` (scheduling parameters of an LPV scenario): for evaluation and
-  as side signals (:func:`fd_monitor.core.simulator.truth_labels`).
+  signals), ``rho.<name>`` (scheduling parameters of an LPV scenario): for evaluation
+  (:func:`fd_monitor.core.simulator.truth_labels`);
+- ``/plant/rho``, ``/plant/mode`` — the measured scheduling parameters, the exogenous mode,
+  when the plant has them: the runtimes' side signals
+  (:func:`fd_monitor.core.simulator.measured_layout`).
 
 Pacing: ``rate_factor`` times the sample rate (1.0 = real time, 100.0 = a hundred times
 faster; a timer ticks once per sample, at most every millisecond), or ``0.0`` = as fast
@@ -28,7 +31,13 @@ from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray
 
-from fd_monitor.core.simulator import PlantSimulator, Sample, truth_labels
+from fd_monitor.core.simulator import (
+    PlantSimulator,
+    Sample,
+    measured_layout,
+    measured_values,
+    truth_labels,
+)
 from fd_monitor.errors import FdMonitorError
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
@@ -82,6 +91,9 @@ USAGE = NodeUsage(
     "plant_sim", "plant_sim: simulate a scenario's plant and publish it sample by sample.",
     PARAMS,
     publishes=(("/plant/u", "inputs u_k (stamp k)"), ("/plant/y", "measurements y_k"),
+               ("/plant/rho", "measured scheduling parameters (LPV plants with measured "
+                              "ones)"),
+               ("/plant/mode", "mode index (plants whose switching no guard decides)"),
                ("/plant/truth", "true mode, state, injected faults (evaluation only)"),
                ("/diagnostics", "simulation status")))
 
@@ -128,7 +140,12 @@ class PlantSimNode(Node):
         self.pub_truth = (self.create_publisher(Float64MultiArray, "plant/truth", qos,
                                                 **pub_events())
                           if p.publish_truth else None)
-        pubs = [self.pub_u, self.pub_y] + ([self.pub_truth] if self.pub_truth else [])
+        # What a monitor may measure besides u, y: plant/rho, plant/mode (side signals).
+        self.pub_side = [(self.create_publisher(Float64MultiArray, topic.lstrip("/"), qos,
+                                                **pub_events()), labels, cols)
+                         for topic, (labels, cols) in measured_layout(sc).items()]
+        pubs = ([self.pub_u, self.pub_y, *(p for p, _, _ in self.pub_side)]
+                + ([self.pub_truth] if self.pub_truth else []))
         self._pacer = AckPacer(pubs, p.ack_window)
         self._wanted = [(self.pub_u, p.min_subscribers_u), (self.pub_y, p.min_subscribers_y)]
         if self.pub_truth is not None:
@@ -189,6 +206,8 @@ class PlantSimNode(Node):
         k = s.k
         self.pub_u.publish(to_msg(self.labels_u, k, s.u[0]))
         self.pub_y.publish(to_msg(self.labels_y, k, s.y[0]))
+        for pub, labels, cols in self.pub_side:
+            pub.publish(to_msg(labels, k, measured_values(cols, s.mode[0], s.rho[0])))
         if self.pub_truth is not None:
             self.pub_truth.publish(to_msg(self.labels_truth, k,
                                           [float(s.mode[0]), *s.x[0], *s.faults[0],
