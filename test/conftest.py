@@ -23,27 +23,28 @@ os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 # UDP on loopback only: Fast DDS's shared-memory transport can hang at start on segments a
 # killed process left in /dev/shm (tests kill processes on purpose).
 os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
-if "ROS_DOMAIN_ID" not in os.environ:
-    try:
-        import importlib.util
+try:
+    import importlib.util
 
-        ros = importlib.util.find_spec("rclpy") is not None
-    except (ImportError, ValueError):
-        ros = False
-    if ros:
+    _ROS = importlib.util.find_spec("rclpy") is not None
+except (ImportError, ValueError):
+    _ROS = False
+if "ROS_DOMAIN_ID" not in os.environ:
+    if _ROS:
         # a domain nobody else on this (shared) machine is using
         from fd_monitor.nodes.domain import free_domain
 
         os.environ["ROS_DOMAIN_ID"] = str(free_domain())
-        # ... and stays visibly taken between tests, for the probe of another run
-        from fd_monitor.nodes.domain import hold_domain
-
-        _ANCHOR = hold_domain()
     else:
         os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="fd_monitor_roslog_"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.pop("FD_MONITOR_CONFIG", None)
+if _ROS:
+    # The domain stays visibly taken between tests, for the probe of another run
+    from fd_monitor.nodes.domain import hold_domain
+
+    _ANCHOR = hold_domain()
 
 
 @pytest.fixture(scope="session")
