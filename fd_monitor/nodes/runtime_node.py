@@ -1,0 +1,179 @@
+"""The fused monitor for any gain file: one join, one ``Runtime.step`` per sample.
+
+The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so the
+node runs every method a designer writes -- ``qb``, ``hinf_sc`` (LTI, uncertain, LPV),
+``hminus_switched`` -- with the arithmetic of the offline run (:func:`fd_monitor.offline.run_bag`)
+and the same rules for holes and restarts (the entry role of
+:class:`~fd_monitor.nodes.join.StampJoin`).
+
+Joins, per sample k: ``plant/u`` (when the plant has inputs), ``plant/y`` and the side
+signals the runtime needs (``plant/rho``: the measured scheduling parameters of an LPV bank
+without a scheduling map; ``plant/mode``: the switching signal of a plant no guard switches),
+stamped. Publishes (stamp k), labels = the runtime's channels (one per generator / output):
+
+- ``fd/residual`` -- the residual evaluation signal per channel (``||r_i||`` for hinf_sc and
+  hminus_switched, the QB detector's signal for qb), output units;
+- ``fd/threshold`` -- the threshold in force per channel (``inf`` while a bank settles or
+  when the gain file has none);
+- ``fd/alarm`` -- 1.0 / 0.0 per channel;
+- ``fd/state_estimate`` -- ``mode`` then the estimate ``x_hat`` flattened (labels
+  ``x.<state>``, or ``<channel>.<state>`` for a bank of observers);
+
+and ``/diagnostics``: ``input``, ``ros graph``, ``estimate`` (WARN ``outside certified
+region`` with the variable and the excess: rho outside its design box, a mode the design
+lacks, x^ or u outside a stated envelope) and one ``residual <channel>`` status per channel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.core.envelope import describe_excess
+from fd_monitor.core.runtime import RUNTIMES, Runtime, runtime_for
+from fd_monitor.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
+from fd_monitor.gains import GainFile
+from fd_monitor.nodes.common import ERROR, OK, WARN, Param
+from fd_monitor.nodes.fd_node import FdNode, Input
+
+__all__ = ["RuntimeNode", "PARAMS", "estimate_labels"]
+
+PARAMS = (
+    Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
+          "one is declared lost (a hole: restart at the next valid sample); absorbs "
+          "out-of-order publication", low=0.001, high=3600.0),
+    Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
+          read_only=False, low=0.0, high=1.0),
+)
+
+
+def estimate_labels(system: Any, runtime: Runtime, x_hat: np.ndarray) -> tuple[str, ...]:
+    """Labels of ``fd/state_estimate``: ``mode``, then ``x.<state>`` for one estimate (n,)
+    or ``<channel>.<state>`` for a bank (n_gen, n)."""
+    x = np.asarray(x_hat)
+    if x.ndim == 1:
+        return ("mode", *(f"x.{s}" for s in system.states[:x.size]))
+    return ("mode", *(f"{c}.{s}" for c in runtime.channels[:x.shape[0]]
+                      for s in system.states[:x.shape[1]]))
+
+
+class RuntimeNode(FdNode):
+    """One node running the registry's runtime of any gain file (see the module docstring).
+
+    Parameters
+    ----------
+    system, gains, qos, **kwargs
+        See :class:`~fd_monitor.nodes.fd_node.FdNode`.
+    node_name : str
+    """
+
+    runtimes: Mapping[str, str] = {m: "_start" for m in RUNTIMES}
+    outputs = ("fd/residual", "fd/threshold", "fd/alarm", "fd/state_estimate")
+
+    def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
+                 **kwargs: Any) -> None:
+        super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+
+    def setup(self) -> None:
+        """Publishers, the runtime, the inputs (at configure)."""
+        self.pubs = {t: self.publisher(t) for t in self.outputs}
+        self.start_runtime()
+
+    def _start(self) -> None:
+        self.build_core(self.gain_file)
+        s = self.system
+        rt = self.runtime
+        self.diag.add("estimate", self.params.stale_timeout)
+        for ch in rt.channels:
+            self.diag.add(f"residual {ch}", self.params.stale_timeout)
+        self.start_inputs([
+            *([Input("u", "plant/u", s.inputs, plain_ok=True, hold=True)] if s.nu else []),
+            Input("y", "plant/y", s.outputs, plain_ok=True),
+            *(Input(n, f"plant/{n}", rt.side_labels[n]) for n in rt.side_inputs),
+        ], gap_timeout=self.params.gap_timeout)
+
+    def build_core(self, gains: GainFile) -> None:
+        """The runtime of ``gains`` (a swap keeps the method, so channels and inputs hold)."""
+        try:
+            rt = runtime_for(self.system, gains)
+        except GainFileError as exc:
+            raise FdMonitorError(str(exc)) from None
+        old = getattr(self, "runtime", None)
+        if old is not None and (rt.channels != old.channels
+                                or rt.side_inputs != old.side_inputs):
+            raise FdMonitorError(f"{gains.path}: channels {', '.join(rt.channels)} or side "
+                                 f"signals differ from the running ones")
+        self.runtime = rt
+        self._labels: tuple[str, ...] | None = None
+        self._alarmed: set[str] = set()
+        self._episode = 0
+        self._was_outside = False
+
+    def reset(self) -> None:
+        """Fresh runtime state, as the offline run restarts it after a hole."""
+        self.runtime.reset()
+
+    def process(self, k: int, inputs: dict[str, Any]) -> None:
+        """Inputs of k -> one ``Runtime.step`` -> outputs and /diagnostics."""
+        rt = self.runtime
+        u = inputs["u"] if self.system.nu else np.zeros(0)
+        side = {n: inputs[n] for n in rt.side_inputs}
+        try:
+            out = rt.step(k, u, inputs["y"], side or None)
+        except MessageError as exc:
+            # refused by the runtime: reported like a bad message, and a hole at k
+            raise ImplausibleError(str(exc)) from None
+        ch = rt.channels
+        self.publish_array(self.pubs["fd/residual"], ch, k, out.residual)
+        self.publish_array(self.pubs["fd/threshold"], ch, k, out.threshold)
+        self.publish_array(self.pubs["fd/alarm"], ch, k, np.asarray(out.alarm, float))
+        x_hat = np.asarray(out.estimates.get("x_hat", np.zeros(0)), float)
+        if self._labels is None:
+            self._labels = estimate_labels(self.system, rt, x_hat)
+        self.publish_array(self.pubs["fd/state_estimate"], self._labels, k,
+                           np.concatenate([[float(out.mode)], np.ravel(x_hat)]))
+        self._report(k, out)
+
+    def _report(self, k: int, out: Any) -> None:
+        rt = self.runtime
+        mode = self.system.mode_names[out.mode] if 0 <= out.mode < len(
+            self.system.mode_names) else str(out.mode)
+        values = {"sample": k, "mode": mode, **self.gain_values()}
+        if out.outside is not None and np.any(out.outside != 0.0):
+            # alarms still count; they are just not covered by the design's guarantee
+            detail = describe_excess(rt.region_names, out.outside)
+            if not self._was_outside:
+                self.get_logger().warning(f"sample {k}: outside certified region: {detail}")
+            self._was_outside = True
+            self.diag.update("estimate", WARN, f"outside certified region: {detail}",
+                             {**values, "outside_certified_region": detail})
+        else:
+            if self._was_outside:
+                self.get_logger().info(f"sample {k}: back inside the certified region")
+            self._was_outside = False
+            self.diag.update("estimate", OK, f"mode {mode}", values)
+        now = {c for c, a in zip(rt.channels, out.alarm) if a}
+        log = self.get_logger()
+        if now and not self._alarmed:
+            self._episode += 1
+        share = self.params.warn_share
+        for i, c in enumerate(rt.channels):
+            r, R = float(out.residual[i]), float(out.threshold[i])
+            if c in now and c not in self._alarmed:
+                log.warning(f"alarm episode {self._episode}: {c} at sample {k}: "
+                            f"|r| = {abs(r):.4g} > R = {R:.4g}")
+            if out.alarm[i]:
+                level, msg = ERROR, "alarm: |residual| > threshold"
+            elif abs(r) > share * R:
+                level, msg = WARN, f"|residual| > {share:g} x threshold"
+            else:
+                level, msg = OK, "ok"
+            self.diag.update(f"residual {c}", level, msg,
+                             {"sample": k, "residual": r, "threshold": R,
+                              "margin": R - abs(r), "mode": mode, **self.gain_values()})
+        if self._alarmed and not now:
+            log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
+                     f"within its threshold")
+        self._alarmed = now
