@@ -504,6 +504,20 @@ def _parse(buf: Any, pos: int, end: int) -> Any:
     return rec
 
 
+_MESSAGE_HEAD = struct.Struct("<HIQQ")   # channel_id, sequence, log_time, publish_time
+
+
+def _message_record(buf: Any, pos: int, end: int) -> Message:
+    """A Message record at ``buf[pos:end]`` (fixed fields, then the data to the end): the
+    hot path of reading a bag, without the generic parser's round trip (a message with its
+    fixed fields is always consistent with its length)."""
+    if end - pos < 9 + _MESSAGE_HEAD.size:
+        raise ValueError("message record shorter than its fixed fields")
+    channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, pos + 9)
+    return Message(channel_id=channel_id, sequence=sequence, log_time=log_time,
+                   publish_time=publish_time, data=bytes(buf[pos + 9 + _MESSAGE_HEAD.size:end]))
+
+
 def _decompress(chunk: Chunk) -> bytes:
     if chunk.compression == "zstd":
         return bytes(zstandard.ZstdDecompressor().decompress(
@@ -734,8 +748,10 @@ class _Scan:
                 j = i + 9 + struct.unpack_from("<Q", data, i + 1)[0]
                 if j > len(data):
                     raise ValueError("record runs past the chunk")
-                rec = _parse(data, i, j) if data[i] in _RECORDS or data[i] == Opcode.MESSAGE \
-                    else None
+                if data[i] == Opcode.MESSAGE:
+                    rec = _message_record(data, i, j)
+                else:
+                    rec = _parse(data, i, j) if data[i] in _RECORDS else None
                 if isinstance(rec, Message):
                     out.append(rec)
                 elif isinstance(rec, (Schema, Channel)):
