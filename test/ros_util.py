@@ -169,15 +169,16 @@ def wait_graph(topics: Sequence[str], timeout: float, nodes: Sequence[str] = (),
 
 
 @contextmanager
-def ros_context() -> Iterator[Any]:
-    """An initialised rclpy Context of its own, shut down at the end."""
+def ros_context(args: Sequence[str] | None = None) -> Iterator[Any]:
+    """An initialised rclpy Context of its own (with command-line ``args``, e.g.
+    ``--ros-args --params-file F``), shut down at the end."""
     from fd_monitor.nodes.common import use_dds_profile
 
     use_dds_profile()
     import rclpy
 
     ctx = rclpy.Context()
-    rclpy.init(context=ctx)
+    rclpy.init(args=args, context=ctx)
     try:
         yield ctx
     finally:

@@ -125,3 +125,24 @@ def test_runtime_node_reports_a_mode_the_design_lacks_and_a_bad_side_signal():
     inp = [s for s in statuses if s.name.endswith("monitor: input")]
     assert any("/plant/mode stamp 400: value mode is nan" in s.message for s in inp), \
         sorted({s.message for s in inp})
+
+
+def test_gain_method_reads_the_parameters_the_node_would_see(tmp_path):
+    """`monitor` picks its node class from the gain file's method before the node exists:
+    from parameter overrides, from a params file, and the default."""
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.nodes.runtime_node import gain_method
+
+    params = tmp_path / "p.yaml"
+    params.write_text("monitor:\n  ros__parameters:\n    system: pwa_cascade\n"
+                      "    gains: pwa_cascade_qb\n")
+    with ros_context() as ctx:
+        assert gain_method(context=ctx) == "thresholds"           # the defaults
+        assert gain_method(context=ctx, parameter_overrides=[
+            Parameter("system", value="farhat_koenig"),
+            Parameter("gains", value="farhat_koenig_hminus_switched")]) == "hminus_switched"
+        assert gain_method(context=ctx, parameter_overrides=[
+            Parameter("gains", value="no_such_file")]) is None     # the node says why
+    with ros_context(args=["--ros-args", "--params-file", str(params)]) as ctx:
+        assert gain_method(context=ctx) == "qb"

@@ -38,7 +38,7 @@ from fd_monitor.gains import GainFile
 from fd_monitor.nodes.common import ERROR, OK, WARN, Param
 from fd_monitor.nodes.fd_node import FdNode, Input
 
-__all__ = ["RuntimeNode", "PARAMS", "estimate_labels"]
+__all__ = ["RuntimeNode", "PARAMS", "estimate_labels", "gain_method"]
 
 PARAMS = (
     Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
@@ -177,3 +177,31 @@ class RuntimeNode(FdNode):
             log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
                      f"within its threshold")
         self._alarmed = now
+
+
+def gain_method(node_name: str = "monitor", **kwargs: Any) -> str | None:
+    """The ``method`` of the gain file a node called ``node_name`` would load, from its
+    parameters as the node would see them (``--params-file``, ``-p``, ``parameter_overrides``),
+    before the node exists: ``monitor`` picks its node class by it. None when the plant or
+    the gain file does not load (the node itself then reports why, at configure).
+    """
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.gains import load_gains
+    from fd_monitor.nodes.fd_node import COMMON_PARAMS
+    from fd_monitor.system import load_system
+
+    defaults = {p.name: p.default for p in COMMON_PARAMS}
+    peek = Node(node_name, allow_undeclared_parameters=True,
+                automatically_declare_parameters_from_overrides=True, **kwargs)
+    try:
+        values = {n: peek.get_parameter_or(n, Parameter(n, value=defaults[n])).value
+                  for n in ("system", "gains")}
+    finally:
+        peek.destroy_node()
+    try:
+        system = load_system(str(values["system"]))
+        return str(load_gains(str(values["gains"]), system, verify=False).method)
+    except FdMonitorError:
+        return None
