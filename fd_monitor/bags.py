@@ -890,7 +890,8 @@ def arrays_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, byt
         first = labels.get(topic)
         try:
             d = stampers.setdefault(topic, ArrivalStamper()).stamp(
-                decode(store.deserialize_cdr(raw, ty), topic, labels=first, allow_nan=True))
+                decode(store.deserialize_cdr(raw, ty), topic, labels=first, allow_nan=True,
+                       allow_inf=True))
         except MessageError as exc:
             raise BagError(f"{path}: {exc}") from None
         if first is None:

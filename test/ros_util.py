@@ -53,6 +53,10 @@ class Proc:
         exe = self.args[self.args.index("run") + 1]
         chain = ["observer", "detector", "agei", "bias_estimator"]
         if exe == "monitor":
+            # another method than thresholds: the one fused node (RuntimeNode)
+            gains = [a.split(":=", 1)[1] for a in self.args if a.startswith("gains:=")]
+            if gains and "thresholds" not in gains[-1]:
+                return ["monitor"]
             return chain
         if exe == "detector" and "layout:=chain" not in self.args:
             qb = any("_qb" in a for a in self.args)

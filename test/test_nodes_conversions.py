@@ -86,3 +86,17 @@ def test_size_without_labels_and_bad_stamp_encoding():
     with pytest.raises(MessageError, match="out of range"):
         encode_data(-1, [1.0])
     assert encode_data(3, np.array([1.0, 2.0])) == [3.0, 1.0, 2.0]
+
+
+def test_nan_and_inf_only_where_allowed():
+    """NaN = no override (fd/threshold_override), +inf = no threshold in force (a recorded
+    fd/threshold of a settling bank); both refused on the data path by default."""
+    for v, kw in ((math.nan, {"allow_nan": True}), (math.inf, {"allow_inf": True})):
+        msg = plain([3.0, 1.0, v, 2.0], offset=1, label="h1,h2,h3", size=3)
+        with pytest.raises(MessageError, match="value h2 is"):
+            decode(msg, "/x")
+        other = {"allow_inf": True} if "allow_nan" in kw else {"allow_nan": True}
+        with pytest.raises(MessageError, match="value h2 is"):
+            decode(msg, "/x", **other)
+        d = decode(msg, "/x", **kw)
+        assert d.stamp == 3 and d.values[0] == 1.0 and d.values[2] == 2.0

@@ -105,3 +105,45 @@ def test_live_nodes_match_expected(tmp_path, name, layout):
     res = read_bag(tmp_path / "rec", ["/fd/residual"])["/fd/residual"]
     np.testing.assert_array_equal(res.stamps, offline.k)
     np.testing.assert_array_equal(res.values[:, :system.ny], offline.signal)
+
+
+GENERIC = [b.name for b in LIB.bags if b.live and b.gains != "three_tank_thresholds"]
+
+
+def test_live_subset_has_every_method():
+    from fd_monitor.gains import load_gains
+
+    methods = {load_gains(LIB[n].gains, verify=False).method for n in LIVE}
+    assert methods >= {"thresholds", "hinf_sc", "hminus_switched"}, methods
+
+
+@pytest.mark.parametrize("name", GENERIC)
+def test_live_monitor_runs_any_gain_file_like_analyze(tmp_path, name):
+    """The `monitor` process on an hinf_sc / hminus_switched gain file (the fused
+    RuntimeNode) publishes exactly what `analyze` computes offline: every residual, threshold
+    and alarm of every channel, sample for sample; the bag's expectations hold offline
+    (test_regression.py), so they hold live."""
+    from fd_monitor.core.runtime import runtime_for
+    from fd_monitor.gains import load_gains
+    from fd_monitor.system import load_system
+
+    spec = LIB[name]
+    system = load_system(load_gains(spec.gains, verify=False).system_name)
+    gf = load_gains(spec.gains, system)
+    offline = run_bag(spec.folder, spec.gains, system=system)
+    n = len(offline.k)
+    side = [f"/plant/{s}" for s in runtime_for(system, gf).side_inputs]
+    topics = ["/fd/residual", "/fd/threshold", "/fd/alarm"]
+    procs = [Proc(["run", "monitor", "--ros-args", "-p", f"system:={system.name}",
+                   "-p", f"gains:={spec.gains}"])]
+    until = [a for t in topics for a in ("--until", f"{t}={n}")]
+    rec = Proc(["record", *topics, "-o", str(tmp_path / "rec"), *until])
+    replay_through(procs, rec, spec.folder,
+                   [*(["/plant/u"] if system.nu else []), "/plant/y", *side],
+                   wait_subscribers=1)
+    got = read_bag(tmp_path / "rec", topics)
+    for topic, want in (("/fd/residual", offline.signal), ("/fd/threshold", offline.threshold),
+                        ("/fd/alarm", offline.alarm.astype(float))):
+        assert got[topic].labels == offline.channels, topic
+        np.testing.assert_array_equal(got[topic].stamps, offline.k, err_msg=topic)
+        np.testing.assert_array_equal(got[topic].values, want, err_msg=topic)

@@ -161,7 +161,7 @@ class Decoded:
 
 def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
            size: int | None = None, require_stamp: bool = False,
-           allow_nan: bool = False) -> Decoded:
+           allow_nan: bool = False, allow_inf: bool = False) -> Decoded:
     """Validate and decode a Float64MultiArray.
 
     Parameters
@@ -179,7 +179,9 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
     require_stamp : bool
         Refuse an unstamped message (``data_offset = 0``).
     allow_nan : bool
-        Accept NaN values (``/fd/threshold_override``: NaN = no override); Inf is refused.
+        Accept NaN values (``/fd/threshold_override``: NaN = no override).
+    allow_inf : bool
+        Accept +-inf values (a recorded ``/fd/threshold``: +inf = no threshold in force).
 
     Raises
     ------
@@ -222,7 +224,8 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
     if expected is not None and got_labels and got_labels != expected:
         raise MessageError(f"{where}: channels {','.join(got_labels)}: expected "
                            f"{','.join(expected)}")
-    bad = np.isinf(values) if allow_nan else ~np.isfinite(values)
+    bad = ((np.zeros(values.shape, bool) if allow_inf else np.isinf(values))
+           | (np.zeros(values.shape, bool) if allow_nan else np.isnan(values)))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         names = got_labels or expected or ()

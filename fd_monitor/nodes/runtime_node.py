@@ -35,10 +35,10 @@ from fd_monitor.core.envelope import describe_excess
 from fd_monitor.core.runtime import RUNTIMES, Runtime, runtime_for
 from fd_monitor.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.gains import GainFile
-from fd_monitor.nodes.common import ERROR, OK, WARN, Param
-from fd_monitor.nodes.fd_node import FdNode, Input
+from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage, Param
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 
-__all__ = ["RuntimeNode", "PARAMS", "estimate_labels", "gain_method"]
+__all__ = ["RuntimeNode", "PARAMS", "USAGE", "estimate_labels", "gain_method"]
 
 PARAMS = (
     Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
@@ -47,6 +47,23 @@ PARAMS = (
     Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
           read_only=False, low=0.0, high=1.0),
 )
+
+
+USAGE = NodeUsage(
+    "monitor", "monitor with a qb, hinf_sc or hminus_switched gain file: one node, one "
+    "runtime step per sample (the registry's runtime, as analyze runs it).",
+    (*COMMON_PARAMS, *PARAMS),
+    subscribes=(("/plant/u", "u_k (plants with inputs; stamped, or plain)"),
+                ("/plant/y", "y_k (stamped, or plain: stamped on arrival)"),
+                ("/plant/rho", "measured scheduling parameters (LPV bank without a "
+                               "scheduling map; stamped k)"),
+                ("/plant/mode", "switching signal (no guard decides the mode; stamped k)")),
+    publishes=(("/fd/residual", "residual evaluation signal per channel (stamp k)"),
+               ("/fd/threshold", "threshold in force per channel, inf = none (stamp k)"),
+               ("/fd/alarm", "0/1 per channel (stamp k)"),
+               ("/fd/state_estimate", "mode, x^ (flattened per generator) (stamp k)"),
+               ("/diagnostics", "input, estimate (WARN outside certified region), residual "
+                                "<channel>")))
 
 
 def estimate_labels(system: Any, runtime: Runtime, x_hat: np.ndarray) -> tuple[str, ...]:
