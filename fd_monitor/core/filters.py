@@ -21,11 +21,13 @@ the observer starts at ``x^_0 = y~_0``.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FilterSpec", "FilterBank", "moving_average", "first_order", "impulse_response",
+__all__ = ["FilterSpec", "FilterBank", "FloatFilter", "moving_average", "first_order",
+           "impulse_response",
            "settling_length"]
 
 
@@ -205,3 +207,68 @@ class FilterBank:
         self._xin[...] = snap[0]
         self._yout[...] = snap[1]
         self.started = snap[2]
+
+
+def _fixed_order_dot(coeffs: np.ndarray) -> Callable[..., float]:
+    """``f(h_0, .., h_m) = c_0 h_0 + c_1 h_1 + ... + c_m h_m`` summed left to right.
+
+    The order :meth:`FilterBank.step`'s ``sum(axis=0)`` adds the taps in (numpy reduces a
+    non-contiguous leading axis one slice at a time), so a single stream on Python floats
+    gets its bits. Built once per filter as one expression with the coefficients as
+    constants (their ``repr`` round-trips exactly): a Python loop over the taps costs
+    several times more per sample.
+    """
+    names = [f"h{j}" for j in range(coeffs.size)]
+    body = " + ".join(f"({float(c)!r}) * {h}" for c, h in zip(coeffs, names))
+    return eval(f"lambda {', '.join(names)}: {body}")
+
+
+class FloatFilter:
+    """One filter H(z) on ``channels`` channels of one stream, on Python floats.
+
+    The single-stream form of :class:`FilterBank` (same initial condition, same direct form
+    I, same summation order: the same bits as a batch of one), without numpy calls:
+    histories are lists, newest first.
+
+    Parameters
+    ----------
+    spec : FilterSpec
+    channels : int
+    """
+
+    def __init__(self, spec: FilterSpec, channels: int) -> None:
+        self.spec = spec
+        self.channels = int(channels)
+        self._nb, self._na = spec.b.size, spec.a.size - 1
+        self._dot_b = _fixed_order_dot(spec.b)
+        self._dot_a = _fixed_order_dot(spec.a[1:]) if self._na else None
+        self._dc = spec.dc_gain
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history: the next input initialises the steady state again."""
+        self._xin = [[0.0] * self._nb for _ in range(self.channels)]
+        self._yout = [[0.0] * self._na for _ in range(self.channels)]
+        self.started = False
+
+    def step(self, x: Sequence[float]) -> list[float]:
+        """Filter one sample: (channels,) floats in -> (channels,) floats out."""
+        if not self.started:
+            # steady state of the constant input x: in = x, out = H(1) x
+            self._xin = [[v] * self._nb for v in x]
+            self._yout = [[self._dc * v] * self._na for v in x]
+            self.started = True
+        else:
+            for h, v in zip(self._xin, x):
+                h.pop()
+                h.insert(0, v)
+        dot_b, dot_a = self._dot_b, self._dot_a
+        if dot_a is None:
+            return [dot_b(*h) for h in self._xin]
+        out = []
+        for h, yo in zip(self._xin, self._yout):
+            o = dot_b(*h) - dot_a(*yo)
+            yo.pop()
+            yo.insert(0, o)
+            out.append(o)
+        return out
