@@ -36,17 +36,23 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from fd_monitor.core.filters import _fixed_order_dot
+from fd_monitor.core.filters import linear_map
 from fd_monitor.core.hybrid_observer import ModeDynamics
 from fd_monitor.core.thresholds import DiagnosisGains
 from fd_monitor.system import System
 
 __all__ = ["BiasEstimator", "BiasOutput", "project", "matvec"]
+
+
+def _matvec1(M: np.ndarray) -> Callable[[Sequence[float]], list[float]]:
+    """``x -> M x`` on floats, each row summed as :func:`matvec` sums it (<= 7 terms)."""
+    M = np.atleast_2d(M)
+    return linear_map([[(M[i, j], j) for j in range(M.shape[1])] for i in range(M.shape[0])])
 
 
 def _seq_sum(v: Sequence[float]) -> float:
@@ -167,8 +173,8 @@ class BiasEstimator:
         # see matvec); each matrix row a fixed-order dot product.
         self._fast = batch is None and max(system.n, system.ny) <= 7
         if self._fast:
-            self._Lam1 = [_fixed_order_dot(row) for row in np.atleast_2d(gains.Lambda)]
-            self._Gam1 = [_fixed_order_dot(row) for row in np.atleast_2d(gains.Gamma)]
+            self._Lam1 = _matvec1(gains.Lambda)
+            self._Gam1 = _matvec1(gains.Gamma)
             self._iso_thr1 = np.ravel(gains.isolation_threshold).tolist()
             self._zeros1 = _frozen(np.zeros(system.ny))
             self._false1 = _frozen(np.zeros(system.ny, dtype=bool))
@@ -268,13 +274,13 @@ class BiasEstimator:
         else:
             eps = [a - b - c for a, b, c in zip(y, xs, sg)]
             fx = f(mode, xs, u)
-            self._xs1 = [a + d(*eps) for a, d in zip(fx, self._Lam1)]
-            step = [d(*eps) for d in self._Gam1]
+            self._xs1 = [a + b for a, b in zip(fx, self._Lam1(eps))]
+            step = self._Gam1(eps)
             # projection (eq. 26), as project() does it for one run
             norm = math.sqrt(_seq_sum([a * a for a in sg]))
             outward = _seq_sum([a * b for a, b in zip(sg, step)])
             if norm >= g.M_sigma and outward > 0.0:
-                Gs = [d(*sg) for d in self._Gam1]
+                Gs = self._Gam1(sg)
                 c = outward / _seq_sum([a * b for a, b in zip(sg, Gs)])
                 step = [a - b * c for a, b in zip(step, Gs)]
             self._sigma1 = [a + b for a, b in zip(sg, step)]

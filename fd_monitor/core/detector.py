@@ -101,7 +101,8 @@ class ResidualDetector:
         self._noise = gains.noise_term[None, :]
         self._b = gains.per_sample_bound  # (s, ny)
         # single stream on floats; H_p_bar's input is a function of the mode only
-        self._fy, self._fx = FloatFilter(gains.filter, ny), FloatFilter(gains.filter, ny)
+        self._fyx = FloatFilter(gains.filter, 2 * ny)     # H[y~] and H[x^] side by side
+        self._ny = ny
         self._fbar = FloatFilter(FilterSpec(gains.h_p_bar, np.array([1.0])), ny)
         self._bar_len = int(np.asarray(gains.h_p_bar).size)
         self._b1 = [row.tolist() for row in np.atleast_2d(self._b)]
@@ -112,7 +113,7 @@ class ResidualDetector:
         """Forget the filters' history."""
         for f in (self._H_y, self._H_x, self._Hbar):
             f.reset()
-        for g in (self._fy, self._fx, self._fbar):
+        for g in (self._fyx, self._fbar):
             g.reset()
         self._bar_mode, self._bar_run = -1, 0
         self._nominal1: list[float] = []
@@ -124,9 +125,10 @@ class ResidualDetector:
 
         Returns the output and its r, w, nominal and alarm as lists (for the next component).
         """
-        w = self._fy.step(y_tilde)
-        w_hat = self._fx.step(x_hat)
-        r = [a - b for a, b in zip(w, w_hat)]
+        ny = self._ny
+        ww = self._fyx.step(y_tilde + x_hat[:ny])
+        w = ww[:ny]
+        r = [a - b for a, b in zip(w, ww[ny:])]
         # The nominal threshold filters b[q^]: once the window at k and at k - 1 hold
         # b[q^] everywhere (len(h_p_bar) + 1 samples in one mode) its output bits are
         # unchanged; the filter's history, not stepped meanwhile, still holds that window.

@@ -26,9 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FilterSpec", "FilterBank", "FloatFilter", "moving_average", "first_order",
-           "impulse_response",
-           "settling_length"]
+__all__ = ["FilterSpec", "FilterBank", "FloatFilter", "linear_map", "moving_average",
+           "first_order", "impulse_response", "settling_length"]
 
 
 @dataclass(frozen=True)
@@ -209,26 +208,33 @@ class FilterBank:
         self.started = snap[2]
 
 
-def _fixed_order_dot(coeffs: np.ndarray) -> Callable[..., float]:
-    """``f(h_0, .., h_m) = c_0 h_0 + c_1 h_1 + ... + c_m h_m`` summed left to right.
+def linear_map(rows: Sequence[Sequence[tuple[float, int]]]) -> Callable[[Sequence[float]],
+                                                                         list[float]]:
+    """``f(h) = [sum_j c_ij h[idx_ij] for each row i]``, each sum left to right.
 
-    The order :meth:`FilterBank.step`'s ``sum(axis=0)`` adds the taps in (numpy reduces a
-    non-contiguous leading axis one slice at a time), so a single stream on Python floats
-    gets its bits. Built once per filter as one expression with the coefficients as
-    constants (their ``repr`` round-trips exactly): a Python loop over the taps costs
-    several times more per sample.
+    Left to right is the order numpy adds the taps of :meth:`FilterBank.step`'s
+    ``sum(axis=0)`` (it reduces a non-contiguous leading axis one slice at a time) and the
+    terms of a contiguous row of up to 7 (``bias_estimator.matvec``), so the single stream
+    on Python floats gets the batch path's bits. Built once as one expression with the
+    coefficients as constants (their ``repr`` round-trips exactly): a Python loop over the
+    terms costs several times more per sample.
+
+    Parameters
+    ----------
+    rows : sequence of sequence of (float, int)
+        Per output, its (coefficient, index into h) terms in summation order (non-empty).
     """
-    names = [f"h{j}" for j in range(coeffs.size)]
-    body = " + ".join(f"({float(c)!r}) * {h}" for c, h in zip(coeffs, names))
-    return eval(f"lambda {', '.join(names)}: {body}")
+    exprs = [" + ".join(f"({float(c)!r}) * h[{int(i)}]" for c, i in row) for row in rows]
+    return eval(f"lambda h: [{', '.join(exprs)}]")
 
 
 class FloatFilter:
     """One filter H(z) on ``channels`` channels of one stream, on Python floats.
 
     The single-stream form of :class:`FilterBank` (same initial condition, same direct form
-    I, same summation order: the same bits as a batch of one), without numpy calls:
-    histories are lists, newest first.
+    I, same summation order: the same bits as a batch of one), without numpy calls. The
+    histories are rings of slots (one value per channel each); :func:`linear_map` gives one
+    function per ring position, so a sample costs one slot write and one call.
 
     Parameters
     ----------
@@ -238,37 +244,39 @@ class FloatFilter:
 
     def __init__(self, spec: FilterSpec, channels: int) -> None:
         self.spec = spec
-        self.channels = int(channels)
-        self._nb, self._na = spec.b.size, spec.a.size - 1
-        self._dot_b = _fixed_order_dot(spec.b)
-        self._dot_a = _fixed_order_dot(spec.a[1:]) if self._na else None
+        c = self.channels = int(channels)
+        nb, na = self._nb, self._na = spec.b.size, spec.a.size - 1
+        # position p holds in_k; tap j reads slot (p - j) mod nb (out: (p - j + 1) mod na)
+        self._fb = [linear_map([[(spec.b[j], ((p - j) % nb) * c + ch) for j in range(nb)]
+                                for ch in range(c)]) for p in range(nb)]
+        self._fa = [linear_map([[(spec.a[j], ((p - j + 1) % na) * c + ch)
+                                 for j in range(1, na + 1)] for ch in range(c)])
+                    for p in range(na)]
         self._dc = spec.dc_gain
         self.reset()
 
     def reset(self) -> None:
         """Forget the history: the next input initialises the steady state again."""
-        self._xin = [[0.0] * self._nb for _ in range(self.channels)]
-        self._yout = [[0.0] * self._na for _ in range(self.channels)]
+        self._x: list[float] = []
+        self._y: list[float] = []
+        self._px = self._py = 0
         self.started = False
 
     def step(self, x: Sequence[float]) -> list[float]:
         """Filter one sample: (channels,) floats in -> (channels,) floats out."""
+        c = self.channels
         if not self.started:
             # steady state of the constant input x: in = x, out = H(1) x
-            self._xin = [[v] * self._nb for v in x]
-            self._yout = [[self._dc * v] * self._na for v in x]
+            self._x = list(x) * self._nb
+            self._y = [self._dc * v for v in x] * self._na
+            self._px = self._py = 0
             self.started = True
         else:
-            for h, v in zip(self._xin, x):
-                h.pop()
-                h.insert(0, v)
-        dot_b, dot_a = self._dot_b, self._dot_a
-        if dot_a is None:
-            return [dot_b(*h) for h in self._xin]
-        out = []
-        for h, yo in zip(self._xin, self._yout):
-            o = dot_b(*h) - dot_a(*yo)
-            yo.pop()
-            yo.insert(0, o)
-            out.append(o)
+            p = self._px = (self._px + 1) % self._nb
+            self._x[p * c:(p + 1) * c] = x
+        out = self._fb[self._px](self._x)
+        if self._na:
+            out = [o - v for o, v in zip(out, self._fa[self._py](self._y))]
+            p = self._py = (self._py + 1) % self._na
+            self._y[p * c:(p + 1) * c] = out
         return out

@@ -229,8 +229,12 @@ class HybridObserver:
         self._x_next1 = self.f.step1(q, y_t, u)
         qn = q
         for src, target, conds in self._controlled:
-            if src == q and qn == q and all(_holds(u[i], op, v) for i, op, v in conds):
-                qn = target
+            if src == q and qn == q:
+                for i, op, v in conds:
+                    if not _holds(u[i], op, v):
+                        break
+                else:
+                    qn = target
         self._q_mid1 = qn
         self.k_next = k + 1
         out = None

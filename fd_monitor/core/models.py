@@ -168,15 +168,19 @@ def _three_tank_floats(x: Sequence[float], u: Sequence[float], f: Mapping[str, f
     sqrt = math.sqrt
 
     def rhs(h1: float, h2: float, h3: float) -> tuple[float, float, float]:
+        # inline forms of _sgn(d) and max(v, 0.0) (the same values; calls cost here)
         d13 = h1 - h3
         d32 = h3 - h2
-        q13 = a13 * _sgn(d13) * sqrt(g2 * abs(d13))
-        q32 = pipe * _sgn(d32) * sqrt(g2 * abs(d32))
-        q32u = upper * sqrt(g2 * max(h3 - h_up, 0.0))
-        q20 = out * sqrt(g2 * max(h2, 0.0))
-        l1 = la1 * sqrt(g2 * max(h1, 0.0))
-        l2 = la2 * sqrt(g2 * max(h2, 0.0))
-        l3 = la3 * sqrt(g2 * max(h3, 0.0))
+        q13 = a13 * (1.0 if d13 > 0.0 else (-1.0 if d13 < 0.0 else 0.0)) * sqrt(g2 * abs(d13))
+        q32 = pipe * (1.0 if d32 > 0.0 else (-1.0 if d32 < 0.0 else 0.0)) * sqrt(g2 * abs(d32))
+        v = h3 - h_up
+        q32u = upper * sqrt(g2 * (0.0 if v < 0.0 else v))
+        p1, p2, p3 = (0.0 if h1 < 0.0 else h1), (0.0 if h2 < 0.0 else h2), \
+            (0.0 if h3 < 0.0 else h3)
+        q20 = out * sqrt(g2 * p2)
+        l1 = la1 * sqrt(g2 * p1)
+        l2 = la2 * sqrt(g2 * p2)
+        l3 = la3 * sqrt(g2 * p3)
         return ((q1 - q13 - l1) / a, (q2 + q32 + q32u - q20 - l2) / a,
                 (q13 - q32 - q32u - l3) / a)
 
@@ -186,13 +190,13 @@ def _three_tank_floats(x: Sequence[float], u: Sequence[float], f: Mapping[str, f
     c = 0.5 * h
     w = h / 6.0
     for _ in range(substeps):
-        k1 = rhs(h1, h2, h3)
-        k2 = rhs(h1 + c * k1[0], h2 + c * k1[1], h3 + c * k1[2])
-        k3 = rhs(h1 + c * k2[0], h2 + c * k2[1], h3 + c * k2[2])
-        k4 = rhs(h1 + h * k3[0], h2 + h * k3[1], h3 + h * k3[2])
-        h1 = h1 + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-        h2 = h2 + w * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-        h3 = h3 + w * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+        a1, b1, c1 = rhs(h1, h2, h3)
+        a2, b2, c2 = rhs(h1 + c * a1, h2 + c * b1, h3 + c * c1)
+        a3, b3, c3 = rhs(h1 + c * a2, h2 + c * b2, h3 + c * c2)
+        a4, b4, c4 = rhs(h1 + h * a3, h2 + h * b3, h3 + h * c3)
+        h1 = h1 + w * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        h2 = h2 + w * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+        h3 = h3 + w * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
     return [h1, h2, h3]
 
 

@@ -243,9 +243,8 @@ def _floats(system: System, name: str, v: Any, length: int, k: int) -> list[floa
         out = list(v)
     else:
         return validate_vector(name, v, length, k).tolist()
-    for a in out:
-        if not math.isfinite(a):
-            validate_vector(name, v, length, k)         # raises, naming the index
+    if not all(map(math.isfinite, out)):
+        validate_vector(name, v, length, k)         # raises, naming the index
     return out
 
 
