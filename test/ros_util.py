@@ -53,7 +53,7 @@ class Proc:
         exe = self.args[self.args.index("run") + 1]
         chain = ["observer", "detector", "agei", "bias_estimator"]
         if exe == "monitor":
-            return chain
+            return chain if "layout:=chain" in self.args else ["monitor"]
         if exe == "detector" and "layout:=chain" not in self.args:
             qb = any("_qb" in a for a in self.args)
             return ["detector", "observer"] if qb else chain

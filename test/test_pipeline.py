@@ -43,20 +43,34 @@ def offline(u, y):
     return [m.step(k, u[k], y[k]) for k in range(len(u))]
 
 
-@pytest.mark.parametrize("layout", ["four_processes", "monitor_process"])
+def expected_payloads(outs) -> dict[str, np.ndarray]:
+    """The values the chain publishes on each topic for Monitor outputs (one run from 0)."""
+    system = load_system("three_tank")
+    rows: dict[str, list] = {t: [] for t in FD_TOPICS}
+    for o in outs:
+        _, st = o.observer.payload(system)
+        rows["/fd/state_estimate"].append([*st, 1.0 if o.k == 0 else 0.0])   # restart
+        for t, (_, v) in {**o.detector.payloads(system), **o.agei.payloads(system)}.items():
+            rows[t].append(v)
+        rows["/fd/bias_estimate"].append(o.estimator.payload(system)[1])
+    return {t: np.array(v, dtype=float) for t, v in rows.items()}
+
+
+@pytest.mark.parametrize("layout", ["four_processes", "monitor_chain", "monitor_fused"])
 def test_distributed_chain_equals_offline_monitor(tmp_path, layout):
     bag = tmp_path / "sim"
     simulate_to_bag(short_scenario(tmp_path), bag, seed=7)
     nodes = (["observer", "detector", "agei", "bias_estimator"] if layout == "four_processes"
              else ["monitor"])
-    procs = [Proc(["run", n, *(["--ros-args", "-p", "layout:=chain"] if n == "detector"
+    chain = ["--ros-args", "-p", "layout:=chain"]
+    procs = [Proc(["run", n, *(chain if n == "detector" or layout == "monitor_chain"
                                else [])]) for n in nodes]
     until = [a for t in FD_TOPICS for a in ("--until", f"{t}={K}")]
     rec = Proc(["record", "/plant/u", "/plant/y", *FD_TOPICS, "-o", str(tmp_path / "rec"),
                 *until])
-    # /plant/u and /plant/y: observer, bias_estimator and the recorder.
-    replay_through(procs, rec, bag, ["/plant/u", "/plant/y"], wait_subscribers=3,
-                   timeout=120)
+    # /plant/u and /plant/y: observer, bias_estimator (fused: the monitor) and the recorder.
+    replay_through(procs, rec, bag, ["/plant/u", "/plant/y"],
+                   wait_subscribers=2 if layout == "monitor_fused" else 3, timeout=120)
     got = read_bag(tmp_path / "rec")
     u, y = got["/plant/u"].values, got["/plant/y"].values
     outs = offline(u, y)
@@ -77,6 +91,9 @@ def test_distributed_chain_equals_offline_monitor(tmp_path, layout):
     np.testing.assert_array_equal(got["/fd/alarm"].values > 0.5, alarm)
     np.testing.assert_array_equal(got["/fd/bias_estimate"].values[:, :3],
                                   [o.sigma_hat for o in outs])
+    # Every value of every topic: the layouts of the chain nodes, the Monitor's bits.
+    for t in FD_TOPICS:
+        np.testing.assert_array_equal(got[t].values, expected_payloads(outs)[t], err_msg=t)
     # The scenario's fault is seen: an alarm after the onset, h1 isolated at the end.
     assert alarm[ONSET:].any() and not alarm[:ONSET].any()
     assert got["/fd/bias_estimate"].column("iso:h1")[-1] == 1.0
