@@ -574,9 +574,11 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
              events: bool = False) -> int:
     """Init rclpy, build the node(s), spin until done or shut down; return an exit status.
 
-    With ``events`` the executor is rclpy's EventsExecutor, driven by a ``spin_once`` loop
-    (its ``spin()`` processes nothing in these wheels): no wait-set rebuild per callback,
-    what a node handling thousands of messages per second needs (``monitor``).
+    With ``events`` and nodes that all allow it (``events_executor`` true: their callbacks
+    take no MessageInfo, which it cannot pass in these wheels) the executor is rclpy's
+    EventsExecutor, driven by a ``spin_once`` loop (its ``spin()`` processes nothing in these
+    wheels): no wait-set rebuild per callback, what a node handling thousands of messages per
+    second needs (``monitor``).
 
     With ``-h``/``--help`` before ``--ros-args`` it prints :func:`usage_text` of ``usage``
     and returns 0 without starting ROS.
@@ -600,6 +602,7 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
     try:
         made = factory()
         nodes = list(made) if isinstance(made, Sequence) else [made]
+        events = events and all(getattr(n, "events_executor", False) for n in nodes)
         executor = _events_executor() if events else SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)

@@ -169,6 +169,10 @@ class FdNode(LifecycleNode):
     """
 
     inputs: Sequence[Input] = ()
+    #: Subscription callbacks take the MessageInfo (the DDS source timestamp orders plain
+    #: messages for sample-and-hold). False: message only, plain messages ordered by their
+    #: arrival here -- what rclpy's EventsExecutor can call in these wheels.
+    message_info = True
     #: Gain-file method -> name of the method building the node's runtime for it.
     runtimes: Mapping[str, str] = {}
     #: Output topics (relative), for the start line and the second-publisher check.
@@ -414,7 +418,9 @@ class FdNode(LifecycleNode):
         self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
         for inp in inputs:
-            self.subscribe(inp.topic, self._callback(inp))
+            cb = self._callback(inp)
+            self.subscribe(inp.topic, cb if self.message_info
+                           else lambda msg, cb=cb: cb(msg, None))
         if self._held:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
         # A hole, lost feedback or a new run must be declared even when no further message
@@ -442,7 +448,7 @@ class FdNode(LifecycleNode):
                     self._drain()
                 return
             if d.stamp is None:
-                t = int(info["source_timestamp"])
+                t = int(info["source_timestamp"]) if info is not None else time.time_ns()
                 if inp.hold:
                     self._held[inp.name].append((t, d.values))
                 else:
@@ -611,9 +617,13 @@ class FdNode(LifecycleNode):
         pub.publish(to_msg(labels, stamp, values))
 
     def gain_values(self) -> dict[str, str]:
-        """Gain-file id and certificate status, for /diagnostics."""
-        return {"gain_file": self.gain_file.id,
-                "certificate": self.gain_file.certificate_status}
+        """Gain-file id and certificate status, for /diagnostics (per sample: cached)."""
+        g = self.gain_file
+        cached = getattr(self, "_gain_values", None)
+        if cached is None or cached[0] is not g:
+            cached = self._gain_values = (g, {"gain_file": g.id,
+                                              "certificate": g.certificate_status})
+        return cached[1]
 
 
 class _TopicOrder:

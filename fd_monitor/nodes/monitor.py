@@ -22,6 +22,7 @@ nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
 
 from __future__ import annotations
 
+import time
 from array import array
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -40,6 +41,9 @@ from fd_monitor.nodes.observer import GUARD_LABELS, EstimateReport, ObserverNode
 __all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main"]
 
 LAYOUTS = ("fused", "chain")
+
+#: s between two full diagnostics reports of the fused node while nothing changes.
+DIAG_REFRESH = 0.1
 
 PARAMS = (
     Param("layout", "fused", "fused: the chain as one node (one join, one Monitor.step per "
@@ -85,6 +89,9 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
     outputs = ("fd/state_estimate", "fd/residual", "fd/threshold", "fd/alarm",
                "fd/guard_event", "fd/threshold_override", "fd/bias_estimate")
     bias_channel = "bias estimate"
+    # runs under the EventsExecutor (run_node): message-only callbacks
+    message_info = False
+    events_executor = True
 
     def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
                  **kwargs: Any) -> None:
@@ -127,6 +134,9 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
             self.diag.add(ch, self.params.stale_timeout)
         self.diag.add("tracker", self.params.stale_timeout)
         self.diag.add(self.bias_channel, self.params.stale_timeout, keep_on_stale=True)
+        self._channels_all = ["estimate", *self.channels, "tracker", self.bias_channel]
+        self._last_key: Any = None
+        self._next_report = 0.0
         self.start_runtime()
 
     # -- the runtime: built, reset and stepped here only ------------------------------------
@@ -177,13 +187,24 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         for (pub, msg), data in zip(self._out, rows):
             msg.data = array("d", data)
             pub.publish(msg)
-        self.sigma_hat = est.sigma_hat
-        self.report_estimate(k, int(ob.mode), ob.x_hat, ob.outside)
-        self._report(k, int(ob.mode), det.residual, det.threshold, alarm)
-        self.diag.update("tracker", OK, f"phase {ag.phase}", {
-            "sample": k, "trigger": ag.trigger, "phase": ag.phase, "row": ag.row,
-            **self.gain_values()})
-        self.report_bias(k, est)
+        # Diagnostics: a full report when a status can change (alarms, mode, AGEI phase,
+        # estimator, certified region) and at least every DIAG_REFRESH s; else the channels
+        # are only marked fresh. /diagnostics goes out every diagnostics_period anyway.
+        outside = ob.outside is not None and bool((ob.outside != 0.0).any())
+        key = (alarm, ob.mode, ag.phase, est.active, est.isolated.tolist(), outside)
+        now = time.monotonic()
+        if key != self._last_key or now >= self._next_report:
+            self._last_key, self._next_report = key, now + DIAG_REFRESH
+            self.sigma_hat = est.sigma_hat
+            self.report_estimate(k, int(ob.mode), ob.x_hat, ob.outside)
+            self._report(k, int(ob.mode), det.residual, det.threshold, alarm)
+            self.diag.update("tracker", OK, f"phase {ag.phase}", {
+                "sample": k, "trigger": ag.trigger, "phase": ag.phase, "row": ag.row,
+                **self.gain_values()})
+            self.report_bias(k, est)
+        else:
+            for ch in self._channels_all:
+                self.diag.touch(ch)
 
 
 def make_chain(**kwargs: Any) -> list:
@@ -213,7 +234,7 @@ def main(args: Sequence[str] | None = None) -> int:
     return run_node(make_nodes, args, prog="monitor",
                     usage=[USAGE, *(m.USAGE for m in (observer, detector, agei,
                                                       bias_estimator))],
-                    events=False)
+                    events=True)
 
 
 if __name__ == "__main__":
