@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
-from ros_util import REPO, Proc, replay_through
+from ros_util import REPO, Proc, expected_payloads, replay_through
 
 from fd_monitor.bags import read_bag
 from fd_monitor.commands.simulate import simulate_to_bag
@@ -41,19 +41,6 @@ def offline(u, y):
     system = load_system("three_tank")
     m = Monitor(system, load_gains("three_tank_thresholds", system))
     return [m.step(k, u[k], y[k]) for k in range(len(u))]
-
-
-def expected_payloads(outs) -> dict[str, np.ndarray]:
-    """The values the chain publishes on each topic for Monitor outputs (one run from 0)."""
-    system = load_system("three_tank")
-    rows: dict[str, list] = {t: [] for t in FD_TOPICS}
-    for o in outs:
-        _, st = o.observer.payload(system)
-        rows["/fd/state_estimate"].append([*st, 1.0 if o.k == 0 else 0.0])   # restart
-        for t, (_, v) in {**o.detector.payloads(system), **o.agei.payloads(system)}.items():
-            rows[t].append(v)
-        rows["/fd/bias_estimate"].append(o.estimator.payload(system)[1])
-    return {t: np.array(v, dtype=float) for t, v in rows.items()}
 
 
 @pytest.mark.parametrize("layout", ["four_processes", "monitor_chain", "monitor_fused"])
