@@ -50,12 +50,13 @@ def live_summary(rec, system_outputs, mode_names):
 
 
 def logged_input_errors(log: str) -> dict[str, list]:
-    """kind -> stamps, from the observer's log lines (the kinds of ``read_inputs``)."""
+    """kind -> stamps, from the entry node's log lines (observer, or the fused monitor: the
+    kinds of ``read_inputs``)."""
     out: dict[str, list] = {}
     rejected: set[int] = set()
     holes: list[int] = []
     for line in log.splitlines():
-        if "[observer]" not in line:
+        if "[observer]" not in line and "[monitor]" not in line:
             continue
         if m := re.search(r"/plant/[uy] stamp (\d+): (value \S+ is (nan|inf)|wrong length)",
                           line):
