@@ -169,10 +169,14 @@ class FdNode(LifecycleNode):
     """
 
     inputs: Sequence[Input] = ()
-    #: Subscription callbacks take the MessageInfo (the DDS source timestamp orders plain
-    #: messages for sample-and-hold). False: message only, plain messages ordered by their
-    #: arrival here -- what rclpy's EventsExecutor can call in these wheels.
+    #: Subscription callbacks take the MessageInfo where an input accepts plain messages (the
+    #: DDS source timestamp orders them for sample-and-hold). False: message only, plain
+    #: messages ordered by their arrival here. Message-only callbacks are what rclpy's
+    #: EventsExecutor can call in these wheels.
     message_info = True
+    #: Set at configure: every callback is message-only, so ``run_node`` may use the
+    #: EventsExecutor.
+    events_executor = False
     #: Gain-file method -> name of the method building the node's runtime for it.
     runtimes: Mapping[str, str] = {}
     #: Output topics (relative), for the start line and the second-publisher check.
@@ -417,10 +421,11 @@ class FdNode(LifecycleNode):
         self._stamper = ArrivalStamper()
         self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
+        info = self.message_info and any(i.plain_ok for i in inputs)
+        self.events_executor = not info
         for inp in inputs:
             cb = self._callback(inp)
-            self.subscribe(inp.topic, cb if self.message_info
-                           else lambda msg, cb=cb: cb(msg, None))
+            self.subscribe(inp.topic, cb if info else lambda msg, cb=cb: cb(msg, None))
         if self._held:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
         # A hole, lost feedback or a new run must be declared even when no further message

@@ -89,9 +89,8 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
     outputs = ("fd/state_estimate", "fd/residual", "fd/threshold", "fd/alarm",
                "fd/guard_event", "fd/threshold_override", "fd/bias_estimate")
     bias_channel = "bias estimate"
-    # runs under the EventsExecutor (run_node): message-only callbacks
+    # message-only callbacks: runs under the EventsExecutor (run_node)
     message_info = False
-    events_executor = True
 
     def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
                  **kwargs: Any) -> None:
