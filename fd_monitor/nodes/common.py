@@ -23,6 +23,7 @@ wait last about a second; :func:`use_dds_profile` points Fast DDS at ``config/fa
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 import time
@@ -602,6 +603,10 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
     try:
         made = factory()
         nodes = list(made) if isinstance(made, Sequence) else [made]
+        # What start-up made (modules, plant, gain file, nodes) lives as long as the process:
+        # frozen, a full garbage collection later does not rescan it (a ~25 ms pause of the
+        # data path otherwise).
+        gc.freeze()
         events = events and all(getattr(n, "events_executor", False) for n in nodes)
         executor = _events_executor() if events else SingleThreadedExecutor()
         for n in nodes:
