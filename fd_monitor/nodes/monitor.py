@@ -22,10 +22,12 @@ nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
 
 from __future__ import annotations
 
+import struct
 import time
-from array import array
 from collections.abc import Mapping, Sequence
 from typing import Any
+
+from rclpy.serialization import serialize_message
 
 from fd_monitor.core.monitor import Monitor, MonitorOutput
 from fd_monitor.errors import FdMonitorError
@@ -118,10 +120,15 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
             "fd/threshold_override": tuple(o),
             "fd/bias_estimate": bias_labels(s),
         }
-        # One message per topic, its layout built once; each sample only sets ``data``
-        # (publish serialises at the call, so the object can be reused).
-        self._out = [(self.publisher(t), to_msg(lab, 0, [0.0] * len(lab)))
-                     for t, lab in labels.items()]
+        # Each topic's message is serialised once (CDR, little endian); ``data`` is its last
+        # field, so a sample's message is that prefix (layout, data length) followed by the
+        # k and values as float64: published as serialised bytes, no message object per
+        # sample (the tests compare every published value with Monitor's).
+        self._out = []
+        for t, lab in labels.items():
+            n = len(lab) + 1
+            cdr = serialize_message(to_msg(lab, 0, [0.0] * len(lab)))
+            self._out.append((self.publisher(t), cdr[:-8 * n], struct.Struct(f"<{n}d")))
         self.sigma_hat = [0.0] * s.ny
         self._alarmed: set[str] = set()
         self._episode = 0
@@ -183,9 +190,8 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
             (kn, *est.sigma_hat.tolist(), *(1.0 if i else 0.0 for i in est.isolated.tolist()),
              1.0 if est.active else 0.0, float(est.k_detect)),
         )
-        for (pub, msg), data in zip(self._out, rows):
-            msg.data = array("d", data)
-            pub.publish(msg)
+        for (pub, prefix, cdr), data in zip(self._out, rows):
+            pub.publish(prefix + cdr.pack(*data))
         # Diagnostics: a full report when a status can change (alarms, mode, AGEI phase,
         # estimator, certified region) and at least every DIAG_REFRESH s; else the channels
         # are only marked fresh. /diagnostics goes out every diagnostics_period anyway.
