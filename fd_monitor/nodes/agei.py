@@ -104,7 +104,7 @@ class AgeiNode(FdNode):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the AGEI node."""
-    return run_node(AgeiNode, args, prog="agei", usage=[USAGE], events=True)
+    return run_node(AgeiNode, args, prog="agei", usage=[USAGE])
 
 
 if __name__ == "__main__":

@@ -256,8 +256,7 @@ def main(args: Sequence[str] | None = None) -> int:
     from fd_monitor.nodes import agei, bias_estimator, observer
 
     return run_node(make_nodes, args, prog="detector",
-                    usage=[USAGE, *(m.USAGE for m in (observer, agei, bias_estimator))],
-                    events=True)
+                    usage=[USAGE, *(m.USAGE for m in (observer, agei, bias_estimator))])
 
 
 if __name__ == "__main__":

@@ -169,10 +169,9 @@ class FdNode(LifecycleNode):
     """
 
     inputs: Sequence[Input] = ()
-    #: Subscription callbacks take the MessageInfo where an input accepts plain messages (the
-    #: DDS source timestamp orders them for sample-and-hold). False: message only, plain
-    #: messages ordered by their arrival here. Message-only callbacks are what rclpy's
-    #: EventsExecutor can call in these wheels.
+    #: Subscription callbacks take the MessageInfo (the DDS source timestamp orders plain
+    #: messages for sample-and-hold). False: message only, plain messages ordered by their
+    #: arrival here -- what rclpy's EventsExecutor can call in these wheels (``monitor``).
     message_info = True
     #: Set at configure: every callback is message-only, so ``run_node`` may use the
     #: EventsExecutor.
@@ -421,7 +420,7 @@ class FdNode(LifecycleNode):
         self._stamper = ArrivalStamper()
         self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
-        info = self.message_info and any(i.plain_ok for i in inputs)
+        info = self.message_info
         self.events_executor = not info
         for inp in inputs:
             cb = self._callback(inp)
