@@ -176,7 +176,7 @@ def main() -> None:
     raw = raw_rclpy(bag, env)
     print(f"bag {bag} ({live['samples']} samples of u and y)")
     print(f"{'path':<46} {'samples/s':>10} {'lost':>5}")
-    print(f"{'replay -> monitor (4 nodes) -> /fd/alarm':<46} {live['rate']:>10.0f} "
+    print(f"{'replay -> monitor (fused) -> /fd/alarm':<46} {live['rate']:>10.0f} "
           f"{live['lost']:>5}")
     print(f"{'raw rclpy publish(bytes) -> subscriber':<46} {raw['rate']:>10.0f} "
           f"{raw['lost']:>5}")
