@@ -2,10 +2,11 @@
 
 Run: .venv/bin/python benchmarks/bench_replay.py [--bag bags/three_tank_bias_h1]
 
-1. **Live monitor**: ``python -m fd_monitor run monitor`` (the four chain nodes in one
-   process) and ``record /fd/alarm`` are started, then ``replay --rate 0`` publishes the bag's
-   ``/plant/u`` and ``/plant/y`` flat out (reliable, acknowledgement-paced, lossless). The
-   rate is (N - 1) / (receive time of the last /fd/alarm - of the first), from the recorder's
+1. **Live monitor**: ``python -m fd_monitor run monitor`` (the fused node: one join, one
+   ``Monitor.step`` per sample) and ``record /fd/alarm`` are started, then
+   ``replay --rate 0`` publishes the bag's ``/plant/u`` and ``/plant/y`` flat out (reliable,
+   acknowledgement-paced, lossless). The rate is (N - 1) / (receive time of the last
+   /fd/alarm - of the first), from the recorder's
    timestamps; every stamp 0..N-1 must be there (no lost sample).
 2. **Raw rclpy**: this script publishes the same CDR bytes (``/plant/u`` and ``/plant/y`` of
    the bag, 2 N messages) as fast as ``publish()`` returns, reliable QoS with a history that
@@ -74,7 +75,7 @@ def live_monitor(bag: Path, env: dict[str, str], tmp: Path) -> dict[str, float]:
         t0 = time.perf_counter()
         rep = subprocess.run([sys.executable, "-m", "fd_monitor", "replay", str(bag),
                               "--topics", "/plant/u", "/plant/y", "--rate", "0",
-                              "--wait-subscribers", "2"], cwd=REPO, env=env,
+                              "--wait-subscribers", "1"], cwd=REPO, env=env,
                              capture_output=True, text=True, timeout=600)
         if rep.returncode != 0:
             raise SystemExit(f"replay failed: {rep.stderr}")
@@ -175,7 +176,7 @@ def main() -> None:
     raw = raw_rclpy(bag, env)
     print(f"bag {bag} ({live['samples']} samples of u and y)")
     print(f"{'path':<46} {'samples/s':>10} {'lost':>5}")
-    print(f"{'replay -> monitor (4 nodes) -> /fd/alarm':<46} {live['rate']:>10.0f} "
+    print(f"{'replay -> monitor (fused) -> /fd/alarm':<46} {live['rate']:>10.0f} "
           f"{live['lost']:>5}")
     print(f"{'raw rclpy publish(bytes) -> subscriber':<46} {raw['rate']:>10.0f} "
           f"{raw['lost']:>5}")

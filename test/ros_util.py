@@ -53,11 +53,10 @@ class Proc:
         exe = self.args[self.args.index("run") + 1]
         chain = ["observer", "detector", "agei", "bias_estimator"]
         if exe == "monitor":
-            # another method than thresholds: the one fused node (RuntimeNode)
+            # the fused node (any gain file), or the four chain nodes (thresholds only)
             gains = [a.split(":=", 1)[1] for a in self.args if a.startswith("gains:=")]
-            if gains and "thresholds" not in gains[-1]:
-                return ["monitor"]
-            return chain
+            thresholds = not gains or "thresholds" in gains[-1]
+            return chain if thresholds and "layout:=chain" in self.args else ["monitor"]
         if exe == "detector" and "layout:=chain" not in self.args:
             qb = any("_qb" in a for a in self.args)
             return ["detector", "observer"] if qb else chain
@@ -246,3 +245,24 @@ class Collector:
     def statuses(self, name_part: str = "") -> list[Any]:
         """Every DiagnosticStatus received whose name contains ``name_part``."""
         return [s for a in self.diagnostics for s in a.status if name_part in s.name]
+
+
+FD_TOPICS = ["/fd/state_estimate", "/fd/residual", "/fd/threshold", "/fd/alarm",
+             "/fd/guard_event", "/fd/threshold_override", "/fd/bias_estimate"]
+
+
+def expected_payloads(outs: Sequence[Any]) -> dict[str, Any]:
+    """The values the chain publishes on each topic for Monitor outputs (one run from 0)."""
+    import numpy as np
+
+    from fd_monitor.system import load_system
+
+    system = load_system("three_tank")
+    rows: dict[str, list] = {t: [] for t in FD_TOPICS}
+    for o in outs:
+        _, st = o.observer.payload(system)
+        rows["/fd/state_estimate"].append([*st, 1.0 if o.k == 0 else 0.0])   # restart
+        for t, (_, v) in {**o.detector.payloads(system), **o.agei.payloads(system)}.items():
+            rows[t].append(v)
+        rows["/fd/bias_estimate"].append(o.estimator.payload(system)[1])
+    return {t: np.array(v, dtype=float) for t, v in rows.items()}

@@ -29,12 +29,12 @@ def test_burst_of_50000_degrades_to_holes_then_a_new_publisher_is_processed():
 
     from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.conversions import to_msg
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
 
     u = np.array([1.0e-4, 1.0e-4, 0.0])
     y = np.array([0.4, 0.2, 0.3])
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx)
+        nodes = make_chain(context=ctx)
         rig = Rig(ctx, nodes, topics=("fd/state_estimate",))
         obs = nodes[0]
         assert obs.get_name() == "observer"

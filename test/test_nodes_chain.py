@@ -41,7 +41,7 @@ def test_bad_messages_are_reported_and_change_nothing():
 
     from fd_monitor.nodes.common import ERROR, STALE, WARN, data_pub_qos
     from fd_monitor.nodes.conversions import to_msg
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
 
     system = load_system("three_tank")
     traj = simulate(load_scenario("three_tank_bias_h1"), 2, K)
@@ -53,7 +53,7 @@ def test_bad_messages_are_reported_and_change_nothing():
     with ros_context() as ctx:
         overrides = [Parameter("stale_timeout", value=0.5),
                      Parameter("diagnostics_period", value=0.2)]
-        nodes = make_nodes(context=ctx, parameter_overrides=overrides)
+        nodes = make_chain(context=ctx, parameter_overrides=overrides)
         col = Collector(ctx, ["/fd/residual", "/fd/alarm", "/fd/bias_estimate",
                               "/fd/state_estimate"], diagnostics=True)
         drv = Node("driver", context=ctx)

@@ -19,13 +19,13 @@ def test_observer_warns_outside_certified_region():
 
     from fd_monitor.nodes.common import OK, WARN, data_pub_qos
     from fd_monitor.nodes.conversions import to_msg
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
     from fd_monitor.system import load_system
 
     system = load_system("three_tank")
     with ros_context() as ctx:
         # the whole chain: the observer joins the estimator's and AGEI's feedback per sample
-        nodes = make_nodes(context=ctx, parameter_overrides=[
+        nodes = make_chain(context=ctx, parameter_overrides=[
             Parameter("gains", value="three_tank_envelope"),
             Parameter("diagnostics_period", value=0.2)])
         col = Collector(ctx, ["/fd/state_estimate"], diagnostics=True)

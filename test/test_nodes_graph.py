@@ -135,12 +135,12 @@ def test_default_and_best_effort_publishers_feed_the_standalone_detector():
 
 
 def test_two_namespaced_monitors_do_not_see_each_other():
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
 
     u, y = data()
     with ros_context() as ctx:
-        one = make_nodes(context=ctx, namespace="/robot1")
-        two = make_nodes(context=ctx, namespace="/robot2")
+        one = make_chain(context=ctx, namespace="/robot1")
+        two = make_chain(context=ctx, namespace="/robot2")
         rig1 = Rig(ctx, one, ns="/robot1")
         rig2 = Rig(ctx, two, ns="/robot2")
         for n in two:
@@ -170,11 +170,11 @@ def test_lifecycle_reset_and_restarted_stream():
     from lifecycle_msgs.msg import State
     from std_srvs.srv import Trigger
 
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
 
     u, y = data()
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx, parameter_overrides=params(autostart=False,
+        nodes = make_chain(context=ctx, parameter_overrides=params(autostart=False,
                                                                    restart_after=0.3))
         rig = Rig(ctx, nodes)
         obs = nodes[0]
@@ -218,11 +218,11 @@ def test_lifecycle_reset_and_restarted_stream():
 
 def test_stray_stamp_does_not_blind_the_monitor():
     """One pair stamped 2**52 then good samples: the good samples are processed."""
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
 
     u, y = data()
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx)
+        nodes = make_chain(context=ctx)
         rig = Rig(ctx, nodes)
         assert rig.matched()
         rig.send(u, y, range(20))
@@ -243,11 +243,11 @@ def test_runtime_parameters_and_gain_swap():
     from rclpy.parameter import Parameter
 
     from fd_monitor.nodes.common import WARN
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
 
     u, y = data()
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx)
+        nodes = make_chain(context=ctx)
         det = nodes[1]
         rig = Rig(ctx, nodes)
         assert rig.matched()

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
-from ros_util import REPO, Proc, replay_through
+from ros_util import REPO, Proc, expected_payloads, replay_through
 
 from fd_monitor.bags import read_bag
 from fd_monitor.commands.simulate import simulate_to_bag
@@ -43,20 +43,21 @@ def offline(u, y):
     return [m.step(k, u[k], y[k]) for k in range(len(u))]
 
 
-@pytest.mark.parametrize("layout", ["four_processes", "monitor_process"])
+@pytest.mark.parametrize("layout", ["four_processes", "monitor_chain", "monitor_fused"])
 def test_distributed_chain_equals_offline_monitor(tmp_path, layout):
     bag = tmp_path / "sim"
     simulate_to_bag(short_scenario(tmp_path), bag, seed=7)
     nodes = (["observer", "detector", "agei", "bias_estimator"] if layout == "four_processes"
              else ["monitor"])
-    procs = [Proc(["run", n, *(["--ros-args", "-p", "layout:=chain"] if n == "detector"
+    chain = ["--ros-args", "-p", "layout:=chain"]
+    procs = [Proc(["run", n, *(chain if n == "detector" or layout == "monitor_chain"
                                else [])]) for n in nodes]
     until = [a for t in FD_TOPICS for a in ("--until", f"{t}={K}")]
     rec = Proc(["record", "/plant/u", "/plant/y", *FD_TOPICS, "-o", str(tmp_path / "rec"),
                 *until])
-    # /plant/u and /plant/y: observer, bias_estimator and the recorder.
-    replay_through(procs, rec, bag, ["/plant/u", "/plant/y"], wait_subscribers=3,
-                   timeout=120)
+    # /plant/u and /plant/y: observer, bias_estimator (fused: the monitor) and the recorder.
+    replay_through(procs, rec, bag, ["/plant/u", "/plant/y"],
+                   wait_subscribers=2 if layout == "monitor_fused" else 3, timeout=120)
     got = read_bag(tmp_path / "rec")
     u, y = got["/plant/u"].values, got["/plant/y"].values
     outs = offline(u, y)
@@ -77,6 +78,9 @@ def test_distributed_chain_equals_offline_monitor(tmp_path, layout):
     np.testing.assert_array_equal(got["/fd/alarm"].values > 0.5, alarm)
     np.testing.assert_array_equal(got["/fd/bias_estimate"].values[:, :3],
                                   [o.sigma_hat for o in outs])
+    # Every value of every topic: the layouts of the chain nodes, the Monitor's bits.
+    for t in FD_TOPICS:
+        np.testing.assert_array_equal(got[t].values, expected_payloads(outs)[t], err_msg=t)
     # The scenario's fault is seen: an alarm after the onset, h1 isolated at the end.
     assert alarm[ONSET:].any() and not alarm[:ONSET].any()
     assert got["/fd/bias_estimate"].column("iso:h1")[-1] == 1.0

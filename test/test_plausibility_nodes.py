@@ -23,7 +23,7 @@ def test_live_chain_refuses_1e300_and_recovers():
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.nodes.common import WARN, data_pub_qos
-    from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.monitor import make_chain
 
     traj = simulate(load_scenario("three_tank_nominal"), 1, K)
     u, y = traj.u[0], traj.y[0].copy()
@@ -35,7 +35,7 @@ def test_live_chain_refuses_1e300_and_recovers():
         return m
 
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx,
+        nodes = make_chain(context=ctx,
                            parameter_overrides=[Parameter("diagnostics_period", value=0.2)])
         col = Collector(ctx, ["/fd/alarm", "/fd/bias_estimate", "/fd/state_estimate"],
                         diagnostics=True)

@@ -50,12 +50,13 @@ def live_summary(rec, system_outputs, mode_names):
 
 
 def logged_input_errors(log: str) -> dict[str, list]:
-    """kind -> stamps, from the observer's log lines (the kinds of ``read_inputs``)."""
+    """kind -> stamps, from the entry node's log lines (observer, or the fused monitor: the
+    kinds of ``read_inputs``)."""
     out: dict[str, list] = {}
     rejected: set[int] = set()
     holes: list[int] = []
     for line in log.splitlines():
-        if "[observer]" not in line:
+        if "[observer]" not in line and "[monitor]" not in line:
             continue
         if m := re.search(r"/plant/[uy] stamp (\d+): (value \S+ is (nan|inf)|wrong length)",
                           line):
@@ -96,8 +97,10 @@ def test_live_nodes_match_expected(tmp_path, name, layout):
                    *(["-p", "layout:=chain"] if x == "detector" else [])]) for x in nodes]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
-    # /plant/u and /plant/y have two subscribers: the observer and the bias estimator.
-    replay_through(procs, rec, spec.folder, ["/plant/u", "/plant/y"], wait_subscribers=2)
+    # /plant/u and /plant/y subscribers: the observer and the bias estimator (the fused
+    # monitor: itself).
+    replay_through(procs, rec, spec.folder, ["/plant/u", "/plant/y"],
+                   wait_subscribers=1 if layout == "monitor" else 2)
     s = live_summary(tmp_path / "rec", system.outputs, system.mode_names)
     s["input_errors"] = logged_input_errors("".join(p.output() for p in procs))
     assert s["samples"] == n                       # no valid sample lost

@@ -24,6 +24,7 @@ observer never executes autonomous transitions.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,18 @@ from fd_monitor.system import System
 __all__ = ["Agei", "AgeiOutput", "MONITORING", "EXPECTING", "TRIGGERING", "decision_rule"]
 
 MONITORING, EXPECTING, TRIGGERING = 0, 1, 2
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """A read-only copy (shared by every output that carries it)."""
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
+    """A vector as a list of Python floats."""
+    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
 
 
 def decision_rule(w: np.ndarray, op: str, xi_minus: float, xi_plus: float) -> np.ndarray:
@@ -130,6 +143,15 @@ class Agei:
             for j2, r2 in enumerate(self.rows):
                 if (r2.state, r2.op, r2.value) == (r.state, r.op, r.value):
                     self._same[j, r2.enabling_mode] = j2
+        # single stream: the tables as Python numbers; overrides as shared read-only arrays
+        self._rows1 = [(int(self._out[j]), int(self._op[j]), float(self._xim[j]),
+                        float(self._xip[j]), self._dc * float(self._val[j]),
+                        [i for i in range(ny) if self._affected[j, i]], int(self._guard[j]),
+                        int(self._enab[j])) for j in range(len(self.rows))]
+        self._same1 = self._same.tolist()
+        self._none1 = (_frozen(np.full(ny, np.nan)), [float("nan")] * ny)
+        self._star1 = [(_frozen(self._star[j]), self._star[j].tolist())
+                       for j in range(len(self.rows))]
         self.reset()
 
     def reset(self) -> None:
@@ -137,6 +159,58 @@ class Agei:
         self.phase = np.zeros(self.N, dtype=int)
         self.row = np.full(self.N, -1, dtype=int)
         self.hold = np.zeros(self.N, dtype=int)
+        self._phase1, self._row1, self._hold1 = MONITORING, -1, 0
+
+    def _lam1(self, j: int, w: Sequence[float]) -> bool:
+        """lambda (eq. 20) of row j on the filtered measurement w (single stream)."""
+        out, op, lo, hi = self._rows1[j][:4]
+        aw = abs(w[out])
+        if op == 4:
+            return lo <= aw <= hi
+        return aw >= lo if op >= 2 else aw <= hi
+
+    def step1(self, k: int, mode: int, w: Sequence[float], residual: Sequence[float],
+              nominal: Sequence[float]) -> tuple[AgeiOutput, list[float]]:
+        """Single stream on Python numbers: the decisions of :meth:`step_batch` for one run.
+
+        Returns the output and its override as a list (for the detector at k + 1).
+        """
+        trigger = -1
+        if not self.enabled or not self.rows:
+            return (AgeiOutput(k, trigger, self._none1[0], self._phase1, self._row1, False),
+                    self._none1[1])
+        phase, row = self._phase1, self._row1
+        if phase == TRIGGERING:
+            self._hold1 -= 1
+            if self._hold1 <= 0:
+                phase, row = MONITORING, -1
+        if phase == EXPECTING:
+            j = self._same1[row][mode]
+            if j < 0:
+                phase, row = MONITORING, -1
+            else:
+                row = j
+                out, op, _, _, val, aff, guard, _ = self._rows1[j]
+                if aff:
+                    occurred = any(abs(residual[i]) > nominal[i] for i in aff)
+                else:
+                    v = w[out]
+                    occurred = (v < val if op == 0 else v <= val if op == 1 else
+                                v > val if op == 2 else v >= val if op == 3 else v == val)
+                if occurred:
+                    trigger, phase = guard, TRIGGERING
+                    self._hold1 = self.gains.hold_steps if aff else 0
+                elif not self._lam1(j, w):
+                    phase, row = MONITORING, -1
+        if phase == MONITORING:
+            for jj, r in enumerate(self._rows1):
+                if mode == r[7] and self._lam1(jj, w):
+                    phase, row = EXPECTING, jj
+                    break
+        self._phase1, self._row1 = phase, row
+        ov = self._none1 if row < 0 else self._star1[row]
+        return (AgeiOutput(k, trigger, ov[0], phase, row, row >= 0 and bool(self._rows1[row][5])),
+                ov[1])
 
     def _lam_rows(self, rows: np.ndarray, w: np.ndarray) -> np.ndarray:
         """lambda (eq. 20) of row ``rows[i]`` on run i's filtered measurement: (M,) bool."""
@@ -224,16 +298,15 @@ class Agei:
         AgeiOutput
         """
         if self.batch is None:
-            t, o = self.step_batch(k, np.array([int(np.asarray(mode))]),
-                                   np.asarray(w, float)[None], np.asarray(residual, float)[None],
-                                   np.asarray(nominal, float)[None])
-            return AgeiOutput(k, int(t[0]), o[0], int(self.phase[0]), int(self.row[0]),
-                              bool(self.mode_uncertain()[0]))
+            return self.step1(k, int(mode), _floats(w), _floats(residual), _floats(nominal))[0]
         t, o = self.step_batch(k, np.asarray(mode, int), w, residual, nominal)
         return AgeiOutput(k, t, o, self.phase.copy(), self.row.copy(), self.mode_uncertain())
 
     def mode_uncertain(self) -> np.ndarray:
         """(N,) bool: phase expecting/triggering on a row with affected residuals."""
+        if self.batch is None:
+            r = self._row1
+            return np.array([r >= 0 and bool(self._rows1[r][5])])
         if not self.rows:
             return np.zeros(self.N, dtype=bool)
         has = np.asarray(self._affected.any(axis=1), dtype=bool)

@@ -34,10 +34,14 @@ is evaluated every sample (not latched).
 
 from __future__ import annotations
 
+import math
+from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from fd_monitor.core.filters import linear_map
 from fd_monitor.core.hybrid_observer import ModeDynamics
 from fd_monitor.core.thresholds import DiagnosisGains
 from fd_monitor.system import System
@@ -45,8 +49,37 @@ from fd_monitor.system import System
 __all__ = ["BiasEstimator", "BiasOutput", "project", "matvec"]
 
 
+def _matvec1(M: np.ndarray) -> Callable[[Sequence[float]], list[float]]:
+    """``x -> M x`` on floats, each row summed as :func:`matvec` sums it (<= 7 terms)."""
+    M = np.atleast_2d(M)
+    return linear_map([[(M[i, j], j) for j in range(M.shape[1])] for i in range(M.shape[0])])
+
+
+def _seq_sum(v: Sequence[float]) -> float:
+    """Sum left to right (numpy's row sum of <= 7 terms, see matvec)."""
+    acc = v[0]
+    for a in v[1:]:
+        acc += a
+    return acc
+
+
+def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
+    """A vector as a list of Python floats."""
+    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """A read-only array (shared by every output that carries it)."""
+    a.flags.writeable = False
+    return a
+
+
 def matvec(M: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Row-wise ``M x`` for X (N, m) -> (N, p), summed in a fixed order (N-independent bits)."""
+    """Row-wise ``M x`` for X (N, m) -> (N, p), summed in a fixed order (N-independent bits).
+
+    numpy sums a contiguous row of up to 7 terms left to right (8 and more pairwise): the
+    single-stream float path relies on the former (checked by a test).
+    """
     return np.asarray((M[None, :, :] * X[:, None, :]).sum(axis=2))
 
 
@@ -136,11 +169,25 @@ class BiasEstimator:
         self.f = ModeDynamics(system)
         self.batch = batch
         self.N = 1 if batch is None else int(batch)
+        # Single stream on Python floats where numpy's row sums are sequential (<= 7 terms,
+        # see matvec); each matrix row a fixed-order dot product.
+        self._fast = batch is None and max(system.n, system.ny) <= 7
+        if self._fast:
+            self._Lam1 = _matvec1(gains.Lambda)
+            self._Gam1 = _matvec1(gains.Gamma)
+            self._iso_thr1 = np.ravel(gains.isolation_threshold).tolist()
+            self._zeros1 = _frozen(np.zeros(system.ny))
+            self._false1 = _frozen(np.zeros(system.ny, dtype=bool))
         self.reset()
 
     def reset(self) -> None:
         """Back to inactive, sigma^ = 0."""
         n, ny = self.system.n, self.system.ny
+        self._active1, self._k_detect1 = False, -1
+        self._xs1: list[float] = [0.0] * n
+        self._sigma1: list[float] = [0.0] * ny
+        self._z1: list[float] = []
+        self._buf1: deque[tuple[list[float], list[float], int]] = deque()
         self.active = np.zeros(self.N, dtype=bool)
         self.k_detect = np.full(self.N, -1, dtype=int)
         self.x_s = np.zeros((self.N, n))
@@ -188,6 +235,60 @@ class BiasEstimator:
         isolated = ran[:, None] & (np.abs(self.sigma) > g.isolation_threshold[None, :])
         return self.sigma.copy(), isolated
 
+    def step1(self, k: int, u: list[float], y: list[float], mode: int, alarm: Sequence[bool],
+              hold: bool) -> tuple[BiasOutput, list[float]]:
+        """Single stream on Python floats: the arithmetic of :meth:`step_batch` for one run.
+
+        Returns the output and its sigma^_{k+1} as a list (for the observer at k + 1).
+        Only when ``max(n, ny) <= 7`` (else :meth:`step` runs :meth:`step_batch`).
+        """
+        g = self.gains
+        f = self.f.step1
+        if g.estimator_init == "presmoother" and not self._active1:
+            # delayed small-gain observer: z estimates x at the oldest buffered sample
+            if not self._z1:
+                self._z1 = list(y)
+            self._buf1.append((u, y, mode))
+            if len(self._buf1) > g.presmoother_delay:
+                uo, yo, qo = self._buf1.popleft()
+                a = g.presmoother_gain
+                self._z1 = f(qo, [z + a * (v - z) for z, v in zip(self._z1, yo)], uo)
+        if not self._active1 and any(alarm):
+            self._active1, self._k_detect1 = True, k
+            self._sigma1 = [0.0] * len(self._sigma1)
+            if g.estimator_init == "presmoother":
+                # open loop from z through the buffered samples up to (excluding) the newest
+                x = self._z1
+                for i, (uo, _, qo) in enumerate(self._buf1):
+                    if i == len(self._buf1) - 1:
+                        break
+                    x = f(qo, x, uo)
+                self._xs1 = list(x)
+            else:
+                self._xs1 = list(y)
+        if not self._active1:
+            return BiasOutput(k, self._zeros1, self._false1, False, -1), self._sigma1
+        xs, sg = self._xs1, self._sigma1
+        if hold:
+            self._xs1 = f(mode, [a - b for a, b in zip(y, sg)], u)
+        else:
+            eps = [a - b - c for a, b, c in zip(y, xs, sg)]
+            fx = f(mode, xs, u)
+            self._xs1 = [a + b for a, b in zip(fx, self._Lam1(eps))]
+            step = self._Gam1(eps)
+            # projection (eq. 26), as project() does it for one run
+            norm = math.sqrt(_seq_sum([a * a for a in sg]))
+            outward = _seq_sum([a * b for a, b in zip(sg, step)])
+            if norm >= g.M_sigma and outward > 0.0:
+                Gs = self._Gam1(sg)
+                c = outward / _seq_sum([a * b for a, b in zip(sg, Gs)])
+                step = [a - b * c for a, b in zip(step, Gs)]
+            self._sigma1 = [a + b for a, b in zip(sg, step)]
+        sig = self._sigma1
+        ran = k - self._k_detect1 >= g.isolation_delay
+        iso = [ran and abs(a) > t for a, t in zip(sig, self._iso_thr1)]
+        return BiasOutput(k, np.array(sig), np.array(iso), True, self._k_detect1), sig
+
     def _presmooth(self, u: np.ndarray, y: np.ndarray, mode: np.ndarray) -> None:
         """Delayed small-gain observer: z estimates x at the oldest buffered sample."""
         D = self.gains.presmoother_delay
@@ -229,6 +330,9 @@ class BiasEstimator:
         -------
         BiasOutput
         """
+        if self._fast:
+            return self.step1(k, _floats(u), _floats(y), int(mode), np.ravel(alarm).tolist(),
+                              bool(np.asarray(mode_uncertain)))[0]
         if self.batch is None:
             s, iso = self.step_batch(k, np.asarray(u, float)[None], np.asarray(y, float)[None],
                                      np.array([int(np.asarray(mode))]),

@@ -12,15 +12,22 @@ R_{i,k}``: no latching (a per-sample flag, as published on ``/fd/alarm``).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from fd_monitor.core.filters import FilterBank, FilterSpec
+from fd_monitor.core.filters import FilterBank, FilterSpec, FloatFilter
 from fd_monitor.core.thresholds import DiagnosisGains
 from fd_monitor.system import System
 
 __all__ = ["ResidualDetector", "DetectorOutput", "no_override"]
+
+
+def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
+    """A vector as a list of Python floats."""
+    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
 
 
 def no_override(ny: int, batch: int | None = None) -> np.ndarray:
@@ -93,11 +100,49 @@ class ResidualDetector:
         self._Hbar = FilterBank(FilterSpec(gains.h_p_bar, np.array([1.0])), (self.N, ny))
         self._noise = gains.noise_term[None, :]
         self._b = gains.per_sample_bound  # (s, ny)
+        # single stream on floats; H_p_bar's input is a function of the mode only
+        self._fyx = FloatFilter(gains.filter, 2 * ny)     # H[y~] and H[x^] side by side
+        self._ny = ny
+        self._fbar = FloatFilter(FilterSpec(gains.h_p_bar, np.array([1.0])), ny)
+        self._bar_len = int(np.asarray(gains.h_p_bar).size)
+        self._b1 = [row.tolist() for row in np.atleast_2d(self._b)]
+        self._noise1 = gains.noise_term.tolist()
+        self.reset()
 
     def reset(self) -> None:
         """Forget the filters' history."""
         for f in (self._H_y, self._H_x, self._Hbar):
             f.reset()
+        for g in (self._fyx, self._fbar):
+            g.reset()
+        self._bar_mode, self._bar_run = -1, 0
+        self._nominal1: list[float] = []
+
+    def step1(self, k: int, y_tilde: list[float], x_hat: list[float], mode: int,
+              override: list[float]) -> tuple[DetectorOutput, list[float], list[float],
+                                              list[float], list[bool]]:
+        """Single stream on Python floats: the arithmetic of :meth:`step_batch` for one run.
+
+        Returns the output and its r, w, nominal and alarm as lists (for the next component).
+        """
+        ny = self._ny
+        ww = self._fyx.step(y_tilde + x_hat[:ny])
+        w = ww[:ny]
+        r = [a - b for a, b in zip(w, ww[ny:])]
+        # The nominal threshold filters b[q^]: once the window at k and at k - 1 hold
+        # b[q^] everywhere (len(h_p_bar) + 1 samples in one mode) its output bits are
+        # unchanged; the filter's history, not stepped meanwhile, still holds that window.
+        self._bar_run = self._bar_run + 1 if mode == self._bar_mode else 1
+        self._bar_mode = mode
+        if self._bar_run > self._bar_len and self._nominal1:
+            nominal = self._nominal1
+        else:
+            nominal = [a + b for a, b in zip(self._noise1, self._fbar.step(self._b1[mode]))]
+            self._nominal1 = nominal
+        R = [n if o != o else (n if n >= o else o) for n, o in zip(nominal, override)]
+        alarm = [abs(a) > b for a, b in zip(r, R)]
+        return (DetectorOutput(k, np.array(r), np.array(w), np.array(R), np.array(nominal),
+                               np.array(alarm)), r, w, nominal, alarm)
 
     def step_batch(self, k: int, y_tilde: np.ndarray, x_hat: np.ndarray, mode: np.ndarray,
                    override: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -132,11 +177,8 @@ class ResidualDetector:
         """
         ny = self.system.ny
         if self.batch is None:
-            ov = no_override(ny) if override is None else np.asarray(override, float)
-            r, w, R, nom, al = self.step_batch(
-                k, np.asarray(y_tilde, float)[None], np.asarray(x_hat, float)[None],
-                np.array([int(np.asarray(mode))]), ov[None])
-            return DetectorOutput(k, r[0], w[0], R[0], nom[0], al[0])
+            return self.step1(k, _floats(y_tilde), _floats(x_hat), int(mode),
+                              [math.nan] * ny if override is None else _floats(override))[0]
         ov = no_override(ny, self.N) if override is None else override
         r, w, R, nom, al = self.step_batch(k, y_tilde, x_hat, np.asarray(mode, int), ov)
         return DetectorOutput(k, r, w, R, nom, al)

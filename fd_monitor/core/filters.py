@@ -21,12 +21,13 @@ the observer starts at ``x^_0 = y~_0``.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FilterSpec", "FilterBank", "moving_average", "first_order", "impulse_response",
-           "settling_length"]
+__all__ = ["FilterSpec", "FilterBank", "FloatFilter", "linear_map", "moving_average",
+           "first_order", "impulse_response", "settling_length"]
 
 
 @dataclass(frozen=True)
@@ -205,3 +206,77 @@ class FilterBank:
         self._xin[...] = snap[0]
         self._yout[...] = snap[1]
         self.started = snap[2]
+
+
+def linear_map(rows: Sequence[Sequence[tuple[float, int]]]) -> Callable[[Sequence[float]],
+                                                                         list[float]]:
+    """``f(h) = [sum_j c_ij h[idx_ij] for each row i]``, each sum left to right.
+
+    Left to right is the order numpy adds the taps of :meth:`FilterBank.step`'s
+    ``sum(axis=0)`` (it reduces a non-contiguous leading axis one slice at a time) and the
+    terms of a contiguous row of up to 7 (``bias_estimator.matvec``), so the single stream
+    on Python floats gets the batch path's bits. Built once as one expression with the
+    coefficients as constants (their ``repr`` round-trips exactly): a Python loop over the
+    terms costs several times more per sample.
+
+    Parameters
+    ----------
+    rows : sequence of sequence of (float, int)
+        Per output, its (coefficient, index into h) terms in summation order (non-empty).
+    """
+    exprs = [" + ".join(f"({float(c)!r}) * h[{int(i)}]" for c, i in row) for row in rows]
+    return eval(f"lambda h: [{', '.join(exprs)}]")
+
+
+class FloatFilter:
+    """One filter H(z) on ``channels`` channels of one stream, on Python floats.
+
+    The single-stream form of :class:`FilterBank` (same initial condition, same direct form
+    I, same summation order: the same bits as a batch of one), without numpy calls. The
+    histories are rings of slots (one value per channel each); :func:`linear_map` gives one
+    function per ring position, so a sample costs one slot write and one call.
+
+    Parameters
+    ----------
+    spec : FilterSpec
+    channels : int
+    """
+
+    def __init__(self, spec: FilterSpec, channels: int) -> None:
+        self.spec = spec
+        c = self.channels = int(channels)
+        nb, na = self._nb, self._na = spec.b.size, spec.a.size - 1
+        # position p holds in_k; tap j reads slot (p - j) mod nb (out: (p - j + 1) mod na)
+        self._fb = [linear_map([[(spec.b[j], ((p - j) % nb) * c + ch) for j in range(nb)]
+                                for ch in range(c)]) for p in range(nb)]
+        self._fa = [linear_map([[(spec.a[j], ((p - j + 1) % na) * c + ch)
+                                 for j in range(1, na + 1)] for ch in range(c)])
+                    for p in range(na)]
+        self._dc = spec.dc_gain
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history: the next input initialises the steady state again."""
+        self._x: list[float] = []
+        self._y: list[float] = []
+        self._px = self._py = 0
+        self.started = False
+
+    def step(self, x: Sequence[float]) -> list[float]:
+        """Filter one sample: (channels,) floats in -> (channels,) floats out."""
+        c = self.channels
+        if not self.started:
+            # steady state of the constant input x: in = x, out = H(1) x
+            self._x = list(x) * self._nb
+            self._y = [self._dc * v for v in x] * self._na
+            self._px = self._py = 0
+            self.started = True
+        else:
+            p = self._px = (self._px + 1) % self._nb
+            self._x[p * c:(p + 1) * c] = x
+        out = self._fb[self._px](self._x)
+        if self._na:
+            out = [o - v for o, v in zip(out, self._fa[self._py](self._y))]
+            p = self._py = (self._py + 1) % self._na
+            self._y[p * c:(p + 1) * c] = out
+        return out

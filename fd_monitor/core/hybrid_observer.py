@@ -20,6 +20,7 @@ takes and returns 1-D arrays (the node / :class:`~fd_monitor.core.monitor.Monito
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +65,10 @@ class ModeDynamics:
                            for k in keys}
             # scalars where every mode agrees (e.g. 'substeps' must stay a scalar)
             self._const = {k: float(v[0]) for k, v in self._table.items() if np.all(v == v[0])}
+        # single-stream fast path: the model on floats with each mode's parameters
+        self._floats = None if self._model is None else self._model.step_floats
+        self._mode_params = [{k: float(v[q]) for k, v in self._table.items()}
+                             for q in range(len(system.modes))] if self._floats else []
 
     def __call__(self, q: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(N,) int modes, (N, n) states, (N, nu) inputs -> (N, n) next states."""
@@ -74,6 +79,35 @@ class ModeDynamics:
             if k not in self._const:
                 p[k] = v[q]
         return self._model.step(x, u, p, self.dt)
+
+    def step1(self, q: int, x: Sequence[float], u: Sequence[float]) -> list[float]:
+        """One run on Python floats: mode q, state (n,), input (nu,) -> next state (n,).
+
+        The model's ``step_floats`` when it has one (bit-identical to the batch call),
+        else the batch call on a batch of one.
+        """
+        if self._floats is not None:
+            return self._floats(x, u, self._mode_params[q], self.dt)
+        return list(self(np.array([q]), np.array([x], dtype=float).reshape(1, -1),
+                         np.array([u], dtype=float).reshape(1, -1))[0].tolist())
+
+
+def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
+    """A vector as a list of Python floats."""
+    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
+
+
+def _holds(v: float, op: str, value: float) -> bool:
+    """``v op value`` of a guard condition."""
+    if op == "<":
+        return v < value
+    if op == "<=":
+        return v <= value
+    if op == ">":
+        return v > value
+    if op == ">=":
+        return v >= value
+    return v == value
 
 
 @dataclass(frozen=True)
@@ -149,6 +183,17 @@ class HybridObserver:
                     if g2.conditions == g.conditions:
                         self._trig[j, m] = g2.target
                         break
+        # single stream (floats): controlled guards (source, target, conditions) in file
+        # order; C_q rows (None where C_q = I); the certified box per mode
+        self._controlled = [(g.source, g.target, [(c.index, c.op, float(c.value))
+                                                  for c in g.conditions])
+                            for g in system.guards if g.kind == "controlled"]
+        self._C = [None if m.C.shape[0] == m.C.shape[1] and np.array_equal(m.C, np.eye(
+            m.C.shape[0])) else m.C for m in system.modes]
+        r = region
+        self._box = [] if r is None else [
+            (r.state_lo[q].tolist() + r.input_lo[q].tolist(),
+             r.state_hi[q].tolist() + r.input_hi[q].tolist()) for q in range(s)]
         self.reset()
 
     def reset(self) -> None:
@@ -156,6 +201,47 @@ class HybridObserver:
         self.k_next: int | None = None
         self.q_mid = np.full(self.N, self.initial_mode, dtype=int)
         self.x_next = np.zeros((self.N, self.system.n))
+        # single stream
+        self._q_mid1 = self.initial_mode
+        self._x_next1: list[float] = []
+
+    def step1(self, k: int, u: list[float], y: list[float], sg: list[float], trigger: int
+              ) -> tuple[ObserverOutput, list[float], list[float]]:
+        """Single stream on Python floats: the arithmetic of :meth:`step_batch` for one run.
+
+        Returns the output and its x^_k and y~_k as lists (for the next component).
+        """
+        q_mid = self._q_mid1
+        # Refuse an implausible sample before any state changes (core/plausibility.py).
+        y_pred = None
+        if self.k_next is not None:
+            C = self._C[q_mid]
+            xp = self._x_next1 if C is None else (C @ np.array(self._x_next1)).tolist()
+            y_pred = [a + b for a, b in zip(xp, sg)]
+        self.plausibility.check(k, u, y, y_pred)
+        y_t = [a - b for a, b in zip(y, sg)]
+        q = q_mid
+        if trigger >= 0:
+            tgt = int(self._trig[trigger, q_mid])
+            if tgt >= 0:
+                q = tgt
+        x_hat = y_t if self.k_next is None else self._x_next1
+        self._x_next1 = self.f.step1(q, y_t, u)
+        qn = q
+        for src, target, conds in self._controlled:
+            if src == q and qn == q:
+                for i, op, v in conds:
+                    if not _holds(u[i], op, v):
+                        break
+                else:
+                    qn = target
+        self._q_mid1 = qn
+        self.k_next = k + 1
+        out = None
+        if self._box:
+            lo, hi = self._box[q]
+            out = np.array([v - min(max(v, a), b) for v, a, b in zip(x_hat + u, lo, hi)])
+        return ObserverOutput(k, q, np.array(x_hat), np.array(y_t), out), x_hat, y_t
 
     def _apply_trigger(self, q: np.ndarray, trigger: np.ndarray) -> np.ndarray:
         t = np.where(trigger >= 0, trigger, len(self.system.guards))
@@ -207,17 +293,6 @@ class HybridObserver:
             from the prediction, :mod:`fd_monitor.core.plausibility`); no state has changed.
         """
         if self.batch is None:
-            # Refuse an implausible sample before any state changes (core/plausibility.py).
-            y_pred = None
-            if self.k_next is not None:
-                y_pred = (self.system.modes[int(self.q_mid[0])].C @ self.x_next[0]
-                          + np.asarray(sigma_hat, float))
-            self.plausibility.check(k, u, y, y_pred)
-            q, x, yt = self.step_batch(k, np.asarray(u, float)[None], np.asarray(y, float)[None],
-                                       np.asarray(sigma_hat, float)[None],
-                                       np.array([int(np.asarray(trigger))]))
-            out = None if self.region is None else self.region.excess(int(q[0]), x[0],
-                                                                       np.asarray(u, float))
-            return ObserverOutput(k, int(q[0]), x[0].copy(), yt[0].copy(), out)
+            return self.step1(k, _floats(u), _floats(y), _floats(sigma_hat), int(trigger))[0]
         q, x, yt = self.step_batch(k, u, y, sigma_hat, np.asarray(trigger, dtype=int))
         return ObserverOutput(k, q, x.copy(), yt)

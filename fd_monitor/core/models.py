@@ -10,7 +10,7 @@ parameter differ from another's).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,6 +41,10 @@ class NonlinearModel:
     ranges : dict
         Parameter name -> ``(low, high, low_open)``: the physical range a plant file's value
         must lie in (``low < v`` when ``low_open``, else ``low <= v``; ``v <= high``).
+    step_floats : callable or None
+        ``step_floats(x, u, params, dt) -> x_next`` for one run on Python floats (x, u and
+        the result sequences of floats, params floats): the single-stream fast path, the
+        same IEEE operations in the same order as ``step`` (bit-identical).
     """
 
     name: str
@@ -52,6 +56,8 @@ class NonlinearModel:
     defaults: Mapping[str, float] = field(default_factory=dict)
     description: str = ""
     ranges: Mapping[str, tuple[float, float, bool]] = field(default_factory=dict)
+    step_floats: Callable[[Sequence[float], Sequence[float], Mapping[str, float], float],
+                          list[float]] | None = None
 
 
 _REGISTRY: dict[str, NonlinearModel] = {}
@@ -136,7 +142,15 @@ def _sgn(v: float) -> float:
 
 
 def _three_tank_step_scalar(x: np.ndarray, u: np.ndarray, p: Params, dt: float) -> np.ndarray:
-    """One run of :func:`_three_tank_step` on Python floats.
+    """One run of :func:`_three_tank_step` on Python floats (see :func:`_three_tank_floats`)."""
+    f = {k: v if type(v) is float else v.item() for k, v in p.items()}  # type: ignore[union-attr]
+    return np.array(_three_tank_floats(x.reshape(-1).tolist(), u.reshape(-1).tolist(), f,
+                                       dt)).reshape(x.shape)
+
+
+def _three_tank_floats(x: Sequence[float], u: Sequence[float], f: Mapping[str, float],
+                       dt: float) -> list[float]:
+    """One run of :func:`_three_tank_step` on Python floats: x (3,), u (3,) -> x_next (3,).
 
     A single stream (the observer and the estimator in a node, offline analysis of one bag)
     pays numpy's per-call overhead on 3-element arrays ~20 times per RK4 stage; plain floats
@@ -144,43 +158,46 @@ def _three_tank_step_scalar(x: np.ndarray, u: np.ndarray, p: Params, dt: float) 
     order as the vectorised path (sqrt is correctly rounded in both), so the results are
     bit-identical to it — a test checks.
     """
-    f = {k: v if type(v) is float else v.item() for k, v in p.items()}  # type: ignore[union-attr]
     pipe, byp, upper, h_up = f["pipe_area"], f["bypass_area"], f["upper_area"], f["h_upper"]
     out, a, g = f["outflow_area"], f["tank_area"], f["g"]
     la1, la2, la3 = f["leak_area_1"], f["leak_area_2"], f["leak_area_3"]
     a13 = pipe + byp
-    ur = u.reshape(-1)
-    q1 = max(float(ur[0]), 0.0)
-    q2 = max(float(ur[1]), 0.0)
+    q1 = max(float(u[0]), 0.0)
+    q2 = max(float(u[1]), 0.0)
+    g2 = 2.0 * g
+    sqrt = math.sqrt
 
     def rhs(h1: float, h2: float, h3: float) -> tuple[float, float, float]:
+        # inline forms of _sgn(d) and max(v, 0.0) (the same values; calls cost here)
         d13 = h1 - h3
         d32 = h3 - h2
-        q13 = a13 * _sgn(d13) * math.sqrt(2.0 * g * abs(d13))
-        q32 = pipe * _sgn(d32) * math.sqrt(2.0 * g * abs(d32))
-        q32u = upper * math.sqrt(2.0 * g * max(h3 - h_up, 0.0))
-        q20 = out * math.sqrt(2.0 * g * max(h2, 0.0))
-        l1 = la1 * math.sqrt(2.0 * g * max(h1, 0.0))
-        l2 = la2 * math.sqrt(2.0 * g * max(h2, 0.0))
-        l3 = la3 * math.sqrt(2.0 * g * max(h3, 0.0))
+        q13 = a13 * (1.0 if d13 > 0.0 else (-1.0 if d13 < 0.0 else 0.0)) * sqrt(g2 * abs(d13))
+        q32 = pipe * (1.0 if d32 > 0.0 else (-1.0 if d32 < 0.0 else 0.0)) * sqrt(g2 * abs(d32))
+        v = h3 - h_up
+        q32u = upper * sqrt(g2 * (0.0 if v < 0.0 else v))
+        p1, p2, p3 = (0.0 if h1 < 0.0 else h1), (0.0 if h2 < 0.0 else h2), \
+            (0.0 if h3 < 0.0 else h3)
+        q20 = out * sqrt(g2 * p2)
+        l1 = la1 * sqrt(g2 * p1)
+        l2 = la2 * sqrt(g2 * p2)
+        l3 = la3 * sqrt(g2 * p3)
         return ((q1 - q13 - l1) / a, (q2 + q32 + q32u - q20 - l2) / a,
                 (q13 - q32 - q32u - l3) / a)
 
-    xr = x.reshape(-1)
-    h1, h2, h3 = float(xr[0]), float(xr[1]), float(xr[2])
+    h1, h2, h3 = float(x[0]), float(x[1]), float(x[2])
     substeps = int(f["substeps"])
     h = dt / substeps
+    c = 0.5 * h
+    w = h / 6.0
     for _ in range(substeps):
-        k1 = rhs(h1, h2, h3)
-        c = 0.5 * h
-        k2 = rhs(h1 + c * k1[0], h2 + c * k1[1], h3 + c * k1[2])
-        k3 = rhs(h1 + c * k2[0], h2 + c * k2[1], h3 + c * k2[2])
-        k4 = rhs(h1 + h * k3[0], h2 + h * k3[1], h3 + h * k3[2])
-        w = h / 6.0
-        h1 = h1 + w * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-        h2 = h2 + w * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-        h3 = h3 + w * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
-    return np.array([h1, h2, h3]).reshape(x.shape)
+        a1, b1, c1 = rhs(h1, h2, h3)
+        a2, b2, c2 = rhs(h1 + c * a1, h2 + c * b1, h3 + c * c1)
+        a3, b3, c3 = rhs(h1 + c * a2, h2 + c * b2, h3 + c * c2)
+        a4, b4, c4 = rhs(h1 + h * a3, h2 + h * b3, h3 + h * c3)
+        h1 = h1 + w * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        h2 = h2 + w * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+        h3 = h3 + w * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
+    return [h1, h2, h3]
 
 
 register_model(NonlinearModel(
@@ -191,6 +208,7 @@ register_model(NonlinearModel(
                  "h_upper", "leak_area_1", "leak_area_2", "leak_area_3", "g", "substeps"),
     step=_three_tank_step,
     rhs=_three_tank_rhs,
+    step_floats=_three_tank_floats,
     defaults={"leak_area_1": 0.0, "leak_area_2": 0.0, "leak_area_3": 0.0, "g": GRAVITY,
               "substeps": 1.0},
     description=(

@@ -41,8 +41,9 @@ Invalid samples (NaN/Inf, wrong length, non-consecutive k) raise
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -186,9 +187,9 @@ class Monitor:
         for c in (self.observer, self.detector, self.agei, self.estimator):
             c.reset()
         self._k_next: int | None = None
-        self._sigma = np.zeros(self.system.ny)
+        self._sigma = [0.0] * self.system.ny
         self._trigger = NO_TRIGGER
-        self._override = no_override(self.system.ny)
+        self._override = [math.nan] * self.system.ny
 
     def step(self, k: int, u: Any, y: Any) -> MonitorOutput:
         """Process sample k.
@@ -211,16 +212,40 @@ class Monitor:
         MessageError
             Invalid sample; no state has changed.
         """
-        k, u, y = validate_sample(self.system, k, u, y, self._k_next)
-        obs = self.observer.step(k, u, y, self._sigma, self._trigger)
-        det = self.detector.step(k, obs.y_tilde, obs.x_hat, obs.mode, self._override)
-        ag = self.agei.step(k, obs.mode, det.w, det.residual, det.nominal)
-        est = self.estimator.step(k, u, y, obs.mode, det.alarm, ag.mode_uncertain)
-        self._sigma = est.sigma_hat
-        self._trigger = int(np.asarray(ag.trigger))
-        self._override = ag.override
+        # The components' single-stream paths on Python floats (``step1``): the arithmetic
+        # of the batch path for one run, bit for bit, without numpy calls per sample.
+        if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
+            k = validate_sample(self.system, k, u, y, self._k_next)[0]
+        uf = _floats(self.system, "u", u, self.system.nu, k)
+        yf = _floats(self.system, "y", y, self.system.ny, k)
+        obs, x_hat, y_t = self.observer.step1(k, uf, yf, self._sigma, self._trigger)
+        q = cast(int, obs.mode)                  # single stream: Python numbers
+        det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
+        ag, self._override = self.agei.step1(k, q, w, r, nominal)
+        hold = cast(bool, ag.mode_uncertain)
+        if self.estimator._fast:
+            est, self._sigma = self.estimator.step1(k, uf, yf, q, alarm, hold)
+        else:
+            est = self.estimator.step(k, np.array(uf), np.array(yf), q, det.alarm, hold)
+            self._sigma = est.sigma_hat.tolist()
+        self._trigger = cast(int, ag.trigger)
         self._k_next = k + 1
         return MonitorOutput(k, obs, det, ag, est)
+
+
+def _floats(system: System, name: str, v: Any, length: int, k: int) -> list[float]:
+    """``v`` as ``length`` finite Python floats, or :class:`MessageError` as
+    :func:`validate_vector` words it."""
+    if type(v) is np.ndarray and v.dtype == np.float64 and v.shape == (length,):
+        out = v.tolist()
+    elif type(v) in (list, tuple) and len(v) == length and \
+            all(type(a) is float for a in v):
+        out = list(v)
+    else:
+        return validate_vector(name, v, length, k).tolist()
+    if not all(map(math.isfinite, out)):
+        validate_vector(name, v, length, k)         # raises, naming the index
+    return out
 
 
 class BatchMonitor:
@@ -247,15 +272,24 @@ class BatchMonitor:
         self.override = no_override(system.ny, self.N)
 
     def step(self, k: int, u: np.ndarray, y: np.ndarray) -> dict[str, np.ndarray]:
-        """One sample of every run: u (N, nu), y (N, ny) (assumed finite) -> arrays by name."""
+        """One sample of every run: u (N, nu), y (N, ny) (assumed finite) -> arrays by name.
+
+        Names: the fields of :class:`MonitorOutput`'s parts, each (N, .): mode, x_hat, y_tilde
+        (observer), residual, w, threshold, nominal, alarm (detector), trigger, override,
+        phase, row, mode_uncertain (AGEI), sigma_hat, isolated, active, k_detect (estimator).
+        """
         q, x_hat, y_t = self.observer.step_batch(k, u, y, self.sigma, self.trigger)
         r, w, R, nom, alarm = self.detector.step_batch(k, y_t, x_hat, q, self.override)
         trig, ov = self.agei.step_batch(k, q, w, r, nom)
         sig, iso = self.estimator.step_batch(k, u, y, q, alarm, self.agei.mode_uncertain())
         self.sigma, self.trigger, self.override = sig, trig, ov
+        est = self.estimator
         return {"mode": q, "x_hat": x_hat, "residual": r, "threshold": R, "alarm": alarm,
                 "sigma_hat": sig, "isolated": iso, "trigger": trig,
-                "phase": self.agei.phase.copy()}
+                "phase": self.agei.phase.copy(), "y_tilde": y_t, "w": w, "nominal": nom,
+                "override": ov, "row": self.agei.row.copy(),
+                "mode_uncertain": self.agei.mode_uncertain(), "active": est.active.copy(),
+                "k_detect": est.k_detect.copy()}
 
 
 def run_batch(system: System, gains: Any, traj: Any, *, agei: bool = True,

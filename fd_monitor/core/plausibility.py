@@ -58,6 +58,9 @@ class Plausibility:
         vbar = np.asarray(system.measurement_noise, dtype=float)
         #: (ny,) largest |y - y_pred| accepted (inf where the noise bound is 0).
         self.tolerance = np.where(vbar > 0, self.factor * vbar, np.inf)
+        self._y_lo, self._y_hi = self.y_lo.tolist(), self.y_hi.tolist()
+        self._u_lo, self._u_hi = self.u_lo.tolist(), self.u_hi.tolist()
+        self._tol = self.tolerance.tolist()
 
     def check(self, k: int, u: Any, y: Any, y_pred: Any = None) -> None:
         """Raise :class:`~fd_monitor.errors.ImplausibleError` unless sample k is plausible.
@@ -74,24 +77,24 @@ class Plausibility:
             (ny,) one-step prediction of y (None: the range test only).
         """
         s = self.system
-        yy = np.asarray(y, dtype=float).reshape(-1)
-        uu = np.asarray(u, dtype=float).reshape(-1)
-        for name, names, v, lo, hi in (("y", s.outputs, yy, self.y_lo, self.y_hi),
-                                       ("u", s.inputs, uu, self.u_lo, self.u_hi)):
-            bad = np.flatnonzero((v < lo) | (v > hi))
-            if bad.size:
-                i = int(bad[0])
-                raise ImplausibleError(
-                    f"{name} at sample {k}: {names[i]} = {float(v[i])!r} outside the "
-                    f"physical range [{lo[i]:g}, {hi[i]:g}] of plant {s.name!r}: implausible "
-                    f"(refused like NaN)")
+        # Python floats: one stream, a few channels (a numpy call costs more than the test)
+        yy = np.ravel(y).tolist() if not isinstance(y, list) else y
+        uu = np.ravel(u).tolist() if not isinstance(u, list) else u
+        for name, names, v, lo, hi in (("y", s.outputs, yy, self._y_lo, self._y_hi),
+                                       ("u", s.inputs, uu, self._u_lo, self._u_hi)):
+            for i, (vi, a, b) in enumerate(zip(v, lo, hi)):
+                if vi < a or vi > b:
+                    raise ImplausibleError(
+                        f"{name} at sample {k}: {names[i]} = {float(vi)!r} outside the "
+                        f"physical range [{a:g}, {b:g}] of plant {s.name!r}: implausible "
+                        f"(refused like NaN)")
         if y_pred is None:
             return
-        d = np.abs(yy - np.asarray(y_pred, dtype=float).reshape(-1))
-        bad = np.flatnonzero(d > self.tolerance)
-        if bad.size:
-            i = int(bad[0])
-            raise ImplausibleError(
-                f"y at sample {k}: {s.outputs[i]} = {float(yy[i])!r} is {float(d[i]):.3g} away "
-                f"from its prediction, more than {self.factor:g} x the noise bound "
-                f"({self.tolerance[i]:g}): implausible (refused like NaN)")
+        yp = np.ravel(y_pred).tolist() if not isinstance(y_pred, list) else y_pred
+        for i, (vi, pi, tol) in enumerate(zip(yy, yp, self._tol)):
+            d = abs(vi - pi)
+            if d > tol:
+                raise ImplausibleError(
+                    f"y at sample {k}: {s.outputs[i]} = {float(vi)!r} is {d:.3g} away "
+                    f"from its prediction, more than {self.factor:g} x the noise bound "
+                    f"({tol:g}): implausible (refused like NaN)")

@@ -20,7 +20,7 @@ from fd_monitor.nodes.detector import state_labels
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.nodes.observer import GUARD_LABELS
 
-__all__ = ["BiasEstimatorNode", "USAGE", "main"]
+__all__ = ["BiasEstimatorNode", "BiasReport", "USAGE", "main"]
 
 PARAMS: tuple = ()
 
@@ -36,7 +36,38 @@ USAGE = NodeUsage(
                ("/diagnostics", "input and estimate status")))
 
 
-class BiasEstimatorNode(FdNode):
+class BiasReport:
+    """Log lines (detection, isolation) and the /diagnostics status ``bias_channel`` of a
+    node running the bias estimator (bias_estimator, monitor). Uses the node's ``diag``,
+    ``system``, ``_last_active`` and ``_last_isolated``."""
+
+    bias_channel = "estimate"
+
+    def report_bias(self, k: int, out: Any) -> None:
+        """Report the estimator's output at k (a BiasOutput)."""
+        s = self.system
+        isolated = [o for o, f in zip(s.outputs, out.isolated) if f]
+        log = self.get_logger()
+        if out.active and not self._last_active:
+            log.info(f"fault detected at sample {int(out.k_detect)}: estimating the sensor "
+                     f"bias")
+        if isolated != self._last_isolated:
+            est = ", ".join(f"{o} = {float(v):.4g}" for o, v in zip(s.outputs, out.sigma_hat))
+            log.info(f"sample {k}: isolated {', '.join(isolated) or 'nothing'} "
+                     f"(sigma_hat {est})")
+        self._last_active, self._last_isolated = bool(out.active), isolated
+        if out.active:
+            level, msg = WARN, (f"bias on {', '.join(isolated)}" if isolated
+                                else "estimating (fault detected)")
+        else:
+            level, msg = OK, "no fault detected"
+        self.diag.update(self.bias_channel, level, msg, {
+            "sample": k, "active": bool(out.active), "k_detect": int(out.k_detect),
+            "sigma_hat": out.sigma_hat, "isolated": ",".join(isolated) or "none",
+            **self.gain_values()})
+
+
+class BiasEstimatorNode(BiasReport, FdNode):
     """Bias estimator node.
 
     Parameters
@@ -98,25 +129,7 @@ class BiasEstimatorNode(FdNode):
                                   bool(inputs["guard"][3] > 0.5))
         labels, values = out.payload(s)
         self.publish_array(self.pub, labels, k + 1, values)
-        isolated = [o for o, f in zip(s.outputs, out.isolated) if f]
-        log = self.get_logger()
-        if out.active and not self._last_active:
-            log.info(f"fault detected at sample {int(out.k_detect)}: estimating the sensor "
-                     f"bias")
-        if isolated != self._last_isolated:
-            est = ", ".join(f"{o} = {float(v):.4g}" for o, v in zip(s.outputs, out.sigma_hat))
-            log.info(f"sample {k}: isolated {', '.join(isolated) or 'nothing'} "
-                     f"(sigma_hat {est})")
-        self._last_active, self._last_isolated = bool(out.active), isolated
-        if out.active:
-            level, msg = WARN, (f"bias on {', '.join(isolated)}" if isolated
-                                else "estimating (fault detected)")
-        else:
-            level, msg = OK, "no fault detected"
-        self.diag.update("estimate", level, msg, {
-            "sample": k, "active": bool(out.active), "k_detect": int(out.k_detect),
-            "sigma_hat": out.sigma_hat, "isolated": ",".join(isolated) or "none",
-            **self.gain_values()})
+        self.report_bias(k, out)
 
 
 def main(args: Sequence[str] | None = None) -> int:

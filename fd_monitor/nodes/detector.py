@@ -39,7 +39,7 @@ from fd_monitor.nodes.conversions import decode
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.nodes.observer import bias_labels
 
-__all__ = ["DetectorNode", "USAGE", "state_labels", "main"]
+__all__ = ["DetectorNode", "ResidualReport", "USAGE", "state_labels", "main"]
 
 PARAMS = (
     Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
@@ -68,7 +68,50 @@ def state_labels(system: Any) -> tuple[str, ...]:
     return ("mode", *system.states, *(f"y~{o}" for o in system.outputs), "restart")
 
 
-class DetectorNode(FdNode):
+class ResidualReport:
+    """Per-channel /diagnostics and alarm log lines of a detecting node (detector, monitor).
+
+    Uses the node's ``channels`` (one ``residual <name>`` status each), ``diag``,
+    ``params.warn_share``, ``system``, ``detector``, ``sigma_hat`` (latest bias estimate),
+    ``_alarmed`` and ``_episode``.
+    """
+
+    def _report(self, k: int, mode: int, signal: Any, threshold: Any, alarm: Any) -> None:
+        share = self.params.warn_share
+        qb = not isinstance(self.detector, ResidualDetector)
+        self._log_alarms(k, signal, threshold, alarm)
+        for i, ch in enumerate(self.channels):
+            r, R = float(signal[i]), float(threshold[i])
+            if alarm[i]:
+                level, msg = ERROR, "alarm: |residual| > threshold"
+            elif abs(r) > share * R:
+                level, msg = WARN, f"|residual| > {share:g} x threshold"
+            else:
+                level, msg = OK, "ok"
+            values = {"sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
+                      "mode": self.system.mode_names[mode], **self.gain_values()}
+            if not qb:
+                values["sigma_hat"] = float(self.sigma_hat[i])
+            self.diag.update(ch, level, msg, values)
+
+    def _log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None:
+        """One line when a channel's alarm starts, one when every alarm is over."""
+        now = {ch for i, ch in enumerate(self.channels) if alarm[i]}
+        log = self.get_logger()
+        if now and not self._alarmed:
+            self._episode += 1
+        for i, ch in enumerate(self.channels):
+            if ch in now and ch not in self._alarmed:
+                log.warning(f"alarm episode {self._episode}: {ch} at sample {k}: "
+                            f"|r| = {abs(float(signal[i])):.4g} > R = "
+                            f"{float(threshold[i]):.4g}")
+        if self._alarmed and not now:
+            log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
+                     f"within its threshold")
+        self._alarmed = now
+
+
+class DetectorNode(ResidualReport, FdNode):
     """Residual detector node: thresholds (``thresholds``) or QB bounds (``qb``).
 
     Parameters
@@ -171,40 +214,6 @@ class DetectorNode(FdNode):
         ch = det.channels
         return sig, thr, alarm, {"fd/residual": (ch, sig), "fd/threshold": (ch, thr),
                                  "fd/alarm": (ch, alarm.astype(float))}
-
-    def _report(self, k: int, mode: int, signal: Any, threshold: Any, alarm: Any) -> None:
-        share = self.params.warn_share
-        qb = not isinstance(self.detector, ResidualDetector)
-        self._log_alarms(k, signal, threshold, alarm)
-        for i, ch in enumerate(self.channels):
-            r, R = float(signal[i]), float(threshold[i])
-            if alarm[i]:
-                level, msg = ERROR, "alarm: |residual| > threshold"
-            elif abs(r) > share * R:
-                level, msg = WARN, f"|residual| > {share:g} x threshold"
-            else:
-                level, msg = OK, "ok"
-            values = {"sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
-                      "mode": self.system.mode_names[mode], **self.gain_values()}
-            if not qb:
-                values["sigma_hat"] = float(self.sigma_hat[i])
-            self.diag.update(ch, level, msg, values)
-
-    def _log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None:
-        """One line when a channel's alarm starts, one when every alarm is over."""
-        now = {ch for i, ch in enumerate(self.channels) if alarm[i]}
-        log = self.get_logger()
-        if now and not self._alarmed:
-            self._episode += 1
-        for i, ch in enumerate(self.channels):
-            if ch in now and ch not in self._alarmed:
-                log.warning(f"alarm episode {self._episode}: {ch} at sample {k}: "
-                            f"|r| = {abs(float(signal[i])):.4g} > R = "
-                            f"{float(threshold[i]):.4g}")
-        if self._alarmed and not now:
-            log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
-                     f"within its threshold")
-        self._alarmed = now
 
 
 def make_nodes(**kwargs: Any) -> list:

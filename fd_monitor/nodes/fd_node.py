@@ -169,6 +169,13 @@ class FdNode(LifecycleNode):
     """
 
     inputs: Sequence[Input] = ()
+    #: Subscription callbacks take the MessageInfo (the DDS source timestamp orders plain
+    #: messages for sample-and-hold). False: message only, plain messages ordered by their
+    #: arrival here -- what rclpy's EventsExecutor can call in these wheels (``monitor``).
+    message_info = True
+    #: Set at configure: every callback is message-only, so ``run_node`` may use the
+    #: EventsExecutor.
+    events_executor = False
     #: Gain-file method -> name of the method building the node's runtime for it.
     runtimes: Mapping[str, str] = {}
     #: Output topics (relative), for the start line and the second-publisher check.
@@ -414,8 +421,13 @@ class FdNode(LifecycleNode):
         self._stamper = ArrivalStamper()
         self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
-        self._data_inputs = {inp.name: self.subscribe(inp.topic, self._callback(inp))
-                             for inp in inputs}
+        info = self.message_info
+        self.events_executor = not info
+        self._data_inputs = {}
+        for inp in inputs:
+            cb = self._callback(inp)
+            self._data_inputs[inp.name] = self.subscribe(
+                inp.topic, cb if info else lambda msg, cb=cb: cb(msg, None))
         self._open_loop: set[str] = set()
         if self._held:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
@@ -461,7 +473,7 @@ class FdNode(LifecycleNode):
                     self._drain()
                 return
             if d.stamp is None:
-                t = int(info["source_timestamp"])
+                t = int(info["source_timestamp"]) if info is not None else time.time_ns()
                 if inp.hold:
                     self._held[inp.name].append((t, d.values))
                 else:
@@ -630,9 +642,13 @@ class FdNode(LifecycleNode):
         pub.publish(to_msg(labels, stamp, values))
 
     def gain_values(self) -> dict[str, str]:
-        """Gain-file id and certificate status, for /diagnostics."""
-        return {"gain_file": self.gain_file.id,
-                "certificate": self.gain_file.certificate_status}
+        """Gain-file id and certificate status, for /diagnostics (per sample: cached)."""
+        g = self.gain_file
+        cached = getattr(self, "_gain_values", None)
+        if cached is None or cached[0] is not g:
+            cached = self._gain_values = (g, {"gain_file": g.id,
+                                              "certificate": g.certificate_status})
+        return cached[1]
 
 
 class _TopicOrder:

@@ -1,44 +1,255 @@
-"""``monitor``: the four chain nodes (observer, detector, agei, bias_estimator) on one
-executor in one process, each with its own name, parameters and diagnostics; for a gain file
-of another method (qb, hinf_sc, hminus_switched) the fused
-:class:`~fd_monitor.nodes.runtime_node.RuntimeNode`."""
+"""``monitor``: the diagnosis chain as one node (default), or the four chain nodes on one
+executor (``layout:=chain``).
+
+**fused** (default): one lifecycle node joins ``/plant/u`` and ``/plant/y`` on the stamp
+(plain messages from a driver are stamped on arrival, as the observer does), calls the
+runtime once per sample (:meth:`fd_monitor.core.monitor.Monitor.step`: observer, detector,
+AGEI, bias estimator, feedback inside the call) and publishes what the four-node chain
+publishes, same topics, same layouts, same bits: ``/fd/state_estimate``, ``/fd/residual``,
+``/fd/threshold``, ``/fd/alarm`` (stamp k), ``/fd/guard_event``, ``/fd/threshold_override``,
+``/fd/bias_estimate`` (stamp k + 1: decided at k for k + 1), and ``/diagnostics`` (input,
+ros graph, estimate, one ``residual <out>`` per output, tracker, bias estimate). One join and
+seven publications per sample instead of four joins, seven publications and six
+subscriptions: what makes the live path keep up at kHz rates (README, "Measured").
+
+**any other gain file** (qb, hinf_sc, hminus_switched): the fused
+:class:`~fd_monitor.nodes.runtime_node.RuntimeNode` (the registry's runtime, generic
+outputs), whatever the layout.
+
+**chain**: the four nodes ``observer``, ``detector``, ``agei`` and ``bias_estimator`` on one
+executor in one process, each with its own name, parameters and diagnostics: the distributed
+form of the chain in one process (bit-identical to the fused node).
+
+The executor is rclpy's EventsExecutor driven by a ``spin_once`` loop (its ``spin()`` does
+nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import struct
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
 
+from rclpy.serialization import serialize_message
+
+from fd_monitor.core.monitor import Monitor, MonitorOutput
+from fd_monitor.errors import FdMonitorError
 from fd_monitor.nodes import agei, bias_estimator, detector, observer, runtime_node
 from fd_monitor.nodes.agei import AgeiNode
-from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
-from fd_monitor.nodes.common import run_node
-from fd_monitor.nodes.detector import DetectorNode
-from fd_monitor.nodes.observer import ObserverNode
+from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
+from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
+from fd_monitor.nodes.conversions import to_msg
+from fd_monitor.nodes.detector import DetectorNode, ResidualReport, state_labels
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.observer import GUARD_LABELS, EstimateReport, ObserverNode, bias_labels
 from fd_monitor.nodes.runtime_node import RuntimeNode, gain_method
 
-__all__ = ["make_nodes", "main"]
+__all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main"]
+
+LAYOUTS = ("fused", "chain")
+
+#: s between two full diagnostics reports of the fused node while nothing changes.
+DIAG_REFRESH = 0.1
+
+PARAMS = (
+    Param("layout", "fused", "fused: the chain as one node (one join, one Monitor.step per "
+          "sample); chain: the four nodes observer, detector, agei, bias_estimator on one "
+          "executor (their own names, parameters and diagnostics)"),
+    Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
+          "one is declared lost (a hole: restart at the next valid sample); absorbs "
+          "out-of-order publication", low=0.001, high=3600.0),
+    Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
+          read_only=False, low=0.0, high=1.0),
+    Param("enabled", True, "AGEI on; false: the ablation without AGEI (never triggers, no "
+          "override)"),
+)
+
+USAGE = NodeUsage(
+    "monitor", "monitor: the diagnosis chain (observer, detector, AGEI, bias estimator) as "
+    "one node (layout:=chain: the four nodes in one process).", (*COMMON_PARAMS, *PARAMS),
+    subscribes=(("/plant/u", "u_k (stamped, or plain: stamped on arrival)"),
+                ("/plant/y", "y_k (stamped, or plain: stamped on arrival)")),
+    publishes=(("/fd/state_estimate", "mode, x^_k, y~_k, restart (stamp k)"),
+               ("/fd/residual", "r:<out>, w:<out> (stamp k)"),
+               ("/fd/threshold", "R:<out> in force, rbar:<out> nominal (stamp k)"),
+               ("/fd/alarm", "0/1 per output (stamp k)"),
+               ("/fd/guard_event", "trigger, phase, row, mode_uncertain (stamp k + 1)"),
+               ("/fd/threshold_override", "AGEI override per output, NaN = none "
+                "(stamp k + 1)"),
+               ("/fd/bias_estimate", "sigma^_{k+1}, iso:<out>, active, k_detect "
+                "(stamp k + 1)"),
+               ("/diagnostics", "input, estimate, residual <out>, tracker, bias estimate")))
 
 
-def make_nodes(**kwargs) -> list:
-    """The four chain nodes for a ``thresholds`` gain file; for any other method the fused
-    :class:`~fd_monitor.nodes.runtime_node.RuntimeNode` (kwargs go to every node, e.g.
-    ``context``).
+class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
+    """The fused chain node: one join of ``plant/u`` and ``plant/y``, one runtime step per
+    sample, the chain's seven outputs.
+
+    Parameters
+    ----------
+    system, gains, qos, **kwargs
+        See :class:`~fd_monitor.nodes.fd_node.FdNode`.
+    """
+
+    runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds"}
+    outputs = ("fd/state_estimate", "fd/residual", "fd/threshold", "fd/alarm",
+               "fd/guard_event", "fd/threshold_override", "fd/bias_estimate")
+    bias_channel = "bias estimate"
+    # message-only callbacks: runs under the EventsExecutor (run_node)
+    message_info = False
+
+    def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
+                 **kwargs: Any) -> None:
+        super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
+
+    def start(self) -> None:
+        """Configure and activate (autostart), unless the layout is ``chain``."""
+        if self.params.layout not in LAYOUTS:
+            raise FdMonitorError(f"node {self.get_name()}: parameter layout: "
+                                 f"{self.params.layout!r}: expected one of "
+                                 f"{', '.join(LAYOUTS)}")
+        if self.params.layout == "fused":
+            super().start()
+
+    def setup(self) -> None:
+        """Publishers, runtime, diagnostics and inputs (at configure)."""
+        s = self.system
+        o = s.outputs
+        labels = {
+            "fd/state_estimate": state_labels(s),
+            "fd/residual": (*(f"r:{n}" for n in o), *(f"w:{n}" for n in o)),
+            "fd/threshold": (*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o)),
+            "fd/alarm": tuple(o),
+            "fd/guard_event": GUARD_LABELS,
+            "fd/threshold_override": tuple(o),
+            "fd/bias_estimate": bias_labels(s),
+        }
+        # Each topic's message is serialised once (CDR, little endian); ``data`` is its last
+        # field, so a sample's message is that prefix (layout, data length) followed by the
+        # k and values as float64: published as serialised bytes, no message object per
+        # sample (the tests compare every published value with Monitor's).
+        self._out = []
+        for t, lab in labels.items():
+            n = len(lab) + 1
+            cdr = serialize_message(to_msg(lab, 0, [0.0] * len(lab)))
+            self._out.append((self.publisher(t), cdr[:-8 * n], struct.Struct(f"<{n}d")))
+        self.sigma_hat = [0.0] * s.ny
+        self._alarmed: set[str] = set()
+        self._episode = 0
+        self._was_outside = False
+        self._last_active, self._last_isolated = False, []
+        self.channels = [f"residual {n}" for n in o]
+        self.diag.add("estimate", self.params.stale_timeout)
+        for ch in self.channels:
+            self.diag.add(ch, self.params.stale_timeout)
+        self.diag.add("tracker", self.params.stale_timeout)
+        self.diag.add(self.bias_channel, self.params.stale_timeout, keep_on_stale=True)
+        self._channels_all = ["estimate", *self.channels, "tracker", self.bias_channel]
+        self._last_key: Any = None
+        self._next_report = 0.0
+        self.start_runtime()
+
+    # -- the runtime: built, reset and stepped here only ------------------------------------
+
+    def _start_thresholds(self) -> None:
+        s = self.system
+        self.build_core(self.gain_file)
+        self.start_inputs([
+            Input("u", "plant/u", s.inputs, plain_ok=True, hold=True),
+            Input("y", "plant/y", s.outputs, plain_ok=True),
+        ], gap_timeout=self.params.gap_timeout)
+
+    def build_core(self, gains: Any) -> None:
+        """The runtime of a gain file (at configure, and when ``gains`` is set)."""
+        self.runtime = Monitor(self.system, gains, agei=self.params.enabled)
+        # the residual reports ask whether the detector is the thresholds one
+        self.detector = self.runtime.detector
+
+    def reset(self) -> None:
+        """Fresh runtime state (a new run: first sample, after a hole, ``~/reset``)."""
+        self.runtime.reset()
+
+    def step_runtime(self, k: int, inputs: dict[str, Any]) -> MonitorOutput:
+        """One sample through the runtime (raises ImplausibleError: refused, no state
+        changed)."""
+        return self.runtime.step(k, inputs["u"], inputs["y"])
+
+    # -- per sample ---------------------------------------------------------------------------
+
+    def process(self, k: int, inputs: dict[str, Any]) -> None:
+        """(u_k, y_k) -> the chain's seven outputs and the diagnostics."""
+        out = self.step_runtime(k, inputs)
+        ob, det, ag, est = out.observer, out.detector, out.agei, out.estimator
+        kf, kn = float(k), float(k + 1)
+        alarm = det.alarm.tolist()
+        rows = (
+            (kf, float(ob.mode), *ob.x_hat.tolist(), *ob.y_tilde.tolist(),
+             1.0 if self.restarting else 0.0),
+            (kf, *det.residual.tolist(), *det.w.tolist()),
+            (kf, *det.threshold.tolist(), *det.nominal.tolist()),
+            (kf, *(1.0 if a else 0.0 for a in alarm)),
+            (kn, float(ag.trigger), float(ag.phase), float(ag.row),
+             1.0 if ag.mode_uncertain else 0.0),
+            (kn, *ag.override.tolist()),
+            (kn, *est.sigma_hat.tolist(), *(1.0 if i else 0.0 for i in est.isolated.tolist()),
+             1.0 if est.active else 0.0, float(est.k_detect)),
+        )
+        for (pub, prefix, cdr), data in zip(self._out, rows):
+            pub.publish(prefix + cdr.pack(*data))
+        # Diagnostics: a full report when a status can change (alarms, mode, AGEI phase,
+        # estimator, certified region) and at least every DIAG_REFRESH s; else the channels
+        # are only marked fresh. /diagnostics goes out every diagnostics_period anyway.
+        outside = ob.outside is not None and bool((ob.outside != 0.0).any())
+        key = (alarm, ob.mode, ag.phase, est.active, est.isolated.tolist(), outside)
+        now = time.monotonic()
+        if key != self._last_key or now >= self._next_report:
+            self._last_key, self._next_report = key, now + DIAG_REFRESH
+            self.sigma_hat = est.sigma_hat
+            self.report_estimate(k, int(ob.mode), ob.x_hat, ob.outside)
+            self._report(k, int(ob.mode), det.residual, det.threshold, alarm)
+            self.diag.update("tracker", OK, f"phase {ag.phase}", {
+                "sample": k, "trigger": ag.trigger, "phase": ag.phase, "row": ag.row,
+                **self.gain_values()})
+            self.report_bias(k, est)
+        else:
+            for ch in self._channels_all:
+                self.diag.touch(ch)
+
+
+def make_chain(**kwargs: Any) -> list:
+    """The four chain nodes on one executor (``kwargs`` go to every node, e.g. ``context``).
 
     The observer, the chain's entry, is created last: by the time it subscribes to
     ``plant/y`` (what a source waits for) the other nodes already subscribe to ``plant/*``
     and to the observer's outputs, so none of them misses the first samples.
     """
+    det, ag, est = DetectorNode(**kwargs), AgeiNode(**kwargs), BiasEstimatorNode(**kwargs)
+    return [ObserverNode(**kwargs), det, ag, est]
+
+
+def make_nodes(**kwargs: Any) -> list:
+    """The fused monitor node, or with ``layout: chain`` the four chain nodes
+    (:func:`make_chain`); for a gain file of another method than ``thresholds`` (qb,
+    hinf_sc, hminus_switched) the fused :class:`~fd_monitor.nodes.runtime_node.RuntimeNode`.
+    ``kwargs`` go to every node (e.g. ``context``)."""
     method = gain_method(**kwargs)
     if method is not None and method != "thresholds":
         return [RuntimeNode(**kwargs)]
-    det, agei, est = DetectorNode(**kwargs), AgeiNode(**kwargs), BiasEstimatorNode(**kwargs)
-    return [ObserverNode(**kwargs), det, agei, est]
+    node = MonitorNode(**kwargs)
+    if node.params.layout == "fused":
+        return [node]
+    node.destroy_node()
+    return make_chain(**{**kwargs, "parameter_overrides": [
+        p for p in kwargs.get("parameter_overrides", []) if p.name != "layout"]})
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the four nodes in one process."""
+    """Run the fused monitor node (or, with ``layout:=chain``, the four chain nodes)."""
     return run_node(make_nodes, args, prog="monitor",
-                    usage=[m.USAGE for m in (observer, detector, agei, bias_estimator,
-                                             runtime_node)])
+                    usage=[USAGE, runtime_node.USAGE,
+                           *(m.USAGE for m in (observer, detector, agei, bias_estimator))],
+                    events=True)
 
 
 if __name__ == "__main__":

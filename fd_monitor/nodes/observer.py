@@ -28,7 +28,7 @@ from fd_monitor.core.qb import QBObserver
 from fd_monitor.nodes.common import OK, WARN, NodeUsage, Param, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 
-__all__ = ["ObserverNode", "USAGE", "bias_labels", "main"]
+__all__ = ["EstimateReport", "ObserverNode", "USAGE", "bias_labels", "main"]
 
 PARAMS = (
     Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
@@ -58,7 +58,29 @@ def bias_labels(system: Any) -> tuple[str, ...]:
 GUARD_LABELS = ("trigger", "phase", "row", "mode_uncertain")
 
 
-class ObserverNode(FdNode):
+class EstimateReport:
+    """The ``estimate`` /diagnostics status of a node running the observer (observer,
+    monitor): the mode, WARN outside the gain file's certified region. Uses the node's
+    ``diag``, ``system`` and ``_was_outside``."""
+
+    def report_estimate(self, k: int, mode: int, x_hat: Any, out: Any) -> None:
+        """Report q^_k, x^_k and the excess over the certified region (None: no region)."""
+        name = self.system.mode_names[mode]
+        values = {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()}
+        if out is not None and np.any(out != 0.0):
+            # alarms still count; the thresholds are just not guaranteed out there
+            detail = describe_excess((*self.system.states, *self.system.inputs), out)
+            if not self._was_outside:
+                self.get_logger().warning(f"sample {k}: outside certified region: {detail}")
+            self._was_outside = True
+            self.diag.update("estimate", WARN, f"outside certified region: {detail}",
+                             {**values, "outside_certified_region": detail})
+        else:
+            self._was_outside = False
+            self.diag.update("estimate", OK, f"mode {name}", values)
+
+
+class ObserverNode(EstimateReport, FdNode):
     """Observer node: the hybrid observer (``thresholds``) or the QB observer (``qb``).
 
     Parameters
@@ -144,20 +166,8 @@ class ObserverNode(FdNode):
         self.publish_array(self.pub, self.labels, k,
                            np.concatenate([[float(mode)], x_hat, y_t,
                                            [float(self.restarting)]]))
-        name = self.system.mode_names[mode]
-        values = {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()}
-        out = self._outside if self._step == self._step_hybrid else None
-        if out is not None and np.any(out != 0.0):
-            # alarms still count; the thresholds are just not guaranteed out there
-            detail = describe_excess((*self.system.states, *self.system.inputs), out)
-            if not self._was_outside:
-                self.get_logger().warning(f"sample {k}: outside certified region: {detail}")
-            self._was_outside = True
-            self.diag.update("estimate", WARN, f"outside certified region: {detail}",
-                             {**values, "outside_certified_region": detail})
-        else:
-            self._was_outside = False
-            self.diag.update("estimate", OK, f"mode {name}", values)
+        self.report_estimate(k, mode, x_hat,
+                             self._outside if self._step == self._step_hybrid else None)
 
     @property
     def labels(self) -> tuple[str, ...]:

@@ -1,0 +1,139 @@
+"""The fused ``monitor`` node: the chain's outputs from one join and one Monitor.step per
+sample; bad input is reported on /diagnostics and changes nothing; ``layout: chain`` gives
+the four nodes; a gain-file swap and a qb gain file are handled like the chain nodes do.
+
+A driver node publishes *plain* Float64MultiArrays on /plant/u and /plant/y (stamped on
+arrival) with bad messages mixed in; the node's outputs on every topic must equal the
+in-process Monitor on the good samples, value for value.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from ros_util import FD_TOPICS as TOPICS
+from ros_util import Collector, expected_payloads, ros_context, spin_until
+
+from fd_monitor.core.monitor import Monitor
+from fd_monitor.core.simulator import simulate
+from fd_monitor.gains import load_gains
+from fd_monitor.scenario import load_scenario
+from fd_monitor.system import load_system
+
+pytestmark = pytest.mark.ros
+
+K = 60
+
+
+def plain(values):
+    from std_msgs.msg import Float64MultiArray
+
+    m = Float64MultiArray()
+    m.data = [float(v) for v in values]
+    return m
+
+
+def test_fused_monitor_bad_input_reported_outputs_equal_monitor():
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64MultiArray
+
+    from fd_monitor.nodes.common import ERROR, WARN, data_pub_qos
+    from fd_monitor.nodes.monitor import MonitorNode, make_nodes
+
+    system = load_system("three_tank")
+    traj = simulate(load_scenario("three_tank_bias_h1"), 2, K)
+    u, y = traj.u[0], traj.y[0]
+    y[40:] += [0.05, 0.0, 0.0]  # a large bias on h1: alarms within the run
+    m = Monitor(system, load_gains("three_tank_thresholds", system))
+    want = [m.step(k, u[k], y[k]) for k in range(K)]
+
+    with ros_context() as ctx:
+        overrides = [Parameter("stale_timeout", value=0.5),
+                     Parameter("diagnostics_period", value=0.2)]
+        nodes = make_nodes(context=ctx, parameter_overrides=overrides)
+        assert len(nodes) == 1 and isinstance(nodes[0], MonitorNode)
+        col = Collector(ctx, TOPICS, diagnostics=True)
+        drv = Node("driver", context=ctx)
+        pub = {t: drv.create_publisher(Float64MultiArray, t, data_pub_qos())
+               for t in ("/plant/u", "/plant/y")}
+        ex = EventsExecutor(context=ctx)            # what `monitor` runs on
+        for n in [*nodes, col.node, drv]:
+            ex.add_node(n)
+        assert spin_until(ex, lambda: all(p.get_subscription_count() >= 1
+                                          for p in pub.values())
+                          and all(col.node.count_publishers(t) >= 1 for t in TOPICS), 10.0)
+        for k in range(K):
+            if k == 5:
+                pub["/plant/y"].publish(plain([y[k, 0], math.nan, y[k, 2]]))  # NaN
+                pub["/plant/y"].publish(plain(y[k, :2]))                      # wrong length
+                pub["/plant/u"].publish(plain([math.inf, 0.0, 0.0]))          # Inf
+            pub["/plant/u"].publish(plain(u[k]))
+            ex.spin_once(timeout_sec=0.0)
+            pub["/plant/y"].publish(plain(y[k]))
+            ex.spin_once(timeout_sec=0.0)
+        assert spin_until(ex, lambda: len(col.msgs["/fd/bias_estimate"]) >= K, 30.0), \
+            {t: len(v) for t, v in col.msgs.items()}
+
+        from fd_monitor.nodes.conversions import decode
+
+        exp = expected_payloads(want)
+        for t in TOPICS:
+            got = [decode(msg, t, allow_nan=True) for msg in col.msgs[t]]
+            first = 1 if t in TOPICS[4:] else 0          # feedback: stamped k + 1
+            assert [d.stamp for d in got] == list(range(first, K + first)), t
+            np.testing.assert_array_equal([d.values for d in got], exp[t], err_msg=t)
+        assert any(o.alarm.any() for o in want)
+
+        def reported(text, level=WARN):
+            return any(s.level == level and text in s.message
+                       for s in col.statuses("/monitor: input"))
+
+        checks = ["/plant/y: value h2 is nan", "/plant/y: wrong length: 2 values, expected 3",
+                  "/plant/u: value q1 is inf"]
+        assert spin_until(ex, lambda: all(reported(c) for c in checks), 10.0), \
+            [c for c in checks if not reported(c)]
+        # per-channel residual status (ERROR on alarm), AGEI tracker and bias estimate
+        assert spin_until(ex, lambda: any(s.level == ERROR for s in
+                                          col.statuses("/monitor: residual h1")), 10.0)
+        names = {s.name for s in col.statuses("/monitor")}
+        assert {"/monitor: estimate", "/monitor: tracker", "/monitor: bias estimate",
+                "/monitor: residual h2", "/monitor: ros graph"} <= names
+        st = col.statuses("/monitor: bias estimate")[-1]
+        assert st.level == WARN and ("estimating" in st.message or "bias on" in st.message)
+        ex.shutdown()
+        for n in [*nodes, col.node, drv]:
+            n.destroy_node()
+
+
+def test_layout_chain_gives_the_four_nodes_and_a_bad_layout_is_refused():
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.errors import FdMonitorError
+    from fd_monitor.nodes.monitor import make_nodes
+
+    with ros_context() as ctx:
+        nodes = make_nodes(context=ctx, parameter_overrides=[Parameter("layout",
+                                                                       value="chain")])
+        assert [n.get_name() for n in nodes] == ["observer", "detector", "agei",
+                                                 "bias_estimator"]
+        for n in nodes:
+            n.destroy_node()
+        with pytest.raises(FdMonitorError, match="parameter layout: 'star'"):
+            make_nodes(context=ctx, parameter_overrides=[Parameter("layout", value="star")])
+
+
+def test_qb_gain_file_is_refused_with_one_line():
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.errors import FdMonitorError
+    from fd_monitor.nodes.monitor import make_nodes
+
+    with ros_context() as ctx:
+        with pytest.raises(FdMonitorError, match="method 'qb': monitor runs thresholds"):
+            make_nodes(context=ctx, parameter_overrides=[
+                Parameter("system", value="pwa_cascade"),
+                Parameter("gains", value="pwa_cascade_qb")])
