@@ -126,14 +126,19 @@ def test_layout_chain_gives_the_four_nodes_and_a_bad_layout_is_refused():
             make_nodes(context=ctx, parameter_overrides=[Parameter("layout", value="star")])
 
 
-def test_qb_gain_file_is_refused_with_one_line():
+def test_other_methods_run_in_the_runtime_node():
+    """A qb gain file (any method but thresholds) runs in the one fused RuntimeNode, the
+    registry's runtime (test_nodes_runtime.py checks its outputs against the offline run)."""
     from rclpy.parameter import Parameter
 
-    from fd_monitor.errors import FdMonitorError
     from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.runtime_node import RuntimeNode
 
     with ros_context() as ctx:
-        with pytest.raises(FdMonitorError, match="method 'qb': monitor runs thresholds"):
-            make_nodes(context=ctx, parameter_overrides=[
-                Parameter("system", value="pwa_cascade"),
-                Parameter("gains", value="pwa_cascade_qb")])
+        nodes = make_nodes(context=ctx, parameter_overrides=[
+            Parameter("system", value="pwa_cascade"),
+            Parameter("gains", value="pwa_cascade_qb")])
+        assert [type(n) for n in nodes] == [RuntimeNode]
+        assert nodes[0].get_name() == "monitor" and nodes[0].runtime.method == "qb"
+        for n in nodes:
+            n.destroy_node()

@@ -13,7 +13,7 @@ pytestmark = pytest.mark.ros
 OUT = ("/fd/residual", "/fd/threshold", "/fd/alarm", "/fd/state_estimate")
 
 
-def _drive(bag, n, edit=None, params=(), expect=None):
+def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     """Publish the first n samples of a library bag (u, y and the side signals the runtime
     needs) into a RuntimeNode; return (node, collector, decoded outputs, inputs)."""
     from rclpy.executors import SingleThreadedExecutor
@@ -54,6 +54,10 @@ def _drive(bag, n, edit=None, params=(), expect=None):
             for t, (labels, vals) in data.items():
                 pub[t].publish(to_msg(labels, k, vals[k]))
             ex.spin_once(timeout_sec=0.0)
+            if k in pause_at:
+                # the plant holds this state 0.6 s (3 diagnostics periods), as a real plant
+                # would: /diagnostics has time to show it (not a synchronisation wait)
+                spin_until(ex, lambda: False, 0.6)
         want = n if expect is None else expect
         done = spin_until(ex, lambda: all(len(col.msgs[t]) >= want for t in OUT), 60.0)
         assert done, ({t: len(col.msgs[t]) for t in OUT}, node.processed)
@@ -116,7 +120,8 @@ def test_runtime_node_reports_a_mode_the_design_lacks_and_a_bad_side_signal():
         modes[200:260] = 7.0
         modes[400] = np.nan
 
-    *_, got, _, statuses = _drive("farhat_koenig_fault", 600, edit, expect=599)
+    *_, got, _, statuses = _drive("farhat_koenig_fault", 600, edit, expect=599,
+                                  pause_at=(230,))
     est = [s for s in statuses if s.name.endswith("monitor: estimate")]
     warn = [s for s in est if "outside certified region: mode above by" in s.message]
     assert warn, [s.message for s in est][-5:]
