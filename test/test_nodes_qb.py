@@ -40,3 +40,60 @@ def test_qb_observer_and_detector_equal_offline(tmp_path):
     np.testing.assert_array_equal(got["/fd/threshold"].values, off.threshold)
     np.testing.assert_array_equal(got["/fd/state_estimate"].values[:, 0], off.mode_hat)
     assert off.alarm.any()                         # the bias step is detected
+
+
+def test_qb_observer_warns_outside_a_stated_envelope(tmp_path):
+    """Issue 13: a QB gain file that states a region (results.envelope) is checked at every
+    sample by the observer node: WARN `outside certified region` naming the state and the
+    excess on /diagnostics, as the qb runtime marks it offline."""
+    import yaml
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from ros_util import Collector, ros_context, spin_until
+    from std_msgs.msg import Float64MultiArray
+
+    from fd_monitor.gains import load_gains, write_gain_doc
+    from fd_monitor.nodes.common import WARN, data_pub_qos
+    from fd_monitor.nodes.conversions import to_msg
+    from fd_monitor.nodes.observer import ObserverNode
+    from fd_monitor.system import load_system
+
+    system = load_system("pwa_cascade")
+    doc = yaml.safe_load((REPO / "config/gains/pwa_cascade_qb.yaml").read_text())
+    m = len(system.modes)
+    # a (deliberately narrow) declared box: |x1| <= 0.005 (the run reaches 0.018), the rest
+    # wide
+    doc["results"]["envelope"] = {"source": "declared",
+                                  "state_lo": [[-0.005, -1e3, -1e3, -1e3]] * m,
+                                  "state_hi": [[0.005, 1e3, 1e3, 1e3]] * m,
+                                  "input_lo": [[]] * m, "input_hi": [[]] * m}
+    path = write_gain_doc(tmp_path / "qb_env.yaml", doc)
+    gains = load_gains(path, system)
+    y = read_bag(REPO / "bags/pwa_cascade_nominal", ["/plant/y"])["/plant/y"].values
+    with ros_context() as ctx:
+        obs = ObserverNode(system=system, gains=gains, context=ctx, parameter_overrides=[
+            Parameter("diagnostics_period", value=0.2)])
+        col = Collector(ctx, ["/fd/state_estimate"], diagnostics=True)
+        drv = Node("driver", context=ctx)
+        pub = drv.create_publisher(Float64MultiArray, "/plant/y", data_pub_qos())
+        ex = SingleThreadedExecutor(context=ctx)
+        for nd in (obs, col.node, drv):
+            ex.add_node(nd)
+        assert spin_until(ex, lambda: pub.get_subscription_count() >= 1, 10.0)
+
+        def warned():
+            return any(s.level == WARN and "outside certified region: x1 " in s.message
+                       for s in col.statuses("observer: estimate"))
+
+        k = 0
+        while k < len(y) and not warned():
+            pub.publish(to_msg(system.outputs, k, y[k]))
+            k += 1
+            ex.spin_once(timeout_sec=0.01)
+        assert spin_until(ex, warned, 5.0), [s.message for s in col.statuses("estimate")][-3:]
+        st = [s for s in col.statuses("observer: estimate") if s.level == WARN][-1]
+        vals = {kv.key: kv.value for kv in st.values}
+        assert vals["outside_certified_region"].startswith("x1 ")
+        for nd in (obs, col.node, drv):
+            nd.destroy_node()

@@ -132,6 +132,8 @@ class ObserverNode(EstimateReport, FdNode):
     def _start_qb(self) -> None:
         s = self.system
         self.observer = QBObserver(s, self.gain_file)
+        # The region the QB file certifies, when it states one (as the qb runtime checks it).
+        self._qb_region = CertifiedRegion.from_results(s, self.gain_file.results)
         # A plant without inputs has no /plant/u (offline: u = () at every sample).
         self.start_inputs([
             *([Input("u", "plant/u", s.inputs, plain_ok=True, hold=True)] if s.nu else []),
@@ -158,6 +160,8 @@ class ObserverNode(EstimateReport, FdNode):
     def _step_qb(self, k: int, inputs: dict[str, Any]) -> tuple[int, np.ndarray, np.ndarray]:
         u = inputs["u"] if self.system.nu else np.zeros(0)
         mode, x_hat = self.observer.step(k, u, inputs["y"])
+        self._outside = (None if self._qb_region is None
+                         else self._qb_region.excess(mode, x_hat, np.asarray(u, float)))
         return mode, x_hat, np.asarray(inputs["y"], float)   # y~ = y (no accommodation)
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
@@ -166,8 +170,7 @@ class ObserverNode(EstimateReport, FdNode):
         self.publish_array(self.pub, self.labels, k,
                            np.concatenate([[float(mode)], x_hat, y_t,
                                            [float(self.restarting)]]))
-        self.report_estimate(k, mode, x_hat,
-                             self._outside if self._step == self._step_hybrid else None)
+        self.report_estimate(k, mode, x_hat, self._outside)
 
     @property
     def labels(self) -> tuple[str, ...]:
