@@ -145,7 +145,10 @@ GRAPH = {"/fd/state_estimate": 4, "/fd/residual": 2, "/fd/threshold": 2, "/fd/al
 
 def _wait_for_graph(env: dict[str, str], timeout: float, procs: _Processes) -> bool:
     """Poll the ROS graph (in the demo's domain) until every fd topic has its publisher and
-    its subscriptions; False on timeout or when a process failed."""
+    its subscriptions and the counts have stayed the same for 0.5 s (what this probe sees
+    comes before every publisher has matched every subscription: a data topic is volatile,
+    a match that comes late misses the first samples); False on timeout or when a process
+    failed."""
     import rclpy
     from rclpy.node import Node
 
@@ -157,9 +160,13 @@ def _wait_for_graph(env: dict[str, str], timeout: float, procs: _Processes) -> b
     try:
         node = Node("demo_graph", context=ctx)
         deadline = time.monotonic() + timeout
+        last, since = None, time.monotonic()
         while time.monotonic() < deadline and procs.failed() is None:
-            if all(node.count_publishers(t) >= 1 and node.count_subscribers(t) >= n
-                   for t, n in GRAPH.items()):
+            now = [(node.count_publishers(t), node.count_subscribers(t)) for t in GRAPH]
+            if now != last:
+                last, since = now, time.monotonic()
+            elif all(p >= 1 and c >= n for (p, c), n in zip(now, GRAPH.values())) and \
+                    time.monotonic() - since >= 0.5:
                 return True
             time.sleep(0.05)  # polling the graph, not synchronising messages
         return False
