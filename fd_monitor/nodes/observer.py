@@ -63,13 +63,17 @@ class EstimateReport:
     monitor): the mode, WARN outside the gain file's certified region. Uses the node's
     ``diag``, ``system`` and ``_was_outside``."""
 
-    def report_estimate(self, k: int, mode: int, x_hat: Any, out: Any) -> None:
-        """Report q^_k, x^_k and the excess over the certified region (None: no region)."""
-        name = self.system.mode_names[mode]
+    def report_estimate(self, k: int, mode: int, x_hat: Any, out: Any,
+                        names: Sequence[str] | None = None) -> None:
+        """Report q^_k, x^_k and the excess over the certified region (None: no region;
+        ``names``: of its entries, default the states then the inputs)."""
+        modes = self.system.mode_names
+        name = modes[mode] if 0 <= mode < len(modes) else str(mode)
         values = {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()}
         if out is not None and np.any(out != 0.0):
             # alarms still count; the thresholds are just not guaranteed out there
-            detail = describe_excess((*self.system.states, *self.system.inputs), out)
+            detail = describe_excess(names if names is not None
+                                     else (*self.system.states, *self.system.inputs), out)
             if not self._was_outside:
                 self.get_logger().warning(f"sample {k}: outside certified region: {detail}")
             self._was_outside = True

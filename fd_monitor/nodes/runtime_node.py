@@ -31,12 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.core.envelope import describe_excess
 from fd_monitor.core.runtime import RUNTIMES, Runtime, runtime_for
 from fd_monitor.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.gains import GainFile
 from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage, Param
+from fd_monitor.nodes.detector import ResidualReport
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.observer import EstimateReport
 
 __all__ = ["RuntimeNode", "PARAMS", "USAGE", "estimate_labels", "gain_method"]
 
@@ -76,7 +77,7 @@ def estimate_labels(system: Any, runtime: Runtime, x_hat: np.ndarray) -> tuple[s
                       for s in system.states[:x.shape[1]]))
 
 
-class RuntimeNode(FdNode):
+class RuntimeNode(EstimateReport, ResidualReport, FdNode):
     """One node running the registry's runtime of any gain file (see the module docstring).
 
     Parameters
@@ -103,8 +104,8 @@ class RuntimeNode(FdNode):
         s = self.system
         rt = self.runtime
         self.diag.add("estimate", self.params.stale_timeout)
-        for ch in rt.channels:
-            self.diag.add(f"residual {ch}", self.params.stale_timeout)
+        for ch in self.channels:
+            self.diag.add(ch, self.params.stale_timeout)
         self.start_inputs([
             *([Input("u", "plant/u", s.inputs, plain_ok=True, hold=True)] if s.nu else []),
             Input("y", "plant/y", s.outputs, plain_ok=True),
@@ -123,6 +124,8 @@ class RuntimeNode(FdNode):
             raise FdMonitorError(f"{gains.path}: channels {', '.join(rt.channels)} or side "
                                  f"signals differ from the running ones")
         self.runtime = rt
+        #: /diagnostics status (and alarm log) name of each of the runtime's channels.
+        self.channels = tuple(f"residual {c}" for c in rt.channels)
         self._labels: tuple[str, ...] | None = None
         self._alarmed: set[str] = set()
         self._episode = 0
@@ -151,49 +154,27 @@ class RuntimeNode(FdNode):
             self._labels = estimate_labels(self.system, rt, x_hat)
         self.publish_array(self.pubs["fd/state_estimate"], self._labels, k,
                            np.concatenate([[float(out.mode)], np.ravel(x_hat)]))
-        self._report(k, out)
+        self._report_sample(k, out)
 
-    def _report(self, k: int, out: Any) -> None:
+    def _report_sample(self, k: int, out: Any) -> None:
         rt = self.runtime
-        mode = self.system.mode_names[out.mode] if 0 <= out.mode < len(
-            self.system.mode_names) else str(out.mode)
-        values = {"sample": k, "mode": mode, **self.gain_values()}
-        if out.outside is not None and np.any(out.outside != 0.0):
-            # alarms still count; they are just not covered by the design's guarantee
-            detail = describe_excess(rt.region_names, out.outside)
-            if not self._was_outside:
-                self.get_logger().warning(f"sample {k}: outside certified region: {detail}")
-            self._was_outside = True
-            self.diag.update("estimate", WARN, f"outside certified region: {detail}",
-                             {**values, "outside_certified_region": detail})
-        else:
-            if self._was_outside:
-                self.get_logger().info(f"sample {k}: back inside the certified region")
-            self._was_outside = False
-            self.diag.update("estimate", OK, f"mode {mode}", values)
-        now = {c for c, a in zip(rt.channels, out.alarm) if a}
-        log = self.get_logger()
-        if now and not self._alarmed:
-            self._episode += 1
+        self.report_estimate(k, out.mode, out.estimates.get("x_hat"), out.outside,
+                             rt.region_names)
+        modes = self.system.mode_names
+        mode = modes[out.mode] if 0 <= out.mode < len(modes) else str(out.mode)
+        self._log_alarms(k, out.residual, out.threshold, out.alarm)
         share = self.params.warn_share
-        for i, c in enumerate(rt.channels):
+        for i, c in enumerate(self.channels):
             r, R = float(out.residual[i]), float(out.threshold[i])
-            if c in now and c not in self._alarmed:
-                log.warning(f"alarm episode {self._episode}: {c} at sample {k}: "
-                            f"|r| = {abs(r):.4g} > R = {R:.4g}")
             if out.alarm[i]:
                 level, msg = ERROR, "alarm: |residual| > threshold"
             elif abs(r) > share * R:
                 level, msg = WARN, f"|residual| > {share:g} x threshold"
             else:
                 level, msg = OK, "ok"
-            self.diag.update(f"residual {c}", level, msg,
+            self.diag.update(c, level, msg,
                              {"sample": k, "residual": r, "threshold": R,
                               "margin": R - abs(r), "mode": mode, **self.gain_values()})
-        if self._alarmed and not now:
-            log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
-                     f"within its threshold")
-        self._alarmed = now
 
 
 def gain_method(node_name: str = "monitor", **kwargs: Any) -> str | None:
