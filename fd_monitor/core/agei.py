@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fd_monitor.core.filters import as_floats
 from fd_monitor.core.thresholds import AgeiRow, DiagnosisGains
 from fd_monitor.system import System
 
@@ -43,10 +44,6 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a
 
-
-def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
-    """A vector as a list of Python floats."""
-    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
 
 
 def decision_rule(w: np.ndarray, op: str, xi_minus: float, xi_plus: float) -> np.ndarray:
@@ -298,7 +295,8 @@ class Agei:
         AgeiOutput
         """
         if self.batch is None:
-            return self.step1(k, int(mode), _floats(w), _floats(residual), _floats(nominal))[0]
+            return self.step1(k, int(mode), as_floats(w), as_floats(residual),
+                              as_floats(nominal))[0]
         t, o = self.step_batch(k, np.asarray(mode, int), w, residual, nominal)
         return AgeiOutput(k, t, o, self.phase.copy(), self.row.copy(), self.mode_uncertain())
 

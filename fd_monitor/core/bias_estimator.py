@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fd_monitor.core.filters import linear_map
+from fd_monitor.core.filters import as_floats, linear_map
 from fd_monitor.core.hybrid_observer import ModeDynamics
 from fd_monitor.core.thresholds import DiagnosisGains
 from fd_monitor.system import System
@@ -62,10 +62,6 @@ def _seq_sum(v: Sequence[float]) -> float:
         acc += a
     return acc
 
-
-def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
-    """A vector as a list of Python floats."""
-    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -331,7 +327,7 @@ class BiasEstimator:
         BiasOutput
         """
         if self._fast:
-            return self.step1(k, _floats(u), _floats(y), int(mode), np.ravel(alarm).tolist(),
+            return self.step1(k, as_floats(u), as_floats(y), int(mode), np.ravel(alarm).tolist(),
                               bool(np.asarray(mode_uncertain)))[0]
         if self.batch is None:
             s, iso = self.step_batch(k, np.asarray(u, float)[None], np.asarray(y, float)[None],

@@ -13,21 +13,16 @@ R_{i,k}``: no latching (a per-sample flag, as published on ``/fd/alarm``).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from fd_monitor.core.filters import FilterBank, FilterSpec, FloatFilter
+from fd_monitor.core.filters import FilterBank, FilterSpec, FloatFilter, as_floats
 from fd_monitor.core.thresholds import DiagnosisGains
 from fd_monitor.system import System
 
 __all__ = ["ResidualDetector", "DetectorOutput", "no_override"]
 
-
-def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
-    """A vector as a list of Python floats."""
-    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
 
 
 def no_override(ny: int, batch: int | None = None) -> np.ndarray:
@@ -177,8 +172,8 @@ class ResidualDetector:
         """
         ny = self.system.ny
         if self.batch is None:
-            return self.step1(k, _floats(y_tilde), _floats(x_hat), int(mode),
-                              [math.nan] * ny if override is None else _floats(override))[0]
+            return self.step1(k, as_floats(y_tilde), as_floats(x_hat), int(mode),
+                              [math.nan] * ny if override is None else as_floats(override))[0]
         ov = no_override(ny, self.N) if override is None else override
         r, w, R, nom, al = self.step_batch(k, y_tilde, x_hat, np.asarray(mode, int), ov)
         return DetectorOutput(k, r, w, R, nom, al)

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FilterSpec", "FilterBank", "FloatFilter", "linear_map", "moving_average",
+__all__ = ["FilterSpec", "FilterBank", "FloatFilter", "as_floats", "linear_map", "moving_average",
            "first_order", "impulse_response", "settling_length"]
 
 
@@ -280,3 +280,8 @@ class FloatFilter:
             p = self._py = (self._py + 1) % self._na
             self._y[p * c:(p + 1) * c] = out
         return out
+
+
+def as_floats(v: Sequence[float] | np.ndarray) -> list[float]:
+    """A vector as a list of Python floats (the single-stream paths' inputs)."""
+    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]

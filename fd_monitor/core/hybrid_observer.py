@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fd_monitor.core.envelope import CertifiedRegion
+from fd_monitor.core.filters import as_floats
 from fd_monitor.core.models import get_model
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
@@ -91,10 +92,6 @@ class ModeDynamics:
         return list(self(np.array([q]), np.array([x], dtype=float).reshape(1, -1),
                          np.array([u], dtype=float).reshape(1, -1))[0].tolist())
 
-
-def _floats(v: Sequence[float] | np.ndarray) -> list[float]:
-    """A vector as a list of Python floats."""
-    return np.ravel(v).tolist() if isinstance(v, np.ndarray) else [float(a) for a in v]
 
 
 def _holds(v: float, op: str, value: float) -> bool:
@@ -293,6 +290,6 @@ class HybridObserver:
             from the prediction, :mod:`fd_monitor.core.plausibility`); no state has changed.
         """
         if self.batch is None:
-            return self.step1(k, _floats(u), _floats(y), _floats(sigma_hat), int(trigger))[0]
+            return self.step1(k, as_floats(u), as_floats(y), as_floats(sigma_hat), int(trigger))[0]
         q, x, yt = self.step_batch(k, u, y, sigma_hat, np.asarray(trigger, dtype=int))
         return ObserverOutput(k, q, x.copy(), yt)
