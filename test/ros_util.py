@@ -185,7 +185,25 @@ def ros_context(args: Sequence[str] | None = None) -> Iterator[Any]:
     try:
         yield ctx
     finally:
+        _destroy_nodes_of(ctx)
         rclpy.try_shutdown(context=ctx)
+        ctx.destroy()
+
+
+def _destroy_nodes_of(ctx: Any) -> None:
+    """Destroy every node still alive in ``ctx``: a test that failed half way keeps its
+    nodes referenced from its traceback (pytest keeps it for the report), and their
+    publishers and subscriptions would otherwise stay in the graph of every later test."""
+    import gc
+
+    from rclpy.node import Node
+
+    for obj in gc.get_objects():
+        if isinstance(obj, Node) and obj.context is ctx:
+            try:
+                obj.destroy_node()
+            except Exception:  # already destroyed: nothing to clean up
+                pass
 
 
 def spin_until(executor: Any, cond: Callable[[], bool], timeout: float,
