@@ -19,15 +19,17 @@ def test_observer_warns_outside_certified_region():
 
     from fd_monitor.nodes.common import OK, WARN, data_pub_qos
     from fd_monitor.nodes.conversions import to_msg
-    from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.nodes.observer import ObserverNode
     from fd_monitor.system import load_system
 
     system = load_system("three_tank")
     with ros_context() as ctx:
-        # the whole chain: the observer joins the estimator's and AGEI's feedback per sample
-        nodes = make_chain(context=ctx, parameter_overrides=[
+        # The observer alone (open loop: no feedback publisher). In the whole chain the bias
+        # estimator attributes the level step to a sensor bias and pulls x^ back inside
+        # within a few samples: whether /diagnostics catches that short excursion is timing.
+        nodes = [ObserverNode(context=ctx, parameter_overrides=[
             Parameter("gains", value="three_tank_envelope"),
-            Parameter("diagnostics_period", value=0.2)])
+            Parameter("diagnostics_period", value=0.2)])]
         col = Collector(ctx, ["/fd/state_estimate"], diagnostics=True)
         drv = Node("driver", context=ctx)
         pub = {t: drv.create_publisher(Float64MultiArray, t, data_pub_qos())
@@ -35,7 +37,7 @@ def test_observer_warns_outside_certified_region():
         ex = SingleThreadedExecutor(context=ctx)
         for n in (*nodes, col.node, drv):
             ex.add_node(n)
-        assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 2, 10.0)
+        assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 1, 10.0)
 
         def estimate(level, text):
             return any(s.level == level and text in s.message
