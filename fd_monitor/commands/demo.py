@@ -28,6 +28,7 @@ import numpy as np
 
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.errors import FdMonitorError
+from fd_monitor.nodes.domain import die_with_parent
 
 __all__ = ["add_arguments", "run", "summarize"]
 
@@ -53,16 +54,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_flag(parser)
 
 
-def _die_with_parent() -> None:
-    """In a demo child: get SIGTERM when the demo dies, even by SIGKILL (Linux), so no node
-    outlives it and keeps publishing into the domain."""
-    if sys.platform.startswith("linux"):
-        import ctypes
-        import signal
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
-
-
 class _Processes:
     """Child processes with logs, always stopped (SIGINT, then kill) at the end."""
 
@@ -75,7 +66,7 @@ class _Processes:
         log = open(self.logs / f"{name}.log", "w")  # the child keeps its copy
         p = subprocess.Popen([sys.executable, "-m", "fd_monitor", *args], env=self.env,
                              stdout=log, stderr=subprocess.STDOUT, text=True,
-                             preexec_fn=_die_with_parent)
+                             preexec_fn=die_with_parent)
         log.close()
         self.procs[name] = p
         return p

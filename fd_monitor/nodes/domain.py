@@ -15,7 +15,7 @@ import subprocess
 import sys
 from collections.abc import Mapping
 
-__all__ = ["domain_is_free", "free_domain", "hold_domain"]
+__all__ = ["die_with_parent", "domain_is_free", "free_domain", "hold_domain"]
 
 #: Child process: exit 1 when another participant shows up within 3 s (measured here:
 #: discovery takes 0.05-2.4 s on loopback; a node's name may come after its topics).
@@ -48,7 +48,9 @@ rclpy.try_shutdown()
 """
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
+    """In a child process (``preexec_fn``): get SIGTERM when the parent dies, even by
+    SIGKILL (Linux), so no node outlives the run that started it."""
     if sys.platform.startswith("linux"):
         import ctypes
         import signal
@@ -72,7 +74,7 @@ def hold_domain(env: Mapping[str, str] | None = None) -> subprocess.Popen:
     p = subprocess.Popen([sys.executable, "-c", _ANCHOR],
                          env=dict(os.environ if env is None else env),
                          stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                         preexec_fn=_die_with_parent)
+                         preexec_fn=die_with_parent)
     assert p.stdout is not None
     p.stdout.readline()                  # the node exists (or the child failed: EOF)
     return p
