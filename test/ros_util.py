@@ -284,3 +284,29 @@ def expected_payloads(outs: Sequence[Any]) -> dict[str, Any]:
             rows[t].append(v)
         rows["/fd/bias_estimate"].append(o.estimator.payload(system)[1])
     return {t: np.array(v, dtype=float) for t, v in rows.items()}
+
+
+def plain_msg(values: Any) -> Any:
+    """A plain Float64MultiArray (no stamp, no labels), as a user's driver publishes it."""
+    from std_msgs.msg import Float64MultiArray
+
+    m = Float64MultiArray()
+    m.data = [float(v) for v in values]
+    return m
+
+
+def biased_h1_run(n: int) -> tuple[Any, Any, Any, list[Any]]:
+    """three_tank_bias_h1 (seed 2), n samples, +5 cm on y_h1 from sample 40 (alarms within
+    the run): (system, u (n, nu), y (n, ny), the in-process Monitor's outputs)."""
+    from fd_monitor.core.monitor import Monitor
+    from fd_monitor.core.simulator import simulate
+    from fd_monitor.gains import load_gains
+    from fd_monitor.scenario import load_scenario
+    from fd_monitor.system import load_system
+
+    system = load_system("three_tank")
+    traj = simulate(load_scenario("three_tank_bias_h1"), 2, n)
+    u, y = traj.u[0], traj.y[0]
+    y[40:] += [0.05, 0.0, 0.0]
+    m = Monitor(system, load_gains("three_tank_thresholds", system))
+    return system, u, y, [m.step(k, u[k], y[k]) for k in range(n)]

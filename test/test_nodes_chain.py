@@ -12,25 +12,11 @@ import math
 
 import numpy as np
 import pytest
-from ros_util import Collector, Proc, ros_context, spin_until
-
-from fd_monitor.core.monitor import Monitor
-from fd_monitor.core.simulator import simulate
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from ros_util import Collector, Proc, biased_h1_run, plain_msg, ros_context, spin_until
 
 pytestmark = pytest.mark.ros
 
 K = 60
-
-
-def plain(values):
-    from std_msgs.msg import Float64MultiArray
-
-    m = Float64MultiArray()
-    m.data = [float(v) for v in values]
-    return m
 
 
 def test_bad_messages_are_reported_and_change_nothing():
@@ -43,12 +29,7 @@ def test_bad_messages_are_reported_and_change_nothing():
     from fd_monitor.nodes.conversions import to_msg
     from fd_monitor.nodes.monitor import make_chain
 
-    system = load_system("three_tank")
-    traj = simulate(load_scenario("three_tank_bias_h1"), 2, K)
-    u, y = traj.u[0], traj.y[0]
-    y[40:] += [0.05, 0.0, 0.0]  # a large bias on h1: alarms within the run
-    m = Monitor(system, load_gains("three_tank_thresholds", system))
-    want = [m.step(k, u[k], y[k]) for k in range(K)]
+    _, u, y, want = biased_h1_run(K)  # a large bias on h1 from sample 40: alarms in the run
 
     with ros_context() as ctx:
         overrides = [Parameter("stale_timeout", value=0.5),
@@ -65,16 +46,16 @@ def test_bad_messages_are_reported_and_change_nothing():
         assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 2, 10.0)
         for k in range(K):
             if k == 5:
-                pub["/plant/y"].publish(plain([y[k, 0], math.nan, y[k, 2]]))  # NaN
-                pub["/plant/y"].publish(plain(y[k, :2]))                      # wrong length
-                pub["/plant/u"].publish(plain([math.inf, 0.0, 0.0]))          # Inf
+                pub["/plant/y"].publish(plain_msg([y[k, 0], math.nan, y[k, 2]]))  # NaN
+                pub["/plant/y"].publish(plain_msg(y[k, :2]))                      # wrong length
+                pub["/plant/u"].publish(plain_msg([math.inf, 0.0, 0.0]))          # Inf
             if k == 8:
                 # Stamped, but one value short: refused by detector, agei, bias_estimator.
                 pub["/fd/state_estimate"].publish(to_msg(
                     ("mode", "h1", "h2", "h3", "y~h1", "y~h2"), 9, [0.0] * 6))
-                pub["/fd/alarm"].publish(plain([0.0, 0.0, 0.0]))  # no stamp: required here
-            pub["/plant/u"].publish(plain(u[k]))
-            pub["/plant/y"].publish(plain(y[k]))
+                pub["/fd/alarm"].publish(plain_msg([0.0, 0.0, 0.0]))  # no stamp: required here
+            pub["/plant/u"].publish(plain_msg(u[k]))
+            pub["/plant/y"].publish(plain_msg(y[k]))
         assert spin_until(ex, lambda: len(col.msgs["/fd/bias_estimate"]) >= K, 30.0), \
             {t: len(v) for t, v in col.msgs.items()}
 

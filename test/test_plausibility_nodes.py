@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ros_util import Collector, ros_context, spin_until
+from ros_util import Collector, plain_msg, ros_context, spin_until
 
 from fd_monitor.core.simulator import simulate
 from fd_monitor.scenario import load_scenario
@@ -29,11 +29,6 @@ def test_live_chain_refuses_1e300_and_recovers():
     u, y = traj.u[0], traj.y[0].copy()
     y[BAD, 1] = 1e300
 
-    def plain(values):
-        m = Float64MultiArray()
-        m.data = [float(v) for v in values]
-        return m
-
     with ros_context() as ctx:
         nodes = make_chain(context=ctx,
                            parameter_overrides=[Parameter("diagnostics_period", value=0.2)])
@@ -47,8 +42,8 @@ def test_live_chain_refuses_1e300_and_recovers():
             ex.add_node(n)
         assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 2, 10.0)
         for k in range(K):
-            pub["/plant/u"].publish(plain(u[k]))
-            pub["/plant/y"].publish(plain(y[k]))
+            pub["/plant/u"].publish(plain_msg(u[k]))
+            pub["/plant/y"].publish(plain_msg(y[k]))
         assert spin_until(ex, lambda: len(col.msgs["/fd/bias_estimate"]) >= K - 1, 30.0), \
             {t: len(v) for t, v in col.msgs.items()}
 
