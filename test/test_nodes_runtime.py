@@ -21,7 +21,7 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.bags import read_bag
+    from fd_monitor.bags import bag_topics, read_bag
     from fd_monitor.gains import load_gains
     from fd_monitor.library import load_library
     from fd_monitor.nodes.common import data_pub_qos
@@ -34,7 +34,7 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     system = load_system(gf0.system_name)
     gf = load_gains(spec.gains, system)
     topics = ["/plant/u", "/plant/y", "/plant/rho", "/plant/mode"]
-    b = read_bag(spec.folder, [t for t in topics if t in _present(spec.folder)])
+    b = read_bag(spec.folder, [t for t in topics if t in bag_topics(spec.folder)])
     data = {t: (a.labels, a.values[:n].copy()) for t, a in b.items() if t != "/plant/truth"}
     if edit is not None:
         edit(data)
@@ -70,12 +70,6 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
         for nd in (node, col.node, drv):
             nd.destroy_node()
     return system, gf, got, data, statuses
-
-
-def _present(folder):
-    from fd_monitor.bags import bag_topics
-
-    return bag_topics(folder)
 
 
 def node_side(node):

@@ -224,9 +224,12 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
     if expected is not None and got_labels and got_labels != expected:
         raise MessageError(f"{where}: channels {','.join(got_labels)}: expected "
                            f"{','.join(expected)}")
-    bad = ((np.zeros(values.shape, bool) if allow_inf else np.isinf(values))
-           | (np.zeros(values.shape, bool) if allow_nan else np.isnan(values)))
-    if bad.any():
+    # one array operation on the data path (neither allowed), none when both are
+    bad = (~np.isfinite(values) if not (allow_nan or allow_inf)
+           else np.isinf(values) if allow_nan and not allow_inf
+           else np.isnan(values) if allow_inf and not allow_nan
+           else None)
+    if bad is not None and bad.any():
         i = int(np.flatnonzero(bad)[0])
         names = got_labels or expected or ()
         name = names[i] if i < len(names) else f"#{i}"

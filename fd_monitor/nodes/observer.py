@@ -63,12 +63,17 @@ class EstimateReport:
     monitor): the mode, WARN outside the gain file's certified region. Uses the node's
     ``diag``, ``system`` and ``_was_outside``."""
 
+    def mode_name(self, mode: int) -> str:
+        """The plant's name of mode index ``mode`` (the index itself when it has none: a
+        switching signal outside the design)."""
+        modes = self.system.mode_names
+        return modes[mode] if 0 <= mode < len(modes) else str(mode)
+
     def report_estimate(self, k: int, mode: int, x_hat: Any, out: Any,
                         names: Sequence[str] | None = None) -> None:
         """Report q^_k, x^_k and the excess over the certified region (None: no region;
         ``names``: of its entries, default the states then the inputs)."""
-        modes = self.system.mode_names
-        name = modes[mode] if 0 <= mode < len(modes) else str(mode)
+        name = self.mode_name(mode)
         values = {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()}
         if out is not None and np.any(out != 0.0):
             # alarms still count; the thresholds are just not guaranteed out there

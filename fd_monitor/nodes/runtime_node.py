@@ -154,14 +154,11 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
             self._labels = estimate_labels(self.system, rt, x_hat)
         self.publish_array(self.pubs["fd/state_estimate"], self._labels, k,
                            np.concatenate([[float(out.mode)], np.ravel(x_hat)]))
-        self._report_sample(k, out)
+        self._report_sample(k, out, x_hat)
 
-    def _report_sample(self, k: int, out: Any) -> None:
-        rt = self.runtime
-        self.report_estimate(k, out.mode, out.estimates.get("x_hat"), out.outside,
-                             rt.region_names)
-        modes = self.system.mode_names
-        mode = modes[out.mode] if 0 <= out.mode < len(modes) else str(out.mode)
+    def _report_sample(self, k: int, out: Any, x_hat: np.ndarray) -> None:
+        self.report_estimate(k, out.mode, x_hat, out.outside, self.runtime.region_names)
+        mode = self.mode_name(out.mode)
         self._log_alarms(k, out.residual, out.threshold, out.alarm)
         share = self.params.warn_share
         for i, c in enumerate(self.channels):
