@@ -13,11 +13,11 @@ from setuptools import find_packages, setup
 package_name = "fd_monitor"
 here = Path(__file__).resolve().parent
 
-# Executables: name -> module with main(). One table (fd_monitor/executables.py, read here
+# Executables: name -> module with main(). One table (fd_monitor/commands/executables.py, read here
 # without importing the package) feeds the console scripts, the launchers under
 # lib/fd_monitor/ and `python -m fd_monitor run <node>`.
 _ns: dict = {}
-exec((here / "fd_monitor" / "executables.py").read_text(), _ns)
+exec((here / "fd_monitor" / "commands" / "executables.py").read_text(), _ns)
 EXECUTABLES: dict[str, str] = _ns["EXECUTABLES"]
 
 

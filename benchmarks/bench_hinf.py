@@ -14,8 +14,8 @@ from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc, hminus_switched
 from fd_monitor.design._lmi_common import load_design_section
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
 
 
 def main() -> None:

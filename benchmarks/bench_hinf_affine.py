@@ -20,7 +20,7 @@ import numpy as np
 
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
-from fd_monitor.system import load_system
+from fd_monitor.model.system import load_system
 
 #: |d rho_j / dt| bounds: 6.5 from (6.85); 7.2 assumed (the thesis gives none).
 RATES = {"thesis_6_5": [0.62832, 0.12568], "three_tank_lpv": [0.2, 0.2, 0.2]}

@@ -54,7 +54,7 @@ import json, sys, time
 import rclpy
 from std_msgs.msg import Float64MultiArray
 from fd_monitor.nodes.common import data_pub_qos, use_dds_profile
-from fd_monitor.nodes.conversions import to_msg
+from fd_monitor.wire.conversions import to_msg
 use_dds_profile(); rclpy.init()
 mode, total = sys.argv[1], int(sys.argv[2])
 node = rclpy.create_node("bench_driver")
@@ -64,7 +64,7 @@ if mode == "raw":
     lab_u = lab_y = ("a", "b", "c")
 else:
     from fd_monitor.core.simulator import simulate
-    from fd_monitor.scenario import load_scenario
+    from fd_monitor.model.scenario import load_scenario
     sc = load_scenario("three_tank_bias_h1")
     tr = simulate(sc, None, total)
     u, y = tr.u[0].tolist(), tr.y[0].tolist()

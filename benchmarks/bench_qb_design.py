@@ -22,10 +22,10 @@ import time
 
 import numpy as np
 
-from fd_monitor.core.qb import qb_model
+from fd_monitor.core.qb_model import qb_model
 from fd_monitor.design.qb import QBProblem, design_qb
-from fd_monitor.errors import DesignError
-from fd_monitor.system import load_system, parse_system
+from fd_monitor.model.errors import DesignError
+from fd_monitor.model.system import load_system, parse_system
 
 
 def _median_time(fn, repeat: int) -> float:

@@ -30,16 +30,11 @@ import time
 
 import numpy as np
 
-from fd_monitor.core.qb import (
-    STRESS_POLICIES,
-    ellipsoid_bound,
-    gains_matrices,
-    run_batch,
-    stress_runs,
-)
+from fd_monitor.core.qb import STRESS_POLICIES, run_batch, stress_runs
+from fd_monitor.core.qb_certificate import ellipsoid_bound, gains_matrices
 from fd_monitor.core.simulator import Trajectory
-from fd_monitor.gains import load_gains
-from fd_monitor.system import load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.system import load_system
 
 
 def main() -> None:

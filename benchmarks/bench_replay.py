@@ -65,7 +65,7 @@ def live_monitor(bag: Path, env: dict[str, str], tmp: Path) -> dict[str, float]:
     """Replay into the monitor process; samples/s from the recorder's receive stamps."""
     import numpy as np
 
-    from fd_monitor.bags import read_bag
+    from fd_monitor.wire.bags import read_bag
 
     n = len(read_bag(bag, ["/plant/y"])["/plant/y"])
     mon = _fd(["run", "monitor"], env, tmp / "monitor.log")
@@ -123,7 +123,7 @@ def raw_rclpy(bag: Path, env: dict[str, str]) -> dict[str, float]:
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.bags import read_raw
+    from fd_monitor.wire.bags import read_raw
 
     msgs = [(t, raw) for t, _m, _ts, raw in read_raw(bag, ["/plant/u", "/plant/y"])]
     n_msgs = len(msgs)

@@ -22,9 +22,9 @@ import numpy as np
 
 from fd_monitor.core.runtime import runtime_for
 from fd_monitor.core.simulator import simulate
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
 
 SCENARIOS = {"three_tank": "three_tank_nominal", "pwa_cascade": "pwa_cascade_nominal",
              "three_tank_lpv": "three_tank_lpv_nominal"}

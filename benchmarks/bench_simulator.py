@@ -14,7 +14,7 @@ import statistics
 import time
 
 from fd_monitor.core.simulator import simulate, simulate_batch
-from fd_monitor.scenario import load_scenario
+from fd_monitor.model.scenario import load_scenario
 
 CASES = [("three_tank", "three_tank_bias_h1", 4000),
          ("pwa_cascade", "pwa_cascade_b1_step", 10000)]

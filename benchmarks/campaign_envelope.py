@@ -31,9 +31,9 @@ import numpy as np
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.monitor import run_batch
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import FaultEvent, Scenario, parse_scenario
-from fd_monitor.system import System, load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import FaultEvent, Scenario, parse_scenario
+from fd_monitor.model.system import System, load_system
 
 DURATION = 300.0
 FAULT_TIME = 200.0

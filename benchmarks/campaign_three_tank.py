@@ -33,9 +33,9 @@ import numpy as np
 
 from fd_monitor.core.monitor import run_batch
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import FaultEvent, load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import FaultEvent, load_scenario
+from fd_monitor.model.system import load_system
 
 
 def _table(rows: list[list[Any]], header: list[str]) -> None:

@@ -1,7 +1,7 @@
-"""``python -m fd_monitor``: see :mod:`fd_monitor.cli`."""
+"""``python -m fd_monitor``: see :mod:`fd_monitor.commands.cli`."""
 
 import sys
 
-from fd_monitor.cli import main
+from fd_monitor.commands.cli import main
 
 sys.exit(main())

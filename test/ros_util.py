@@ -256,7 +256,7 @@ class Collector:
 
     def decoded(self, topic: str) -> list[Any]:
         """Decoded messages of a topic, in arrival order."""
-        from fd_monitor.nodes.conversions import decode
+        from fd_monitor.wire.conversions import decode
 
         return [decode(m, topic) for m in self.msgs[topic]]
 
@@ -273,7 +273,7 @@ def expected_payloads(outs: Sequence[Any]) -> dict[str, Any]:
     """The values the chain publishes on each topic for Monitor outputs (one run from 0)."""
     import numpy as np
 
-    from fd_monitor.system import load_system
+    from fd_monitor.model.system import load_system
 
     system = load_system("three_tank")
     rows: dict[str, list] = {t: [] for t in FD_TOPICS}
@@ -300,9 +300,9 @@ def biased_h1_run(n: int) -> tuple[Any, Any, Any, list[Any]]:
     the run): (system, u (n, nu), y (n, ny), the in-process Monitor's outputs)."""
     from fd_monitor.core.monitor import Monitor
     from fd_monitor.core.simulator import simulate
-    from fd_monitor.gains import load_gains
-    from fd_monitor.scenario import load_scenario
-    from fd_monitor.system import load_system
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.scenario import load_scenario
+    from fd_monitor.model.system import load_system
 
     system = load_system("three_tank")
     traj = simulate(load_scenario("three_tank_bias_h1"), 2, n)

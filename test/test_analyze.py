@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 import yaml
 
-from fd_monitor.cli import main as cli_main
 from fd_monitor.commands.analyze import analyze_arrays, analyze_bag
+from fd_monitor.commands.cli import main as cli_main
 from fd_monitor.core.simulator import simulate
-from fd_monitor.errors import BagError, GainFileError, MessageError
-from fd_monitor.gains import load_gains, write_gain_doc
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import BagError, GainFileError, MessageError
+from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
 
 REPO = Path(__file__).resolve().parent.parent
 GAINS = REPO / "config" / "gains" / "three_tank_thresholds.yaml"
 
-bags = pytest.importorskip("fd_monitor.bags")
+bags = pytest.importorskip("fd_monitor.wire.bags")
 
 
 @pytest.fixture(scope="module")

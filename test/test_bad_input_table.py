@@ -1,7 +1,7 @@
 """Every bad file and argument of issue 12 gets one line ``fd_monitor: error: ...`` and exit 2.
 
 One table: each row builds its input in tmp_path, runs the command line in process
-(``fd_monitor.cli.main``) and expects status 2, a single stderr line starting
+(``fd_monitor.commands.cli.main``) and expects status 2, a single stderr line starting
 ``fd_monitor`` and containing the row's fragment, and no traceback. The interrupted
 ``replay`` (130/143) is a separate test: it needs a real process and a signal.
 """
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from fd_monitor.cli import main as cli_main
-from fd_monitor.paths import find_config_file
+from fd_monitor.commands.cli import main as cli_main
+from fd_monitor.model.paths import find_config_file
 
 REPO = Path(__file__).resolve().parent.parent
 PLANT = find_config_file("three_tank", "systems", FileNotFoundError).read_text()
@@ -174,8 +174,8 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys, build, fragment):
 
 
 def test_force_allows_overwrite_checks_pass(tmp_path):
-    from fd_monitor.errors import FdMonitorError
-    from fd_monitor.paths import check_output
+    from fd_monitor.model.errors import FdMonitorError
+    from fd_monitor.model.paths import check_output
 
     f = Path(_file_here(tmp_path))
     assert check_output(f, "-o", FdMonitorError, folder=False, force=True) == f
@@ -186,7 +186,7 @@ def test_force_allows_overwrite_checks_pass(tmp_path):
 
 def test_merge_keys_and_anchors_still_load():
     # The shipped three_tank uses `&base` / `<<: *base`: explicit keys override merged ones.
-    from fd_monitor.system import load_system
+    from fd_monitor.model.system import load_system
 
     s = load_system("three_tank")
     assert s.modes[1].params["upper_area"] == 2.5e-5 and s.modes[0].params["upper_area"] == 0

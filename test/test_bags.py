@@ -8,11 +8,18 @@ import sys
 import numpy as np
 import pytest
 
-from fd_monitor.bags import BagWriter, arrays_from, bag_topics, read_bag, read_messages, write_bag
 from fd_monitor.commands.simulate import simulate_to_bag
 from fd_monitor.core.simulator import simulate
-from fd_monitor.errors import BagError
-from fd_monitor.scenario import load_scenario
+from fd_monitor.model.errors import BagError
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.wire.bags import (
+    BagWriter,
+    arrays_from,
+    bag_topics,
+    read_bag,
+    read_messages,
+    write_bag,
+)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +64,7 @@ def test_write_read_round_trip_in_timestamp_order(tmp_path):
 
 
 def test_unstamped_messages_are_numbered(tmp_path):
-    from fd_monitor.bags import _typestore
+    from fd_monitor.wire.bags import _typestore
 
     types = _typestore().types
     with BagWriter(tmp_path / "bag") as w:
@@ -115,6 +122,6 @@ def test_simulate_cli_json_and_errors(tmp_path):
 
 
 def test_bags_module_does_not_import_rclpy():
-    code = ("import sys, fd_monitor.bags, fd_monitor.commands.simulate; "
+    code = ("import sys, fd_monitor.wire.bags, fd_monitor.commands.simulate; "
             "sys.exit('rclpy' in sys.modules)")
     assert subprocess.run([sys.executable, "-c", code], timeout=60).returncode == 0

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from ros_util import Proc, run_cli
 
-from fd_monitor.bags import bag_topics, read_bag
 from fd_monitor.commands.simulate import simulate_to_bag
+from fd_monitor.wire.bags import bag_topics, read_bag
 
 pytestmark = pytest.mark.ros
 
@@ -107,7 +107,7 @@ def test_record_killed_with_sigkill_loses_at_most_the_last_second(tmp_path):
     with the same messages."""
     import time
 
-    from fd_monitor.bags import BagDamageWarning, read_raw
+    from fd_monitor.wire.bags import BagDamageWarning, read_raw
 
     rate = 100.0          # plant_sim at rate_factor 10: 10 x 10 Hz
     bag = tmp_path / "rec"

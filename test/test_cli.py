@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from fd_monitor.cli import SUBCOMMANDS
+from fd_monitor.commands.cli import SUBCOMMANDS
 
 
 def fdm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:

@@ -12,7 +12,7 @@ def test_core_imports_neither_rclpy_nor_cvxpy(repo: Path) -> None:
     code = (
         "import importlib, sys\n"
         f"for m in {mods!r}: importlib.import_module('fd_monitor.core.' + m)\n"
-        "import fd_monitor.system, fd_monitor.scenario, fd_monitor.gains\n"
+        "import fd_monitor.model.system, fd_monitor.model.scenario, fd_monitor.model.gains\n"
         "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'cvxpy'))\n"
         "print(len(sys.modules)); assert not bad, bad\n"
     )

@@ -24,10 +24,10 @@ from fd_monitor.core.filters import (
 from fd_monitor.core.monitor import Monitor, run_batch, validate_sample
 from fd_monitor.core.simulator import simulate, simulate_batch
 from fd_monitor.core.thresholds import DiagnosisGains, as_gains, noise_l1_bound
-from fd_monitor.errors import GainFileError, MessageError
-from fd_monitor.gains import load_gains, write_gain_doc
-from fd_monitor.scenario import FaultEvent, load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import GainFileError, MessageError
+from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.scenario import FaultEvent, load_scenario
+from fd_monitor.model.system import load_system
 
 REPO = Path(__file__).resolve().parent.parent
 GAINS = REPO / "config" / "gains" / "three_tank_thresholds.yaml"

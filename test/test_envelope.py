@@ -13,10 +13,10 @@ from fd_monitor.core.envelope import CertifiedRegion, describe_excess
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design.envelope import jacobian_centre, remainder_bound
-from fd_monitor.errors import SystemFileError
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import parse_scenario
-from fd_monitor.system import load_system, parse_system, read_yaml
+from fd_monitor.model.errors import SystemFileError
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import parse_scenario
+from fd_monitor.model.system import load_system, parse_system, read_yaml
 
 U_LO, U_HI = np.array([0.0, 0.0, 0.0]), np.array([1.5e-4, 1.5e-4, 1.0])
 

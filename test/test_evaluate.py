@@ -9,11 +9,11 @@ import subprocess
 import numpy as np
 import pytest
 
+from fd_monitor.analysis.evaluate import ProgressBar, get_runner, run_campaign
 from fd_monitor.core.batch import BatchResult
-from fd_monitor.errors import FdMonitorError, GainFileError
-from fd_monitor.evaluate import ProgressBar, get_runner, run_campaign
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
+from fd_monitor.model.errors import FdMonitorError, GainFileError
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
 
 TABLE_II_RHOS = [0.01, 0.05, 0.10, 0.15, 0.20]
 

@@ -2,10 +2,10 @@
 
 Targets: the plant, scenario and gain-file readers (generated YAML: random text and bytes,
 and valid shipped files with one value replaced by a random YAML value or a key removed),
-message decoding (:func:`fd_monitor.nodes.conversions.decode` on generated messages) and
-the offline reader (:func:`fd_monitor.offline.run_bag` on generated bags: stamps, values,
+message decoding (:func:`fd_monitor.wire.conversions.decode` on generated messages) and
+the offline reader (:func:`fd_monitor.analysis.offline.run_bag` on generated bags: stamps, values,
 labels, and bytes of a valid bag flipped or cut). The property of each: the call returns a
-result or raises :class:`~fd_monitor.errors.FdMonitorError` — never another exception.
+result or raises :class:`~fd_monitor.model.errors.FdMonitorError` — never another exception.
 
 The suite runs a bounded, derandomised number of examples per target (fast, same examples
 every run); ``benchmarks/fuzz_inputs.py`` runs many more with a random seed and prints the
@@ -29,9 +29,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fd_monitor.errors import FdMonitorError
-from fd_monitor.paths import find_config_file
-from fd_monitor.system import load_system, parse_system, parse_yaml_text
+from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.system import load_system, parse_system, parse_yaml_text
 
 #: Examples per target in the test suite (the benchmark runs more).
 SUITE_EXAMPLES = 40
@@ -42,7 +42,7 @@ _PWA = load_system("pwa_cascade")
 
 @functools.cache
 def _gain_file() -> Any:
-    from fd_monitor.gains import load_gains
+    from fd_monitor.model.gains import load_gains
 
     return load_gains("three_tank_thresholds", _SYSTEM)
 
@@ -127,14 +127,14 @@ def _parse_plant(raw: Any) -> Any:
 
 
 def _parse_scenario(raw: Any) -> Any:
-    from fd_monitor.errors import ScenarioError
-    from fd_monitor.scenario import parse_scenario
+    from fd_monitor.model.errors import ScenarioError
+    from fd_monitor.model.scenario import parse_scenario
 
     return parse_scenario(parse_yaml_text(raw, "<fuzz>", ScenarioError), "<fuzz>", _SYSTEM)
 
 
 def _load_gains(raw: Any) -> Any:
-    from fd_monitor.gains import load_gains
+    from fd_monitor.model.gains import load_gains
 
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "g.yaml"
@@ -143,7 +143,7 @@ def _load_gains(raw: Any) -> Any:
 
 
 def _decode(msg: Any) -> Any:
-    from fd_monitor.nodes.conversions import decode
+    from fd_monitor.wire.conversions import decode
 
     return decode(msg, "/plant/y", labels=("h1", "h2", "h3"), require_stamp=False)
 
@@ -163,8 +163,8 @@ def bag_streams(draw: Any) -> dict[str, Any]:
 
 
 def _run_stream(doc: dict[str, Any]) -> Any:
-    from fd_monitor.bags import arrays_from, write_bag
-    from fd_monitor.offline import run_bag
+    from fd_monitor.analysis.offline import run_bag
+    from fd_monitor.wire.bags import arrays_from, write_bag
 
     s = _SYSTEM
     ns = np.arange(len(doc["stamps"])) * 100_000_000
@@ -188,7 +188,7 @@ def bag_bytes(draw: Any) -> tuple[list[tuple[int, int]], int | None]:
 
 
 def _read_corrupted(spec: tuple[list[tuple[int, int]], int | None]) -> Any:
-    from fd_monitor.offline import run_bag
+    from fd_monitor.analysis.offline import run_bag
 
     flips, cut = spec
     with tempfile.TemporaryDirectory() as d:

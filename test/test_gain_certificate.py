@@ -2,7 +2,7 @@
 
 Issue 12: 277 of 524 +-0.1 % edits of single numbers (estimator, AGEI, isolation parameters,
 Lambda, ...) still loaded as "verified". The designer now writes a digest of every key
-(:func:`fd_monitor.gains.gain_digest`), re-checked at load before anything else.
+(:func:`fd_monitor.model.gains.gain_digest`), re-checked at load before anything else.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import Any
 import pytest
 import yaml
 
-from fd_monitor.errors import GainFileError
-from fd_monitor.gains import gains_from_doc, load_gains, write_gain_doc
-from fd_monitor.paths import find_config_file
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.gains import gains_from_doc, load_gains, write_gain_doc
+from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.system import load_system
 
 GAIN_DIR = find_config_file("three_tank_thresholds", "gains", GainFileError).parent
 SHIPPED = sorted(GAIN_DIR.glob("*.yaml"))

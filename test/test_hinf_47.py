@@ -16,10 +16,10 @@ from fd_monitor.core.residual_bank import ResidualBank, check_certificate
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
-from fd_monitor.errors import DesignError, GainFileError
-from fd_monitor.gains import load_gains, save_gains, write_gain_doc
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system, parse_system
+from fd_monitor.model.errors import DesignError, GainFileError
+from fd_monitor.model.gains import load_gains, save_gains, write_gain_doc
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system, parse_system
 
 A = np.array([[-0.8, 0, 0], [0, -0.5, 0.6], [0, -0.6, -0.5]])
 C = np.array([[1.0, 1, 0], [0, 1, 1]])

@@ -14,9 +14,9 @@ from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
 
 GAINS = Path(__file__).resolve().parent.parent / "config" / "gains" / "f16xl_hinf_sc.yaml"
 

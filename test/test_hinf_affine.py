@@ -25,9 +25,9 @@ from fd_monitor.core.residual_bank import (
 )
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
-from fd_monitor.errors import GainFileError
-from fd_monitor.gains import load_gains, save_gains
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.system import load_system
 
 #: rate bounds: 6.5 from the trajectories of (6.85) (rho1 = sin(0.62832 t), rho2 = 0.4
 #: cos(0.3142 t)); 7.2: assumed |d rho/dt| <= 0.2 1/(sqrt(m) s) (not in the thesis)

@@ -17,9 +17,9 @@ from fd_monitor.core.generalized_observer import (
 )
 from fd_monitor.design import hminus_switched
 from fd_monitor.design._lmi_common import load_design_section
-from fd_monitor.errors import DesignError, GainFileError
-from fd_monitor.gains import load_gains, save_gains
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import DesignError, GainFileError
+from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.system import load_system
 
 CFG = Path(__file__).resolve().parent.parent / "config" / "systems"
 

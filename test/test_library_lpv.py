@@ -8,10 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fd_monitor.bags import read_bag
-from fd_monitor.core.residual_bank import SCHEDULING_MAPS
-from fd_monitor.gains import load_gains
-from fd_monitor.library import (
+from fd_monitor.analysis.library import (
     check_expected,
     core_summary,
     generate_bag,
@@ -19,7 +16,10 @@ from fd_monitor.library import (
     load_library,
     truth_facts,
 )
-from fd_monitor.scenario import load_scenario
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.nonlinear import SCHEDULING_MAPS
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.wire.bags import read_bag
 
 LIB = load_library()
 NEW = ["three_tank_lpv_leaks_abrupt", "three_tank_lpv_leaks_incipient", "f16xl_overlap",

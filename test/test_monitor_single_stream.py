@@ -12,9 +12,9 @@ from fd_monitor.core.bias_estimator import matvec
 from fd_monitor.core.filters import FilterBank, FilterSpec, FloatFilter
 from fd_monitor.core.monitor import BatchMonitor, Monitor
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
 
 SCENARIOS = ("bag_three_tank_nominal", "bag_three_tank_bias_h1", "bag_three_tank_bias_h2",
              "bag_three_tank_incipient_h3", "bag_three_tank_valve", "three_tank_guard_high")

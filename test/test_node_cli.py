@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from ros_util import REPO, fd_env
 
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.ros_args import find_params_file, resolve_params_files, shown_params_file
 
 pytestmark = pytest.mark.ros

@@ -28,8 +28,8 @@ def test_burst_of_50000_degrades_to_holes_then_a_new_publisher_is_processed():
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.nodes.common import data_pub_qos
-    from fd_monitor.nodes.conversions import to_msg
     from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.wire.conversions import to_msg
 
     u = np.array([1.0e-4, 1.0e-4, 0.0])
     y = np.array([0.4, 0.2, 0.3])

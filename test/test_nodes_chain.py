@@ -26,8 +26,8 @@ def test_bad_messages_are_reported_and_change_nothing():
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.nodes.common import ERROR, STALE, WARN, data_pub_qos
-    from fd_monitor.nodes.conversions import to_msg
     from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.wire.conversions import to_msg
 
     _, u, y, want = biased_h1_run(K)  # a large bias on h1 from sample 40: alarms in the run
 

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fd_monitor.errors import MessageError
-from fd_monitor.nodes.conversions import (
+from fd_monitor.model.errors import MessageError
+from fd_monitor.wire.conversions import (
     ArrivalStamper,
     decode,
     encode_data,
@@ -28,7 +28,7 @@ def plain(data, offset=0, label=None, size=None):
 
 def test_rclpy_message_round_trip():
     pytest.importorskip("std_msgs")
-    from fd_monitor.nodes.conversions import to_msg
+    from fd_monitor.wire.conversions import to_msg
 
     msg = to_msg(LABELS, 42, [0.4, 0.2, 0.3])
     assert msg.layout.data_offset == 1

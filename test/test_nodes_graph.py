@@ -12,9 +12,9 @@ from ros_util import Collector, ros_context, spin_until
 
 from fd_monitor.core.monitor import Monitor
 from fd_monitor.core.simulator import simulate
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
 
 pytestmark = pytest.mark.ros
 
@@ -62,7 +62,7 @@ class Rig:
                                                for p in self.pub.values()), timeout)
 
     def send(self, u, y, ks):
-        from fd_monitor.nodes.conversions import to_msg
+        from fd_monitor.wire.conversions import to_msg
 
         for k in ks:
             self.pub["u"].publish(to_msg(("q1", "q2", "v13"), k, u[k]))
@@ -227,7 +227,7 @@ def test_stray_stamp_does_not_blind_the_monitor():
         assert rig.matched()
         rig.send(u, y, range(20))
         assert rig.spin(lambda: len(rig.col.msgs["/fd/alarm"]) >= 20)
-        from fd_monitor.nodes.conversions import to_msg
+        from fd_monitor.wire.conversions import to_msg
 
         rig.pub["u"].publish(to_msg(("q1", "q2", "v13"), 2**52, u[20]))
         rig.pub["y"].publish(to_msg(("h1", "h2", "h3"), 2**52, y[20]))

@@ -1,6 +1,6 @@
 """StampJoin's decisions (pure, time passed in): order, feedback, holes, restarts.
 
-The entry role must reproduce :func:`fd_monitor.offline.run_bag`: valid samples in stamp
+The entry role must reproduce :func:`fd_monitor.analysis.offline.run_bag`: valid samples in stamp
 order, a restart (feedback at initial values) at the first valid sample after a hole, a
 rejected message makes its stamp lost at once, a missing one is lost once a later stamp has
 been complete for ``gap_timeout`` s, out-of-order stamps within the timeout are processed in
@@ -9,8 +9,8 @@ order, duplicates keep the first.
 
 from __future__ import annotations
 
-from fd_monitor.nodes.conversions import readable_stamp, to_msg
-from fd_monitor.nodes.join import StampJoin
+from fd_monitor.wire.conversions import readable_stamp, to_msg
+from fd_monitor.wire.join import StampJoin
 
 FB0 = "fb0"
 

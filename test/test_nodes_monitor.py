@@ -59,7 +59,7 @@ def test_fused_monitor_bad_input_reported_outputs_equal_monitor():
         assert spin_until(ex, lambda: len(col.msgs["/fd/bias_estimate"]) >= K, 30.0), \
             {t: len(v) for t, v in col.msgs.items()}
 
-        from fd_monitor.nodes.conversions import decode
+        from fd_monitor.wire.conversions import decode
 
         exp = expected_payloads(want)
         for t in TOPICS:
@@ -93,7 +93,7 @@ def test_fused_monitor_bad_input_reported_outputs_equal_monitor():
 def test_layout_chain_gives_the_four_nodes_and_a_bad_layout_is_refused():
     from rclpy.parameter import Parameter
 
-    from fd_monitor.errors import FdMonitorError
+    from fd_monitor.model.errors import FdMonitorError
     from fd_monitor.nodes.monitor import make_nodes
 
     with ros_context() as ctx:

@@ -19,11 +19,11 @@ def test_observer_alone_runs_every_sample_without_waiting_for_feedback():
 
     from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver
     from fd_monitor.core.monitor import Monitor
-    from fd_monitor.gains import load_gains
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import data_pub_qos
-    from fd_monitor.nodes.conversions import to_msg
     from fd_monitor.nodes.observer import ObserverNode
-    from fd_monitor.system import load_system
+    from fd_monitor.wire.conversions import to_msg
 
     system = load_system("three_tank")
     gains = load_gains("three_tank_thresholds", system)

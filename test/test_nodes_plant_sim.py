@@ -9,7 +9,7 @@ import pytest
 from ros_util import Collector, Proc, ros_context, spin_until
 
 from fd_monitor.core.simulator import simulate
-from fd_monitor.scenario import load_scenario
+from fd_monitor.model.scenario import load_scenario
 
 pytestmark = pytest.mark.ros
 

@@ -3,7 +3,7 @@
 ``bags/pwa_cascade_b1_step`` (the QB paper's Sec. VI plant, bias step on x3 at 25 s) is
 replayed flat out into ``observer`` and ``detector`` run with the ``pwa_cascade_qb`` gain
 file; the recorded alarms, signals and thresholds must equal
-:func:`fd_monitor.offline.run_bag` sample for sample.
+:func:`fd_monitor.analysis.offline.run_bag` sample for sample.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from ros_util import REPO, Proc, replay_through
 
-from fd_monitor.bags import read_bag
-from fd_monitor.offline import run_bag
+from fd_monitor.analysis.offline import run_bag
+from fd_monitor.wire.bags import read_bag
 
 pytestmark = pytest.mark.ros
 
@@ -53,11 +53,11 @@ def test_qb_observer_warns_outside_a_stated_envelope(tmp_path):
     from ros_util import Collector, ros_context, spin_until
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.gains import load_gains, write_gain_doc
+    from fd_monitor.model.gains import load_gains, write_gain_doc
+    from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import WARN, data_pub_qos
-    from fd_monitor.nodes.conversions import to_msg
     from fd_monitor.nodes.observer import ObserverNode
-    from fd_monitor.system import load_system
+    from fd_monitor.wire.conversions import to_msg
 
     system = load_system("pwa_cascade")
     doc = yaml.safe_load((REPO / "config/gains/pwa_cascade_qb.yaml").read_text())

@@ -21,13 +21,13 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.bags import bag_topics, read_bag
-    from fd_monitor.gains import load_gains
-    from fd_monitor.library import load_library
+    from fd_monitor.analysis.library import load_library
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import data_pub_qos
-    from fd_monitor.nodes.conversions import to_msg
     from fd_monitor.nodes.runtime_node import RuntimeNode
-    from fd_monitor.system import load_system
+    from fd_monitor.wire.bags import bag_topics, read_bag
+    from fd_monitor.wire.conversions import to_msg
 
     spec = load_library()[bag]
     gf0 = load_gains(spec.gains, verify=False)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from fd_monitor.executables import EXECUTABLES
+from fd_monitor.commands.executables import EXECUTABLES
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -10,15 +10,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fd_monitor.analysis.offline import InputReport, run_bag, run_thresholds, summarize_run
 from fd_monitor.core.monitor import Monitor
 from fd_monitor.core.plausibility import PREDICTION_FACTOR, Plausibility
 from fd_monitor.core.simulator import simulate
-from fd_monitor.errors import MessageError
-from fd_monitor.gains import load_gains
-from fd_monitor.nodes.join import StampJoin
-from fd_monitor.offline import InputReport, run_bag, run_thresholds, summarize_run
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import MessageError
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
+from fd_monitor.wire.join import StampJoin
 
 K = 600  # 60 s of three_tank_nominal
 
@@ -68,7 +68,7 @@ def test_offline_run_reports_it_and_recovers_without_alarm(plant):
 
 
 def test_flipped_bit_in_a_bag_is_an_input_error(plant, tmp_path):
-    from fd_monitor.bags import arrays_from, write_bag
+    from fd_monitor.wire.bags import arrays_from, write_bag
 
     sys_, _g, tr = plant
     y = tr.y[0].copy()

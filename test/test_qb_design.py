@@ -10,17 +10,12 @@ import numpy as np
 import pytest
 import yaml
 
-from fd_monitor.core.qb import (
-    check_certificate,
-    lmi_blocks,
-    qb_model,
-    spectral_abscissa,
-    unobservable_unstable,
-)
+from fd_monitor.core.qb_certificate import check_certificate, lmi_blocks
+from fd_monitor.core.qb_model import qb_model, spectral_abscissa, unobservable_unstable
 from fd_monitor.design.qb import design_qb, write_gain_file
-from fd_monitor.errors import DesignError, GainFileError
-from fd_monitor.gains import load_gains, write_gain_doc
-from fd_monitor.system import load_system, parse_system
+from fd_monitor.model.errors import DesignError, GainFileError
+from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.system import load_system, parse_system
 
 # QB paper Sec. VI, as printed.
 P_PAPER = np.array([[94.1508, 0, -20.9304, 0], [0, 94.1508, 0, -20.9304],

@@ -10,9 +10,9 @@ import pytest
 from fd_monitor.core.kalman import kalman_gains
 from fd_monitor.core.qb import QBDetector, QBObserver, run_batch
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import load_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.system import load_system
 
 
 @pytest.fixture(scope="module")

@@ -13,18 +13,13 @@ import pytest
 import yaml
 from scipy.linalg import expm
 
-from fd_monitor.core.qb import (
-    QBDetector,
-    ellipsoid_bound,
-    gains_matrices,
-    run_batch,
-    stress_runs,
-)
+from fd_monitor.core.qb import QBDetector, run_batch, stress_runs
+from fd_monitor.core.qb_certificate import ellipsoid_bound, gains_matrices
 from fd_monitor.core.simulator import Trajectory
 from fd_monitor.design.qb import design_qb
-from fd_monitor.errors import GainFileError
-from fd_monitor.gains import load_gains, write_gain_doc
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.system import load_system
 
 K = 6000           # 60 s per run
 K0 = 2000          # 20 s transient, as in Table II

@@ -1,7 +1,8 @@
 """Regression suite: every library bag analysed offline matches its expected.yaml.
 
-Every bag goes through ``analyze``'s offline run (:func:`fd_monitor.library.analyze_summary`
-calls :func:`fd_monitor.offline.run_bag`: the gain file's runtime from the registry of
+Every bag goes through ``analyze``'s offline run
+(:func:`fd_monitor.analysis.library.analyze_summary`
+calls :func:`fd_monitor.analysis.offline.run_bag`: the gain file's runtime from the registry of
 :mod:`fd_monitor.core.runtime`, whatever its method). A test shows that a threshold 20 %
 higher in the gain file makes the suite fail.
 """
@@ -14,11 +15,11 @@ import sys
 import pytest
 import yaml
 
+from fd_monitor.analysis.library import analyze_summary, check_expected, load_expected, load_library
 from fd_monitor.commands.analyze import analyze_bag
-from fd_monitor.errors import GainFileError
-from fd_monitor.gains import load_gains, write_gain_doc
-from fd_monitor.library import analyze_summary, check_expected, load_expected, load_library
-from fd_monitor.paths import find_config_file
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.paths import find_config_file
 
 LIB = load_library()
 ANALYZED_BAGS = [b.name for b in LIB.bags]
@@ -76,7 +77,7 @@ def _scaled_gains(tmp_path, factor):
 
 def test_suite_fails_with_thresholds_20_percent_higher(tmp_path):
     """Thresholds x1.2 still pass the certificate but change a detection: the suite fails."""
-    from fd_monitor.system import load_system
+    from fd_monitor.model.system import load_system
 
     gains = _scaled_gains(tmp_path, 1.2)
     assert load_gains(gains, load_system("three_tank")).certificate_status == "verified"
@@ -94,7 +95,7 @@ def test_suite_fails_with_thresholds_20_percent_higher(tmp_path):
 
 def test_thresholds_20_percent_lower_are_refused(tmp_path):
     """Thresholds x0.8 fall below the recomputed noise bound: the certificate refuses them."""
-    from fd_monitor.system import load_system
+    from fd_monitor.model.system import load_system
 
     gains = _scaled_gains(tmp_path, 0.8)
     with pytest.raises(GainFileError, match="certificate does not hold"):

@@ -6,7 +6,7 @@ pipeline (observer, detector, agei, bias_estimator and replay), the outputs are 
 the same ``expected.yaml`` is checked on what the nodes published: alarms, modes, bias
 estimates, restarts (the ``restart`` channel of ``/fd/state_estimate``) and the input errors
 the observer reported in its log. The residuals must also equal the offline runner's
-(:func:`fd_monitor.offline.run_bag`) sample for sample: bad input is handled the same way.
+(:func:`fd_monitor.analysis.offline.run_bag`) sample for sample: bad input is handled the same way.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from ros_util import Proc, replay_through
 
-from fd_monitor.bags import read_bag
-from fd_monitor.library import check_expected, load_expected, load_library
-from fd_monitor.offline import run_bag, stamp_runs
+from fd_monitor.analysis.library import check_expected, load_expected, load_library
+from fd_monitor.analysis.offline import run_bag, stamp_runs
+from fd_monitor.wire.bags import read_bag
 
 pytestmark = pytest.mark.ros
 
@@ -81,7 +81,7 @@ CASES = [(LIVE[0], "monitor"), (BAD, "monitor"), (BAD, "five_processes")]
 
 @pytest.mark.parametrize(("name", "layout"), CASES)
 def test_live_nodes_match_expected(tmp_path, name, layout):
-    from fd_monitor.system import load_system
+    from fd_monitor.model.system import load_system
 
     spec = LIB[name]
     assert spec.live
@@ -114,7 +114,7 @@ GENERIC = [b.name for b in LIB.bags if b.live and b.gains != "three_tank_thresho
 
 
 def test_live_subset_has_every_method():
-    from fd_monitor.gains import load_gains
+    from fd_monitor.model.gains import load_gains
 
     methods = {load_gains(LIB[n].gains, verify=False).method for n in LIVE}
     assert methods >= {"thresholds", "hinf_sc", "hminus_switched"}, methods
@@ -127,8 +127,8 @@ def test_live_monitor_runs_any_gain_file_like_analyze(tmp_path, name):
     and alarm of every channel, sample for sample; the bag's expectations hold offline
     (test_regression.py), so they hold live."""
     from fd_monitor.core.runtime import runtime_for
-    from fd_monitor.gains import load_gains
-    from fd_monitor.system import load_system
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
 
     spec = LIB[name]
     system = load_system(load_gains(spec.gains, verify=False).system_name)

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from fd_monitor.bags import arrays_from, write_bag
-from fd_monitor.library import load_library
-from fd_monitor.report import bag_report, campaign_report
+from fd_monitor.analysis.library import load_library
+from fd_monitor.analysis.report import bag_report, campaign_report
+from fd_monitor.wire.bags import arrays_from, write_bag
 
 LIB = load_library()
 
@@ -59,8 +59,8 @@ def test_report_flags_failed_expectations(tmp_path):
 
 
 def test_campaign_report(tmp_path):
-    from fd_monitor.evaluate import CampaignRow
-    from fd_monitor.scenario import load_scenario
+    from fd_monitor.analysis.evaluate import CampaignRow
+    from fd_monitor.model.scenario import load_scenario
 
     scs = [load_scenario("bag_three_tank_nominal"), load_scenario("bag_three_tank_bias_h1"),
            load_scenario("bag_three_tank_bias_h2"), load_scenario("bag_three_tank_incipient_h3")]

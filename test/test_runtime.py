@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from fd_monitor.bags import arrays_from, write_bag
+from fd_monitor.analysis.evaluate import get_runner
 from fd_monitor.commands.analyze import analyze_arrays, analyze_bag
 from fd_monitor.core.generalized_observer import simulate_switched
 from fd_monitor.core.residual_bank import AffineModel, simulate_affine_plant
@@ -25,11 +25,11 @@ from fd_monitor.core.runtime import (
     runtime_for,
 )
 from fd_monitor.core.simulator import simulate
-from fd_monitor.errors import BagError, GainFileError, MessageError
-from fd_monitor.evaluate import get_runner
-from fd_monitor.gains import load_gains, save_gains
-from fd_monitor.scenario import load_scenario, parse_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import BagError, GainFileError, MessageError
+from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.scenario import load_scenario, parse_scenario
+from fd_monitor.model.system import load_system
+from fd_monitor.wire.bags import arrays_from, write_bag
 
 GAINS_DIR = Path(__file__).resolve().parents[1] / "config" / "gains"
 GAIN_FILES = sorted(p.stem for p in GAINS_DIR.glob("*.yaml"))
@@ -159,7 +159,7 @@ def test_hminus_mode_from_an_input_channel_and_outside_mode():
     """A plant input named ``mode`` is the switching signal (same residuals as the side
     signal); a mode the design does not have is reported in ``outside`` and the last valid
     mode is kept."""
-    from fd_monitor.system import parse_system, read_yaml
+    from fd_monitor.model.system import parse_system, read_yaml
 
     system, gf = _loaded("farhat_koenig_hminus_switched")
     u, y, side = _stream(system, gf)
@@ -200,8 +200,8 @@ def _onset_ok(doc, onsets):
 def test_analyze_and_report_hinf_sc_bag(tmp_path):
     """Thesis 7.2 three-tank leak bank (LPV, rho from the levels): leaks at 100, 150, 200 s
     detected after their onsets, none before; every sample inside the design box here."""
+    from fd_monitor.analysis.report import bag_report
     from fd_monitor.commands.simulate import simulate_to_bag
-    from fd_monitor.report import bag_report
 
     bag = tmp_path / "lpv"
     simulate_to_bag("three_tank_lpv_abrupt", bag)
@@ -290,7 +290,7 @@ def _fk_gains_with_threshold(tmp_path, system, k, y, modes):
 def test_analyze_and_report_hminus_switched_bag(tmp_path):
     """Switched plant, mode from /plant/mode: the step fault at sample 300 is detected after
     its onset and never before; every mode is a design mode (inside)."""
-    from fd_monitor.report import bag_report
+    from fd_monitor.analysis.report import bag_report
 
     system, bag, k, y, modes = _fk_bag(tmp_path)
     gains = _fk_gains_with_threshold(tmp_path, system, k, y, modes)
@@ -311,7 +311,7 @@ def test_analyze_and_report_hminus_switched_bag(tmp_path):
 def test_hinf_sc_rho_side_signal_from_bag_and_outside(tmp_path):
     """Thesis 6.5 (LPV, no scheduling map): rho read from /plant/rho; the printed
     rho2(t) = cos(0.3142 t) (6.85) leaves the design box [-0.4, 0.4]: outside is marked."""
-    from fd_monitor.offline import run_bag
+    from fd_monitor.analysis.offline import run_bag
 
     system, gf = _loaded("thesis_6_5_hinf_sc")
     model = AffineModel.from_results(gf.results["model"])
@@ -339,7 +339,7 @@ def test_hinf_sc_rho_side_signal_from_bag_and_outside(tmp_path):
 def test_evaluate_runs_an_hinf_sc_campaign():
     """``evaluate`` takes every method: the thesis 7.2 bank over fault-free and abrupt-leak
     runs (2 seeds each): no false alarm after the 60 s start-up, every leak detected."""
-    from fd_monitor.evaluate import run_campaign
+    from fd_monitor.analysis.evaluate import run_campaign
 
     system = load_system("three_tank_lpv")
     gf = load_gains("three_tank_lpv_hinf_sc", system)
@@ -356,7 +356,7 @@ def test_regression_library_takes_an_hinf_sc_bag(tmp_path):
     """A library bag with an ``hinf_sc`` gain file: generated, its expectations proposed from
     one analysis and the truth, honest (check_truth: no alarm before the onsets, the leaking
     tanks isolated) and met (check_expected)."""
-    from fd_monitor.library import (
+    from fd_monitor.analysis.library import (
         analyze_summary,
         check_expected,
         check_truth,
@@ -385,7 +385,7 @@ def test_hminus_mode_from_the_plants_guards():
     """A switched plant whose plant file has guards: the runtime follows them on its estimate
     (no side signal needed) and, once the observer has converged, uses the true mode."""
     from fd_monitor.core.plant import SampledPlant
-    from fd_monitor.system import parse_system, read_yaml
+    from fd_monitor.model.system import parse_system, read_yaml
 
     _s, gf = _loaded("farhat_koenig_hminus_switched")
     doc = dict(read_yaml(Path(__file__).resolve().parents[1] / "config" / "systems" /
@@ -416,7 +416,7 @@ def test_hminus_mode_from_the_plants_guards():
 
 def test_analyze_reads_the_bag_once(monkeypatch):
     """`analyze` opens and reads a bag once (topics, labels, inputs, truth from one pass)."""
-    import fd_monitor.bags as bags
+    import fd_monitor.wire.bags as bags
 
     calls = []
     real = bags.read_raw

@@ -13,9 +13,9 @@ from scipy.integrate import solve_ivp
 
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.simulator import PlantSimulator, simulate, simulate_batch
-from fd_monitor.errors import ScenarioError
-from fd_monitor.scenario import load_scenario, parse_scenario
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import ScenarioError
+from fd_monitor.model.scenario import load_scenario, parse_scenario
+from fd_monitor.model.system import load_system
 
 
 def test_zoh_equals_fine_integration_of_every_linear_mode() -> None:
@@ -209,7 +209,7 @@ def test_bad_scenarios(tmp_path: Path, doc: Any, match: str) -> None:
 
 def test_three_tank_scalar_path_is_bit_identical_to_the_vectorised_one() -> None:
     """A single stream takes a float fast path; it must give the batch path's exact bits."""
-    from fd_monitor.core.models import get_model
+    from fd_monitor.model.nonlinear import get_model
 
     mdl = get_model("three_tank")
     system = load_system("three_tank")

@@ -14,13 +14,14 @@ import pytest
 import yaml
 
 from fd_monitor.core.generalized_observer import simulate_switched
-from fd_monitor.core.residual_bank import SCHEDULING_MAPS, AffineModel, simulate_affine_plant
+from fd_monitor.core.residual_bank import AffineModel, simulate_affine_plant
 from fd_monitor.core.simulator import simulate, truth_labels, truth_values
-from fd_monitor.errors import ScenarioError
-from fd_monitor.gains import load_gains
-from fd_monitor.paths import find_config_file
-from fd_monitor.scenario import load_scenario, parse_scenario
-from fd_monitor.system import load_system, parse_system
+from fd_monitor.model.errors import ScenarioError
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.nonlinear import SCHEDULING_MAPS
+from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.scenario import load_scenario, parse_scenario
+from fd_monitor.model.system import load_system, parse_system
 
 SCEN = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 SYS = Path(__file__).resolve().parent.parent / "config" / "systems"
@@ -261,7 +262,7 @@ def test_simulate_cli_bad_scheduling_exits_2_with_one_line(tmp_path):
 
 def test_simulate_cli_writes_rho_and_mode_to_the_truth(tmp_path):
     """`simulate` -> bag for an uncertain plant: rho and the mode on /plant/truth by label."""
-    from fd_monitor.bags import read_bag
+    from fd_monitor.wire.bags import read_bag
 
     out = subprocess.run([sys.executable, "-m", "fd_monitor", "simulate", "thesis_5_3_overlap",
                           "--duration", "2.0", "-o", str(tmp_path / "bag"), "--json"],
@@ -301,7 +302,7 @@ def test_measured_side_signals_are_what_a_monitor_may_measure(scenario, topics):
 def test_simulate_cli_writes_the_measured_mode_that_analyze_reads(tmp_path):
     """The switched plant's bag carries /plant/mode, and analyze runs the hminus_switched
     gain file on it (the side signal read from the bag)."""
-    from fd_monitor.bags import read_bag
+    from fd_monitor.wire.bags import read_bag
 
     out = subprocess.run([sys.executable, "-m", "fd_monitor", "simulate",
                           "bag_farhat_koenig_fault", "--duration", "20.0",

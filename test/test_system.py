@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from fd_monitor.errors import SystemFileError
-from fd_monitor.system import load_system
+from fd_monitor.model.errors import SystemFileError
+from fd_monitor.model.system import load_system
 
 MINIMAL: dict[str, Any] = {
     "format_version": 1,

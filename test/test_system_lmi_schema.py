@@ -1,5 +1,5 @@
 """Plant-file additions for the LMI designers: per-mode / output process-fault directions,
-``switching``, ``lpv`` with ``A_rho`` / ``B_rho`` (fd_monitor.system)."""
+``switching``, ``lpv`` with ``A_rho`` / ``B_rho`` (fd_monitor.model.system)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import pytest
 
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.simulator import simulate
-from fd_monitor.errors import SystemFileError
-from fd_monitor.scenario import parse_scenario
-from fd_monitor.system import load_system, parse_system
+from fd_monitor.model.errors import SystemFileError
+from fd_monitor.model.scenario import parse_scenario
+from fd_monitor.model.system import load_system, parse_system
 
 
 def _doc(**extra):
@@ -31,7 +31,7 @@ def test_existing_plants_keep_their_sha():
     import yaml
 
     s = load_system("thesis_4_7")
-    from fd_monitor.paths import repo_root
+    from fd_monitor.model.paths import repo_root
 
     root = repo_root()
     assert root is not None

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from fd_monitor.gains import to_plain
+from fd_monitor.model.gains import to_plain
 
 __all__ = ["add_json_flag", "print_json", "print_table", "emit"]
 

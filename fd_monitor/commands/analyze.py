@@ -34,11 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.commands._common import add_json_flag, print_json, print_table
-from fd_monitor.core.envelope import describe_excess
-from fd_monitor.core.runtime import runtime_for
-from fd_monitor.errors import BagError
-from fd_monitor.offline import (
+from fd_monitor.analysis.offline import (
     BagRun,
     InputReport,
     run_bag,
@@ -47,7 +43,11 @@ from fd_monitor.offline import (
     summarize_run,
     truth_at,
 )
-from fd_monitor.system import System
+from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.core.envelope import describe_excess
+from fd_monitor.core.runtime import runtime_for
+from fd_monitor.model.errors import BagError
+from fd_monitor.model.system import System
 
 __all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag", "analyze_run"]
 
@@ -85,7 +85,7 @@ def _transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
 
 
 def analyze_run(run: BagRun) -> dict[str, Any]:
-    """The ``analyze`` summary of an offline run (:func:`fd_monitor.offline.run_bag`).
+    """The ``analyze`` summary of an offline run (:func:`fd_monitor.analysis.offline.run_bag`).
 
     Returns
     -------
@@ -170,7 +170,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     MessageError
         An invalid sample (its index is named); nothing after it is processed.
     """
-    from fd_monitor.bags import TopicArrays
+    from fd_monitor.wire.bags import TopicArrays
 
     ks = [int(v) for v in np.asarray(k).reshape(-1)]
     us = dict(zip(ks, np.asarray(u, dtype=float).reshape(len(ks), -1)))
@@ -190,7 +190,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
 
 def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
                 agei: bool = True) -> dict[str, Any]:
-    """Run the gain file's monitor over a bag (:func:`fd_monitor.offline.run_bag`) and
+    """Run the gain file's monitor over a bag (:func:`fd_monitor.analysis.offline.run_bag`) and
     summarise (:func:`analyze_run`).
 
     Bad input messages (NaN/Inf, wrong length, duplicates, out-of-order stamps, holes) are
@@ -203,8 +203,8 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     GainFileError
         Gain file missing, for another plant, or its certificate fails.
     """
-    from fd_monitor.gains import load_gains
-    from fd_monitor.system import load_system
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
 
     raw = load_gains(gains_source, verify=False)
     system = load_system(system_source or raw.system_name)

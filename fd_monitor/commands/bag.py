@@ -15,7 +15,7 @@ import warnings
 from pathlib import Path
 
 from fd_monitor.commands._common import add_json_flag, emit
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["add_arguments", "run"]
 
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check or recover; print messages per topic (and damage as warnings)."""
-    from fd_monitor.bags import BagDamage, BagDamageWarning, bag_topics, recover_bag
+    from fd_monitor.wire.bags import BagDamage, BagDamageWarning, bag_topics, recover_bag
 
     damage: list[BagDamage]
     if args.action == "check":

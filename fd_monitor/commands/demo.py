@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.domain import die_with_parent
 
 __all__ = ["add_arguments", "run", "summarize"]
@@ -95,7 +95,7 @@ class _Processes:
 
 
 def _gains(out: Path, env: dict[str, str]) -> Path:
-    from fd_monitor.paths import config_dirs
+    from fd_monitor.model.paths import config_dirs
 
     for d in config_dirs():
         cand = d / "gains" / "three_tank_thresholds.yaml"
@@ -177,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
     except ImportError:
         raise FdMonitorError("demo: needs ROS 2 (rclpy); install with pip install '.[ros]'") \
             from None
-    from fd_monitor.scenario import load_scenario
+    from fd_monitor.model.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
     if args.rate_factor < 0:
@@ -243,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
 def _report(bag: Path, folder: Path, gains: Path) -> str | None:
     """The bag report's summary (figures and markdown); the demo's result stands without it."""
     try:
-        from fd_monitor.report import bag_report
+        from fd_monitor.analysis.report import bag_report
 
         return str(bag_report(bag, folder, gains)["summary_md"])
     except Exception as exc:  # the report is an extra: say why it is missing, keep the summary
@@ -263,7 +263,7 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         ``bias_estimate`` {output: sigma-hat at the end}, ``true_bias``, ``transitions``
         {true, tracked}, ``samples`` {topic: count}, ``lost`` (samples missing).
     """
-    from fd_monitor.bags import read_bag
+    from fd_monitor.wire.bags import read_bag
 
     b = read_bag(bag, list(TOPICS))
     sys_ = scenario.system

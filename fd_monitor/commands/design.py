@@ -1,8 +1,9 @@
 """``python -m fd_monitor design <method> SYSTEM -o GAINS``: run a designer, write a gain file.
 
-Each method is a module ``fd_monitor.design.<method>`` with ``add_arguments(parser)`` (its
-own options; SYSTEM, ``-o`` and ``--json`` are added here) and ``run(args) -> int``. cvxpy is
-imported only by those modules.
+Each method has a command module ``fd_monitor.commands.design_<method>`` with
+``add_arguments(parser)`` (its own options; SYSTEM, ``-o`` and ``--json`` are added here) and
+``run(args) -> int``; the designer it calls is ``fd_monitor.design.<method>``, the only place
+cvxpy is imported.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from fd_monitor.commands._common import add_json_flag
 
 __all__ = ["METHODS", "add_arguments", "run", "main"]
 
-#: method -> one-line help; the module is fd_monitor.design.<method>.
+#: method -> one-line help; the designer is fd_monitor.design.<method>, its command line
+#: fd_monitor.commands.design_<method>.
 METHODS: dict[str, str] = {
     "qb": "quadratic-boundedness observer (LTI / PWA), Alessandri, Boem & Parisini",
     "thresholds": "filters, filtered-residual thresholds and AGEI matrix, Heracleous et al.",
@@ -29,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add one sub-parser per method; only the chosen method's module is imported."""
     sub = parser.add_subparsers(dest="method", metavar="<method>", required=True,
                                 parser_class=type(parser))
-    from fd_monitor.cli import ARGV
+    from fd_monitor.commands.cli import ARGV
 
     chosen = _chosen_method(ARGV)
     for name, help_ in METHODS.items():
@@ -43,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="overwrite an existing -o GAINS file")
         add_json_flag(p)
         if name == chosen:
-            mod = importlib.import_module(f"fd_monitor.design.{name}")
+            mod = importlib.import_module(f"fd_monitor.commands.design_{name}")
             mod.add_arguments(p)
             p.set_defaults(_method_run=mod.run)
 
@@ -62,8 +64,8 @@ def run(args: argparse.Namespace) -> int:
     if args.output is not None:
         # Before the design (minutes for the large ones): a place we cannot write, or an
         # existing file without --force, is refused now, not after the solver ran.
-        from fd_monitor.errors import DesignError
-        from fd_monitor.paths import check_output
+        from fd_monitor.model.errors import DesignError
+        from fd_monitor.model.paths import check_output
 
         check_output(args.output, "-o", DesignError, folder=False, force=args.force)
     return int(args._method_run(args) or 0)
@@ -71,6 +73,6 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``design`` console script / ``ros2 run fd_monitor design``."""
-    from fd_monitor.cli import main as cli_main
+    from fd_monitor.commands.cli import main as cli_main
 
     return cli_main(["design", *(sys.argv[1:] if argv is None else argv)])

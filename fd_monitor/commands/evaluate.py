@@ -15,12 +15,12 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from fd_monitor.analysis.evaluate import run_campaign
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.core.runtime import runtime_class
-from fd_monitor.errors import FdMonitorError
-from fd_monitor.evaluate import run_campaign
-from fd_monitor.gains import load_gains
-from fd_monitor.scenario import check_horizon, load_scenario
+from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import check_horizon, load_scenario
 
 __all__ = ["add_arguments", "run"]
 
@@ -73,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the campaign and print its metrics."""
-    from fd_monitor.paths import check_output
+    from fd_monitor.model.paths import check_output
 
     if args.runs < 1:
         raise FdMonitorError(f"--runs {args.runs}: expected an integer >= 1")
@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
                         rhos=args.rho, transient=args.transient, channels=args.channels,
                         variants=variants, progress=not args.no_progress)
     if args.report is not None:
-        from fd_monitor.report import campaign_report
+        from fd_monitor.analysis.report import campaign_report
 
         campaign_report(rows, scenarios, args.report, gains=str(gains.path),
                         transient=args.transient)

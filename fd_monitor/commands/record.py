@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from fd_monitor.commands._common import add_json_flag, emit
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["add_arguments", "run", "main"]
 
@@ -53,9 +53,9 @@ def _pairs(items: Sequence[str], what: str) -> dict[str, str]:
 
 def run(args: argparse.Namespace) -> int:
     """Record until a stop condition; print per-topic counts."""
-    from fd_monitor.bags import FLUSH_SECONDS, BagWriter
     from fd_monitor.nodes.bag_nodes import KNOWN_TYPES, RecorderNode
     from fd_monitor.nodes.common import run_node
+    from fd_monitor.wire.bags import FLUSH_SECONDS, BagWriter
 
     types = dict(KNOWN_TYPES)
     types.update(_pairs(args.type, "--type"))
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``record`` console script / ``ros2 run fd_monitor record``."""
-    from fd_monitor.cli import main as cli_main
+    from fd_monitor.commands.cli import main as cli_main
 
     return cli_main(["record", *(sys.argv[1:] if argv is None else argv)])
 

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from fd_monitor.commands._common import add_json_flag, emit
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["add_arguments", "run", "main"]
 
@@ -37,9 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Replay; print how many messages were published."""
-    from fd_monitor.bags import bag_topics
     from fd_monitor.nodes.bag_nodes import ReplayNode
     from fd_monitor.nodes.common import run_node
+    from fd_monitor.wire.bags import bag_topics
 
     if args.rate < 0:
         raise FdMonitorError(f"--rate {args.rate}: expected >= 0")
@@ -92,6 +92,6 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``replay`` console script / ``ros2 run fd_monitor replay``."""
-    from fd_monitor.cli import main as cli_main
+    from fd_monitor.commands.cli import main as cli_main
 
     return cli_main(["replay", *(sys.argv[1:] if argv is None else argv)])

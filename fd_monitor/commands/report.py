@@ -41,9 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the report; print where it is and the expectation check."""
-    from fd_monitor.errors import FdMonitorError
-    from fd_monitor.paths import check_output
-    from fd_monitor.report import bag_report
+    from fd_monitor.analysis.report import bag_report
+    from fd_monitor.model.errors import FdMonitorError
+    from fd_monitor.model.paths import check_output
 
     if args.transient is not None and not 0 <= args.transient < float("inf"):
         raise FdMonitorError(f"--transient {args.transient}: expected a finite number >= 0")
@@ -72,6 +72,6 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``report`` console script / ``ros2 run fd_monitor report``."""
-    from fd_monitor.cli import main as cli_main
+    from fd_monitor.commands.cli import main as cli_main
 
     return cli_main(["report", *(sys.argv[1:] if argv is None else argv)])

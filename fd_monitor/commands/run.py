@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import importlib
 
-from fd_monitor.errors import FdMonitorError
-from fd_monitor.executables import NODES
+from fd_monitor.commands.executables import NODES
+from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["NODES", "add_arguments", "run"]
 

@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from fd_monitor.commands._common import add_json_flag, emit
-from fd_monitor.errors import ScenarioError
+from fd_monitor.commands._common import add_json_flag, emit, print_json, print_table
+from fd_monitor.model.errors import ScenarioError
 
 __all__ = ["add_arguments", "run", "simulate_to_bag"]
 
@@ -42,14 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None = None,
                     duration: float | None = None) -> dict:
     """Simulate and write the bag; return a summary mapping."""
-    from fd_monitor.bags import arrays_from, write_bag
     from fd_monitor.core.simulator import (
         measured_signals,
         simulate,
         truth_labels,
         truth_values,
     )
-    from fd_monitor.scenario import check_horizon, load_scenario
+    from fd_monitor.model.scenario import check_horizon, load_scenario
+    from fd_monitor.wire.bags import arrays_from, write_bag
 
     sc = load_scenario(scenario_source)
     if seed is not None and seed < 0:
@@ -84,9 +85,7 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
 def run(args: argparse.Namespace) -> int:
     """Simulate and print a summary."""
     if args.library is not None:
-        from fd_monitor.library import simulate_library_command
-
-        return simulate_library_command(args.library, args.only, args.json)
+        return _simulate_library(args.library, args.only, args.json)
     if args.scenario is None or args.output is None:
         raise ScenarioError("give SCENARIO and -o BAGDIR (or --library LIBRARY)")
     summary = simulate_to_bag(args.scenario, args.output, args.seed, args.duration)
@@ -98,4 +97,19 @@ def run(args: argparse.Namespace) -> int:
         flat["faults"] = "; ".join(f"{f['channel']} {f['profile']} {f['magnitude']:g} at "
                                    f"{f['time']:g} s" for f in summary["faults"]) or "none"
         emit(flat, False, title=f"simulated {summary['scenario']} -> {summary['bag']}")
+    return 0
+
+
+def _simulate_library(library: str | Path, only: Sequence[str] | None, as_json: bool) -> int:
+    """``python -m fd_monitor simulate --library LIBRARY [--only NAME...]``: rebuild bags."""
+    from fd_monitor.analysis.library import generate_library, load_library
+
+    lib = load_library(library)
+    rows = generate_library(lib, only)
+    if as_json:
+        print_json({"library": str(lib.path), "bags": rows})
+    else:
+        print_table([(r["name"], r["samples"], f"{r['bytes'] / 1e3:.0f} kB", r["folder"])
+                     for r in rows], header=("bag", "samples", "size", "folder"),
+                    title=f"regenerated {len(rows)} bag(s) of {lib.path}")
     return 0

@@ -31,7 +31,7 @@ import numpy as np
 
 from fd_monitor.core.filters import as_floats
 from fd_monitor.core.thresholds import AgeiRow, DiagnosisGains
-from fd_monitor.system import System
+from fd_monitor.model.system import System
 
 __all__ = ["Agei", "AgeiOutput", "MONITORING", "EXPECTING", "TRIGGERING", "decision_rule"]
 

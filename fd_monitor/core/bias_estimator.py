@@ -44,7 +44,7 @@ import numpy as np
 from fd_monitor.core.filters import as_floats, linear_map
 from fd_monitor.core.hybrid_observer import ModeDynamics
 from fd_monitor.core.thresholds import DiagnosisGains
-from fd_monitor.system import System
+from fd_monitor.model.system import System
 
 __all__ = ["BiasEstimator", "BiasOutput", "project", "matvec"]
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from fd_monitor.core.filters import FilterBank, FilterSpec, FloatFilter, as_floats
 from fd_monitor.core.thresholds import DiagnosisGains
-from fd_monitor.system import System
+from fd_monitor.model.system import System
 
 __all__ = ["ResidualDetector", "DetectorOutput", "no_override"]
 

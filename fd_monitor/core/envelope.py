@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import GainFileError
-from fd_monitor.system import System
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.system import System
 
 __all__ = ["CertifiedRegion", "describe_excess"]
 

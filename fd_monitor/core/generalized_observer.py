@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import GainFileError
-from fd_monitor.system import System
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.system import System
 
 __all__ = ["GeneralizedObserver", "check_certificate", "stability_lmi", "hminus_lmi",
            "residual_ss", "simulate_switched"]

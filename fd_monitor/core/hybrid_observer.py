@@ -27,10 +27,10 @@ import numpy as np
 
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.filters import as_floats
-from fd_monitor.core.models import get_model
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
-from fd_monitor.system import System
+from fd_monitor.model.nonlinear import get_model
+from fd_monitor.model.system import System
 
 __all__ = ["HybridObserver", "ModeDynamics", "ObserverOutput", "NO_TRIGGER"]
 

@@ -21,8 +21,8 @@ import numpy as np
 from scipy.linalg import solve_discrete_are
 
 from fd_monitor.core.plant import zoh
-from fd_monitor.core.qb import default_fault_states, qb_model
-from fd_monitor.system import System
+from fd_monitor.core.qb_model import default_fault_states, qb_model
+from fd_monitor.model.system import System
 
 __all__ = ["KalmanDesign", "kalman_gains", "DEFAULT_Q_FAULT"]
 

@@ -36,7 +36,8 @@ topic                       from                   data (after data[0] = k)
 ==========================  =====================  =============================================
 
 Invalid samples (NaN/Inf, wrong length, non-consecutive k) raise
-:class:`~fd_monitor.errors.MessageError` from :func:`validate_sample` before any state changes.
+:class:`~fd_monitor.model.errors.MessageError` from :func:`validate_sample` before any state
+changes.
 """
 
 from __future__ import annotations
@@ -53,8 +54,8 @@ from fd_monitor.core.bias_estimator import BiasEstimator, BiasOutput
 from fd_monitor.core.detector import DetectorOutput, ResidualDetector, no_override
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
 from fd_monitor.core.thresholds import DiagnosisGains, as_gains
-from fd_monitor.errors import MessageError
-from fd_monitor.system import System
+from fd_monitor.model.errors import MessageError
+from fd_monitor.model.system import System
 
 __all__ = ["Monitor", "MonitorOutput", "BatchMonitor", "run_batch", "validate_sample",
            "validate_vector"]
@@ -167,7 +168,7 @@ class Monitor:
     system : System
         Full-state measured plant (y = x + v).
     gains : DiagnosisGains or GainFile
-        A ``thresholds`` gain file (loaded with :func:`fd_monitor.gains.load_gains`).
+        A ``thresholds`` gain file (loaded with :func:`fd_monitor.model.gains.load_gains`).
     agei : bool
         False: ablation without AGEI (the observer never executes autonomous transitions and
         the nominal thresholds are always used).

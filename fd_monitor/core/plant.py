@@ -1,4 +1,5 @@
-"""Sampled plant dynamics: every mode of a :class:`~fd_monitor.system.System` as a discrete map.
+"""Sampled plant dynamics: every mode of a :class:`~fd_monitor.model.system.System` as a
+discrete map.
 
 Linear continuous-time modes are discretised exactly with a zero-order hold on the input,
 the disturbance, the affine term and process faults (all held over the sample):
@@ -21,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from fd_monitor.core.models import get_model
 from fd_monitor.core.residual_bank import rk4_step
-from fd_monitor.system import Mode, System
+from fd_monitor.model.nonlinear import get_model
+from fd_monitor.model.system import Mode, System
 
 __all__ = ["LPV_SUBSTEPS", "DiscreteMode", "SampledPlant", "zoh"]
 

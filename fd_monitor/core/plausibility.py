@@ -5,9 +5,9 @@ from one flipped bit in a bag. Let into the observer it ruins the state and, thr
 estimator, sigma-hat for good. Such a sample is refused where samples enter the runtime
 (:meth:`fd_monitor.core.hybrid_observer.HybridObserver.step`,
 :meth:`fd_monitor.core.qb.QBObserver.step`), before any state changes, with a
-:class:`~fd_monitor.errors.MessageError` whose text contains ``implausible``; the caller
+:class:`~fd_monitor.model.errors.MessageError` whose text contains ``implausible``; the caller
 treats it like a NaN message: reported, left out, and the runtime restarts at the next
-valid sample (offline: :func:`fd_monitor.offline.run_thresholds`; nodes: the entry node's
+valid sample (offline: :func:`fd_monitor.analysis.offline.run_thresholds`; nodes: the entry node's
 bad-input path). Two tests:
 
 1. **Range**: each ``y_i`` and ``u_j`` inside the plant file's ``limits`` (the instruments'
@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import ImplausibleError
-from fd_monitor.system import System
+from fd_monitor.model.errors import ImplausibleError
+from fd_monitor.model.system import System
 
 __all__ = ["PREDICTION_FACTOR", "Plausibility"]
 
@@ -63,7 +63,7 @@ class Plausibility:
         self._tol = self.tolerance.tolist()
 
     def check(self, k: int, u: Any, y: Any, y_pred: Any = None) -> None:
-        """Raise :class:`~fd_monitor.errors.ImplausibleError` unless sample k is plausible.
+        """Raise :class:`~fd_monitor.model.errors.ImplausibleError` unless sample k is plausible.
 
         Parameters
         ----------

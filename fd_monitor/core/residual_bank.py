@@ -37,14 +37,14 @@ from typing import Any
 import numpy as np
 from scipy.linalg import expm
 
-from fd_monitor.errors import GainFileError
-from fd_monitor.system import System
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.nonlinear import SCHEDULING_MAPS
+from fd_monitor.model.system import System
 
 __all__ = [
     "AffineModel",
     "Generator",
     "ResidualBank",
-    "SCHEDULING_MAPS",
     "bound_thresholds",
     "check_certificate",
     "check_generator",
@@ -571,21 +571,6 @@ def generator_ss(model: AffineModel, gen: Generator, B_in: np.ndarray, D_in: np.
 
 # --------------------------------------------------------------------------------------
 # runtime
-
-
-def _three_tank_sqrt(y: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
-    """rho = [1/sqrt|h1 - h3|, 1/sqrt|h3 - h2|, 1/sqrt h2] of thesis eq. 7.19 (levels in m)."""
-    floor = float(params.get("min_difference", 1e-3))
-    h1, h2, h3 = float(y[0]), float(y[1]), float(y[2])
-    return np.array([1.0 / np.sqrt(max(abs(h1 - h3), floor)),
-                     1.0 / np.sqrt(max(abs(h3 - h2), floor)),
-                     1.0 / np.sqrt(max(h2, floor))])
-
-
-#: Named maps ``(y, params) -> rho`` that schedule an LPV bank from its measurements.
-SCHEDULING_MAPS: dict[str, Callable[[np.ndarray, Mapping[str, Any]], np.ndarray]] = {
-    "three_tank_sqrt": _three_tank_sqrt,
-}
 
 
 def _expm_small(M: np.ndarray) -> np.ndarray:

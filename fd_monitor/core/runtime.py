@@ -1,9 +1,9 @@
 """One runtime contract for every gain-file method, found through one registry.
 
 Every gain file's ``method`` has a :class:`Runtime` subclass in :data:`RUNTIMES`; nodes,
-offline analysis (:mod:`fd_monitor.offline`), reports and Monte Carlo campaigns
-(:mod:`fd_monitor.evaluate`) all get theirs with :func:`runtime_for` and never branch on the
-method name. A runtime has the same small interface for every method:
+offline analysis (:mod:`fd_monitor.analysis.offline`), reports and Monte Carlo campaigns
+(:mod:`fd_monitor.analysis.evaluate`) all get theirs with :func:`runtime_for` and never branch
+on the method name. A runtime has the same small interface for every method:
 
 * :meth:`Runtime.reset` -- start again (the next sample may have any index);
 * :meth:`Runtime.step` -- one sample ``(k, u_k, y_k)`` plus the method's side signals
@@ -54,9 +54,10 @@ from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.core.qb import QBDetector, QBObserver
 from fd_monitor.core.qb import run_batch as qb_run_batch
-from fd_monitor.core.residual_bank import SCHEDULING_MAPS, ResidualBank
-from fd_monitor.errors import GainFileError, MessageError
-from fd_monitor.system import System
+from fd_monitor.core.residual_bank import ResidualBank
+from fd_monitor.model.errors import GainFileError, MessageError
+from fd_monitor.model.nonlinear import SCHEDULING_MAPS
+from fd_monitor.model.system import System
 
 __all__ = ["RUNTIMES", "HinfScRuntime", "HminusSwitchedRuntime", "QBRuntime", "Runtime",
            "RuntimeOutput", "RuntimeTrace", "ThresholdsRuntime", "runtime_class",
@@ -248,7 +249,7 @@ class Runtime:
 
     def offline_extra(self, trace: RuntimeTrace, truth: Any) -> dict[str, Any]:
         """Method-specific figures of an offline run (default none); ``truth`` is the bag's
-        ``/plant/truth`` (:class:`~fd_monitor.bags.TopicArrays`) or None."""
+        ``/plant/truth`` (:class:`~fd_monitor.wire.bags.TopicArrays`) or None."""
         return {}
 
     @classmethod
@@ -777,7 +778,7 @@ def runtime_for(system: System, gains: Any, **options: Any) -> Runtime:
     ----------
     system : System
     gains : GainFile
-        Loaded with :func:`fd_monitor.gains.load_gains` (its ``method`` picks the runtime).
+        Loaded with :func:`fd_monitor.model.gains.load_gains` (its ``method`` picks the runtime).
     **options
         The runtime's keyword options (``agei`` for thresholds, ``rho`` and ``state_bound``
         for qb, ``discretisation`` for hinf_sc, ``design`` and ``threshold`` for

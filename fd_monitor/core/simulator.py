@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.plant import SampledPlant
-from fd_monitor.core.residual_bank import SCHEDULING_MAPS
-from fd_monitor.scenario import PIController, Profile, Scenario
+from fd_monitor.model.nonlinear import SCHEDULING_MAPS
+from fd_monitor.model.scenario import PIController, Profile, Scenario
 
 __all__ = ["BLOCK", "PlantSimulator", "Sample", "Trajectory", "simulate", "simulate_batch",
            "truth_labels", "truth_values", "measured_layout", "measured_signals",

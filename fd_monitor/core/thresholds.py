@@ -43,8 +43,8 @@ import numpy as np
 
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.filters import FilterSpec, impulse_response
-from fd_monitor.errors import GainFileError
-from fd_monitor.system import System
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.system import System
 
 __all__ = ["AgeiRow", "DiagnosisGains", "check_certificate", "noise_l1_bound",
            "estimator_error_matrix", "DEFAULT_DELTA"]
@@ -329,7 +329,7 @@ def check_certificate(system: System, gains: Any) -> None:
     ----------
     system : System
     gains : GainFile
-        As loaded by :func:`fd_monitor.gains.load_gains`.
+        As loaded by :func:`fd_monitor.model.gains.load_gains`.
 
     Raises
     ------

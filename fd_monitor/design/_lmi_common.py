@@ -11,7 +11,7 @@ Data the plant schema cannot (yet) express lives in a sibling *design file*
     hminus_switched: {...}       # see fd_monitor.design.hminus_switched
 
 Every validation error is one line naming the file, the key path and what was expected
-(:class:`fd_monitor.errors.DesignError`).
+(:class:`fd_monitor.model.errors.DesignError`).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from typing import Any
 import cvxpy as cp
 import numpy as np
 
-from fd_monitor.errors import DesignError
-from fd_monitor.system import System, parse_yaml_text
+from fd_monitor.model.errors import DesignError
+from fd_monitor.model.system import System, parse_yaml_text
 
 __all__ = ["Ctx", "load_design_section", "solve", "left_pinv", "complement_projector",
            "is_observable", "is_detectable", "region_blocks", "SOLVER"]

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.core.models import get_model
+from fd_monitor.model.nonlinear import get_model
 
 __all__ = ["DiffForm", "remainder_bound", "jacobian_centre", "ENCLOSURES", "box_grid"]
 
@@ -146,7 +146,7 @@ def _sqrt_form(a: DiffForm, v_bar: np.ndarray, signed: bool) -> DiffForm:
 def _three_tank_enclosure(params: Mapping[str, float], dt: float, x_lo: np.ndarray,
                           x_hi: np.ndarray, u_lo: np.ndarray, u_hi: np.ndarray,
                           v_bar: np.ndarray) -> list[DiffForm]:
-    """Enclosures of the three components of :func:`fd_monitor.core.models` ``three_tank``'s
+    """Enclosures of the three components of :func:`fd_monitor.model.nonlinear` ``three_tank``'s
     RK4 step over N boxes: x (N, 3), u (N, 3) ranges, noise on the three levels."""
     N, m = x_lo.shape[0], 3
     s2g = math.sqrt(2.0 * float(params["g"]))

@@ -38,10 +38,8 @@ Design file section::
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import cvxpy as cp
@@ -49,14 +47,12 @@ import numpy as np
 
 from fd_monitor.core.freq import sigma
 from fd_monitor.core.generalized_observer import check_certificate, residual_ss
-from fd_monitor.errors import DesignError, GainFileError
-from fd_monitor.gains import save_gains
-from fd_monitor.paths import default_gain_path
-from fd_monitor.system import System, load_system
+from fd_monitor.model.errors import DesignError, GainFileError
+from fd_monitor.model.system import System
 
-from ._lmi_common import Ctx, load_design_section, solve
+from ._lmi_common import Ctx, solve
 
-__all__ = ["add_arguments", "design", "run", "FREQS"]
+__all__ = [ "design", "FREQS"]
 
 EPS = 1e-6
 #: Frequencies (rad/s) of the reported minimum singular values.
@@ -474,49 +470,3 @@ def sigma_table(results: Mapping[str, Any], freqs: tuple[float, ...] = FREQS
             s = sigma(A, B, C, D, np.asarray(freqs), dt)[:, -1]
             out[name][f"mode{i + 1}"] = (20 * np.log10(s)).tolist()
     return out
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of ``design hminus_switched``."""
-    parser.add_argument("--design-file", metavar="PATH", default=None,
-                        help="design file (default: <plant file stem>.design.yaml beside it)")
-    parser.add_argument("--plot", metavar="DIR", default=None,
-                        help="write the sensitivity plot (Fig. 3) into DIR")
-
-
-def run(args: argparse.Namespace) -> int:
-    """Design, write the gain file, print the summary."""
-    from fd_monitor.commands._common import print_json, print_table
-
-    system = load_system(args.system)
-    sec, origin, sha = load_design_section(system, "hminus_switched", args.design_file)
-    if not sec:
-        raise DesignError(f"{origin}: hminus_switched: missing section (E, fault, ...)")
-    out = design(system, sec, origin, sha)
-    path = Path(args.output) if args.output else default_gain_path(system.name, "hminus_switched")
-    save_gains(path, "hminus_switched", system, out["parameters"], out["results"],
-               out["certificate"], out["solver"])
-    plots: list[str] = []
-    if args.plot:
-        from fd_monitor.report_hinf import plot_switched
-
-        plots = [str(p) for p in plot_switched(system, out["results"], args.plot)]
-    doc = {"method": "hminus_switched", "system": system.name, "gain_file": str(path),
-           "q": out["summary"]["q"], "beta": out["summary"]["beta"],
-           "hminus_status": out["summary"]["hminus_status"],
-           "frequencies_rad_s": list(FREQS), "sigma_min_db": out["summary"]["sigma_min_db"],
-           "improvement_db": out["summary"]["improvement_db"],
-           "decay_rate": out["summary"]["decay_rate"], "plots": plots}
-    if args.json:
-        print_json(doc)
-    else:
-        rows = [(d, m, *[f"{v:.2f}" for v in vals])
-                for d, per in out["summary"]["sigma_min_db"].items() for m, vals in per.items()]
-        print(f"H-minus design (44): {out['summary']['hminus_status']}")
-        if out["summary"]["improvement_db"] is not None:
-            rows += [("hminus - stability", m, *[f"{v:+.2f}" for v in vals])
-                     for m, vals in out["summary"]["improvement_db"].items()]
-        print_table(rows, header=["design", "mode", *[f"{w:g} rad/s" for w in FREQS]],
-                    title=f"hminus_switched for {system.name} (q = {out['summary']['q']}, "
-                          f"beta = {out['summary']['beta']}) -> {path}; sigma_min T_rf, dB")
-    return 0

@@ -62,7 +62,6 @@ state units; rescale the plant's states if its errors are larger).
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
 import warnings
@@ -75,27 +74,18 @@ import numpy as np
 from scipy.linalg import null_space
 from scipy.optimize import minimize_scalar
 
-from fd_monitor.core.qb import (
-    QBModel,
-    default_fault_states,
-    guarantee,
-    lmi_blocks,
-    qb_bounds,
-    qb_model,
-    spectral_abscissa,
-    unobservable_unstable,
-)
-from fd_monitor.errors import DesignError
-from fd_monitor.gains import save_gains
-from fd_monitor.paths import default_gain_path
-from fd_monitor.system import System, load_system, require_memory
+from fd_monitor.core.qb_certificate import guarantee, lmi_blocks, qb_bounds
+from fd_monitor.core.qb_model import QBModel, qb_model, spectral_abscissa, unobservable_unstable
+from fd_monitor.model.errors import DesignError
+from fd_monitor.model.gains import save_gains
+from fd_monitor.model.system import System, require_memory
 
-__all__ = ["QBDesign", "QBProblem", "design_qb", "add_arguments", "run"]
+__all__ = ["QBDesign", "QBProblem", "design_qb"]
 
 SOLVER = cp.CLARABEL
 _GRID_CONT = np.logspace(-4, 4, 6)
 _GRID_DISC = np.array([1e-4, 1e-3, 1e-2, 0.1, 0.5, 0.9, 0.99])
-_XATOL = 0.05
+XATOL = 0.05
 # Inner margins of the final step-5 solve, as multiples of ``margin`` (see step 3).
 _INNER = (10.0, 100.0, 1000.0)
 # Relative bands on lambda_min(P) of the fallback tie-break (see step 4).
@@ -331,7 +321,7 @@ def _fail_search(system: System, search: list[tuple[float, float, str]]) -> Desi
 
 
 def design_qb(system: System, beta: float | None = None, *, margin: float = 1e-6,
-              xatol: float = _XATOL, sampled: bool = False) -> QBDesign:
+              xatol: float = XATOL, sampled: bool = False) -> QBDesign:
     """Design the QB (hybrid) Luenberger observer of ``system``.
 
     Parameters
@@ -552,66 +542,3 @@ def write_gain_file(path: str | Path, system: System, d: QBDesign,
         "spectral_abscissa": d.spectral_abscissa,
     }
     return save_gains(path, "qb", system, parameters, results, cert, d.solver)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """QB options (SYSTEM, -o and --json are added by the design dispatcher)."""
-    parser.add_argument("--beta", type=float, default=None,
-                        help="fix the S-procedure multiplier beta (default: search for the "
-                             "beta that minimises rho_max)")
-    parser.add_argument("--margin", type=float, default=1e-6,
-                        help="strictness margin of the LMIs (default 1e-6)")
-    parser.add_argument("--sampled", action="store_true",
-                        help="design for the sampled plant the runtime runs (exact ZOH at the "
-                             "plant's sample time, discrete-time QB LMI; gain file time: "
-                             "discrete); default: the plant's own time domain")
-    parser.add_argument("--fault-states", default=None, metavar="S1,S2",
-                        help="states that model faults, monitored by the detector (default: "
-                             "state_jump targets and states constant in every mode)")
-
-
-
-def run(args: argparse.Namespace) -> int:
-    """Design, verify, write the gain file and print a summary."""
-    from fd_monitor.commands._common import emit
-
-    system = load_system(args.system)
-    if args.fault_states:
-        fs = tuple(s.strip() for s in args.fault_states.split(",") if s.strip())
-        unknown = [s for s in fs if s not in system.states]
-        if unknown:
-            raise DesignError(f"--fault-states: {unknown} are not states of {system.name} "
-                              f"({', '.join(system.states)})")
-    else:
-        fs = default_fault_states(system)
-    d = design_qb(system, args.beta, margin=args.margin, sampled=args.sampled)
-    out = (Path(args.output) if args.output
-           else default_gain_path(system.name, "qb_sampled" if args.sampled else "qb"))
-    params = {"beta": "search" if args.beta is None else args.beta, "margin": args.margin,
-              "search": ("reduced LMIs (Y eliminated), max lambda_min(P): log grid + bounded "
-                         f"Brent in log(beta), xatol {_XATOL}"),
-              "tie_break": ("P, alpha from step 5 with inner margin k x margin (k = 10, 100, "
-                            "1000); minimum |(P L_i)_i|_F s.t. the LMIs with margin"),
-              "fault_states": list(fs)}
-    if args.sampled:
-        params["sampled"] = True
-    write_gain_file(out, system, d, fs, params)
-    summary: dict[str, Any] = {
-        "gain_file": str(out), "plant": system.name, "time": d.model.time,
-        "guarantee": guarantee({"time": d.model.time}, system),
-        "beta": d.beta, "rho_max": d.rho_max, "lambda_min": d.bounds["lambda_min"],
-        "alpha": np.round(d.alpha, 6).tolist(),
-        "component_bound": dict(zip(system.states, np.round(d.bounds["component_bound"], 6)
-                                    .tolist())),
-        "r_max": float(np.max(d.bounds["r_max"])),
-        "output_bound": dict(zip(system.outputs, np.round(np.max(d.bounds["output_bound"],
-                                                                 axis=0), 6).tolist())),
-        "lmi_max_eig": max(d.lmi_max_eig), "spectral_abscissa": max(d.spectral_abscissa),
-        "solves": d.solver["solves"], "solve_time_s": d.solver["time_s"],
-    }
-    if args.json:
-        summary["P"] = d.P
-        summary["L"] = {n: d.L[i] for i, n in enumerate(system.mode_names)}
-        summary["search"] = [{"beta": b, "lambda": v, "status": s} for b, v, s in d.search]
-    emit(summary, args.json, title=f"QB design of {system.name} -> {out}")
-    return 0

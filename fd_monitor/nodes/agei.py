@@ -15,8 +15,8 @@ from typing import Any
 from fd_monitor.core.agei import Agei
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
-from fd_monitor.nodes.detector import state_labels
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.wire.topics import state_labels
 
 __all__ = ["AgeiNode", "USAGE", "main"]
 

@@ -15,8 +15,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
-from fd_monitor.bags import DIAGNOSTIC_ARRAY, FLOAT64_MULTI_ARRAY, BagWriter, read_raw
-from fd_monitor.errors import BagError
+from fd_monitor.model.errors import BagError
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
     AckPacer,
@@ -26,6 +25,7 @@ from fd_monitor.nodes.common import (
     pub_events,
     sub_events,
 )
+from fd_monitor.wire.bags import DIAGNOSTIC_ARRAY, FLOAT64_MULTI_ARRAY, BagWriter, read_raw
 
 __all__ = ["KNOWN_TYPES", "RecorderNode", "ReplayNode", "message_class"]
 
@@ -63,7 +63,7 @@ class RecorderNode(Node):
     """Subscribe to topics and write every message to an MCAP bag.
 
     With a writer made with ``flush_seconds`` (``record`` uses
-    :data:`fd_monitor.bags.FLUSH_SECONDS`), every message is in the file within about that
+    :data:`fd_monitor.wire.bags.FLUSH_SECONDS`), every message is in the file within about that
     long of its arrival, so a killed recorder loses at most the last second.
 
     Parameters
@@ -146,7 +146,7 @@ class ReplayNode(Node):
                  depth: int = DEFAULT_DEPTH, ack_window: int = 100,
                  node_name: str = "replay") -> None:
         super().__init__(node_name)
-        from fd_monitor.bags import bag_topics
+        from fd_monitor.wire.bags import bag_topics
 
         available = bag_topics(bag)
         if topics is None:

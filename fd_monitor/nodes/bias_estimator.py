@@ -16,9 +16,8 @@ from typing import Any
 from fd_monitor.core.bias_estimator import BiasEstimator
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.nodes.common import OK, WARN, NodeUsage, run_node
-from fd_monitor.nodes.detector import state_labels
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
-from fd_monitor.nodes.observer import GUARD_LABELS
+from fd_monitor.wire.topics import GUARD_LABELS, state_labels
 
 __all__ = ["BiasEstimatorNode", "BiasReport", "USAGE", "main"]
 

@@ -48,7 +48,7 @@ from rclpy.qos import (
 )
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.ros_args import init_ros, shown_params_file
 
 __all__ = [
@@ -473,7 +473,7 @@ def use_dds_profile() -> str | None:
     for var in _PROFILE_VARS:
         if os.environ.get(var):
             return os.environ[var]
-    from fd_monitor.paths import config_dirs
+    from fd_monitor.model.paths import config_dirs
 
     for d in config_dirs():
         xml = d / "fastdds.xml"

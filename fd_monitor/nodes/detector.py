@@ -13,7 +13,7 @@ gain file id, certificate status.
 With a ``qb`` gain file it runs :class:`~fd_monitor.core.qb.QBDetector`: per channel of
 ``QBDetector.channels`` (fault-model states, ``fault_norm``, ``r_<out>``, ``r_norm``) it
 publishes the compared signal on ``/fd/residual``, rho x bound on ``/fd/threshold`` and the
-alarm on ``/fd/alarm``, as :func:`fd_monitor.offline.run_bag` computes them.
+alarm on ``/fd/alarm``, as :func:`fd_monitor.analysis.offline.run_bag` computes them.
 """
 
 from __future__ import annotations
@@ -24,9 +24,10 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.detector import ResidualDetector, no_override
-from fd_monitor.core.qb import QBDetector, qb_model
+from fd_monitor.core.qb import QBDetector
+from fd_monitor.core.qb_model import qb_model
 from fd_monitor.core.thresholds import as_gains
-from fd_monitor.errors import FdMonitorError, MessageError
+from fd_monitor.model.errors import FdMonitorError, MessageError
 from fd_monitor.nodes.common import (
     ERROR,
     OK,
@@ -35,11 +36,11 @@ from fd_monitor.nodes.common import (
     Param,
     run_node,
 )
-from fd_monitor.nodes.conversions import decode
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
-from fd_monitor.nodes.observer import bias_labels
+from fd_monitor.wire.conversions import decode
+from fd_monitor.wire.topics import bias_labels, state_labels
 
-__all__ = ["DetectorNode", "ResidualReport", "USAGE", "state_labels", "main"]
+__all__ = ["DetectorNode", "ResidualReport", "USAGE", "main"]
 
 PARAMS = (
     Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
@@ -61,11 +62,6 @@ USAGE = NodeUsage(
                ("/fd/threshold", "R:<out> in force, rbar:<out> nominal"),
                ("/fd/alarm", "0/1 per channel"),
                ("/diagnostics", "one status per channel: residual, threshold, margin")))
-
-
-def state_labels(system: Any) -> tuple[str, ...]:
-    """Labels of ``/fd/state_estimate``: ObserverOutput.payload, then ``restart``."""
-    return ("mode", *system.states, *(f"y~{o}" for o in system.outputs), "restart")
 
 
 class ResidualReport:

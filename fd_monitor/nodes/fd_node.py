@@ -12,10 +12,10 @@ true) a node configures and activates itself when constructed. ``~/reset``
 Each node declares its inputs (relative topic, expected labels, required or feedback with its
 initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray`` -> core step
 -> message -> publish. This base decodes and validates every message
-(:func:`~fd_monitor.nodes.conversions.decode`), pairs plain (unstamped) messages by
+(:func:`~fd_monitor.wire.conversions.decode`), pairs plain (unstamped) messages by
 sample-and-hold (a plain ``plant/y`` gets the latest ``plant/u`` published before it, by
 the DDS source timestamps; no u yet: reported, sample not processed), joins inputs on the stamp
-(:class:`~fd_monitor.nodes.join.StampJoin`: holes, stray stamps beyond ``stamp_horizon``,
+(:class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond ``stamp_horizon``,
 a stream that restarts lower = a new run after ``restart_after`` s), and reports on
 ``/diagnostics``: an ``input`` channel (OK; WARN with the de-duplicated reasons of the bad
 messages; STALE when no input came for ``stale_timeout`` s), a ``ros graph`` channel
@@ -41,8 +41,9 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import Float64MultiArray
 
-from fd_monitor.errors import FdMonitorError, ImplausibleError, MessageError
-from fd_monitor.gains import GainFile, load_gains
+from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
+from fd_monitor.model.gains import GainFile, load_gains
+from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
     OK,
@@ -55,9 +56,8 @@ from fd_monitor.nodes.common import (
     incompatible_text,
     pub_events,
 )
-from fd_monitor.nodes.conversions import ArrivalStamper, decode, readable_stamp, to_msg
-from fd_monitor.nodes.join import Sample, StampJoin
-from fd_monitor.system import System, load_system
+from fd_monitor.wire.conversions import ArrivalStamper, decode, readable_stamp, to_msg
+from fd_monitor.wire.join import Sample, StampJoin
 
 __all__ = ["COMMON_PARAMS", "RUNTIME_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
 
@@ -126,7 +126,7 @@ class Input:
     sequence : bool
         ``fd/state_estimate`` of the entry node: its stamps are the samples this node
         processes and its last value (``restart``) flags a restart (downstream role of
-        :class:`~fd_monitor.nodes.join.StampJoin`).
+        :class:`~fd_monitor.wire.join.StampJoin`).
     """
 
     name: str
@@ -652,8 +652,9 @@ class FdNode(LifecycleNode):
 
 
 class _TopicOrder:
-    """Per-topic duplicate and out-of-order report, as :func:`fd_monitor.offline.read_inputs`
-    reports them (a duplicate is dropped, the first kept; out of order is only reported).
+    """Per-topic duplicate and out-of-order report, as
+    :func:`fd_monitor.analysis.offline.read_inputs` reports them (a duplicate is dropped,
+    the first kept; out of order is only reported).
 
     A duplicate here is the same stamp twice in a row; out of order is one line per step
     back. A stamp seen earlier goes on to the join, which keeps the first of a pending one and

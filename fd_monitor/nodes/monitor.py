@@ -34,16 +34,17 @@ from typing import Any
 from rclpy.serialization import serialize_message
 
 from fd_monitor.core.monitor import Monitor, MonitorOutput
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes import agei, bias_estimator, detector, observer, runtime_node
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
 from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
-from fd_monitor.nodes.conversions import to_msg
-from fd_monitor.nodes.detector import DetectorNode, ResidualReport, state_labels
+from fd_monitor.nodes.detector import DetectorNode, ResidualReport
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
-from fd_monitor.nodes.observer import GUARD_LABELS, EstimateReport, ObserverNode, bias_labels
+from fd_monitor.nodes.observer import EstimateReport, ObserverNode
 from fd_monitor.nodes.runtime_node import RuntimeNode, gain_method
+from fd_monitor.wire.conversions import to_msg
+from fd_monitor.wire.topics import GUARD_LABELS, bias_labels, state_labels
 
 __all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main"]
 

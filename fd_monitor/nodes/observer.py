@@ -12,7 +12,7 @@ the plant has inputs) and ``/plant/y`` and publishes the same layout (y~ = y).
 
 The observer is the chain's entry: it declares the holes in the data (a rejected message, or
 a later sample complete for ``gap_timeout`` s) and restarts at the next valid sample, as the
-offline runner does (:func:`fd_monitor.offline.run_bag`).
+offline runner does (:func:`fd_monitor.analysis.offline.run_bag`).
 """
 
 from __future__ import annotations
@@ -27,8 +27,9 @@ from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver
 from fd_monitor.core.qb import QBObserver
 from fd_monitor.nodes.common import OK, WARN, NodeUsage, Param, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.wire.topics import GUARD_LABELS, bias_labels, state_labels
 
-__all__ = ["EstimateReport", "ObserverNode", "USAGE", "bias_labels", "main"]
+__all__ = ["EstimateReport", "ObserverNode", "USAGE", "main"]
 
 PARAMS = (
     Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
@@ -47,15 +48,6 @@ USAGE = NodeUsage(
                 "first after a hole) (stamp k)"),
                ("/diagnostics", "input and estimate status (WARN 'outside certified "
                 "region' when x^ or u leave the gain file's certified envelope)")))
-
-
-def bias_labels(system: Any) -> tuple[str, ...]:
-    """Labels of ``/fd/bias_estimate`` (BiasOutput.payload)."""
-    o = system.outputs
-    return (*o, *(f"iso:{n}" for n in o), "active", "k_detect")
-
-
-GUARD_LABELS = ("trigger", "phase", "row", "mode_uncertain")
 
 
 class EstimateReport:
@@ -184,8 +176,6 @@ class ObserverNode(EstimateReport, FdNode):
     @property
     def labels(self) -> tuple[str, ...]:
         """Labels of ``/fd/state_estimate``."""
-        from fd_monitor.nodes.detector import state_labels
-
         return state_labels(self.system)
 
 

@@ -2,7 +2,7 @@
 
 Publishes, for every sample k of a scenario (:class:`fd_monitor.core.simulator.PlantSimulator`,
 a batch of one run), stamped and labelled Float64MultiArray messages (see
-:mod:`fd_monitor.nodes.conversions`):
+:mod:`fd_monitor.wire.conversions`):
 
 - ``/plant/u`` — the commanded inputs u_k (labels: the plant's inputs);
 - ``/plant/y`` — the measurements y_k, sensor faults included (labels: the outputs);
@@ -38,7 +38,8 @@ from fd_monitor.core.simulator import (
     measured_values,
     truth_labels,
 )
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.model.scenario import load_scenario
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
     ERROR,
@@ -53,8 +54,7 @@ from fd_monitor.nodes.common import (
     run_node,
     wait_for_subscribers,
 )
-from fd_monitor.nodes.conversions import to_msg
-from fd_monitor.scenario import load_scenario
+from fd_monitor.wire.conversions import to_msg
 
 __all__ = ["PARAMS", "PlantSimNode", "USAGE", "main"]
 

@@ -6,13 +6,13 @@ every ``--params-file`` is resolved and read here first:
 
 - a path that exists (relative to the current directory, or absolute) is used as given;
 - a relative path that does not exist is looked up in the shipped ``config/`` folders
-  (:func:`fd_monitor.paths.config_dirs`: the source checkout, ``share/fd_monitor/config`` of a
+  (:func:`fd_monitor.model.paths.config_dirs`: the source checkout, ``share/fd_monitor/config`` of a
   pip or colcon install), with a leading ``config/`` dropped, so the command printed by
   ``--help`` (``--params-file config/detector.yaml``) works from any directory, e.g. the
   root of a colcon workspace;
 - the file must be UTF-8 YAML with a mapping at the top (node name -> ``ros__parameters``).
 
-Anything else is one line (:class:`~fd_monitor.errors.FdMonitorError`); the executable prints
+Anything else is one line (:class:`~fd_monitor.model.errors.FdMonitorError`); the executable prints
 ``<prog>: error: ...`` and exits with status 2.
 """
 
@@ -25,9 +25,9 @@ from pathlib import Path
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-from fd_monitor.errors import FdMonitorError
-from fd_monitor.paths import config_dirs
-from fd_monitor.system import read_yaml
+from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.model.paths import config_dirs
+from fd_monitor.model.system import read_yaml
 
 __all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file"]
 

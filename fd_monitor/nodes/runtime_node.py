@@ -2,9 +2,10 @@
 
 The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so the
 node runs every method a designer writes -- ``qb``, ``hinf_sc`` (LTI, uncertain, LPV),
-``hminus_switched`` -- with the arithmetic of the offline run (:func:`fd_monitor.offline.run_bag`)
+``hminus_switched`` -- with the arithmetic of the offline run
+(:func:`fd_monitor.analysis.offline.run_bag`)
 and the same rules for holes and restarts (the entry role of
-:class:`~fd_monitor.nodes.join.StampJoin`).
+:class:`~fd_monitor.wire.join.StampJoin`).
 
 Joins, per sample k: ``plant/u`` (when the plant has inputs), ``plant/y`` and the side
 signals the runtime needs (``plant/rho``: the measured scheduling parameters of an LPV bank
@@ -32,8 +33,8 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.runtime import RUNTIMES, Runtime, runtime_for
-from fd_monitor.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
-from fd_monitor.gains import GainFile
+from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
+from fd_monitor.model.gains import GainFile
 from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage, Param
 from fd_monitor.nodes.detector import ResidualReport
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
@@ -183,9 +184,9 @@ def gain_method(node_name: str = "monitor", **kwargs: Any) -> str | None:
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    from fd_monitor.gains import load_gains
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
     from fd_monitor.nodes.fd_node import COMMON_PARAMS
-    from fd_monitor.system import load_system
 
     defaults = {p.name: p.default for p in COMMON_PARAMS}
     peek = Node(node_name, allow_undeclared_parameters=True,

@@ -37,9 +37,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from fd_monitor.errors import GainFileError
-from fd_monitor.paths import find_config_file
-from fd_monitor.system import System, read_yaml
+from fd_monitor.model.errors import GainFileError
+from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.system import System, read_yaml
 
 __all__ = ["GainFile", "CERTIFICATE_CHECKS", "check_digest", "gain_digest", "gains_from_doc",
            "load_gains",
@@ -49,7 +49,7 @@ FORMAT_VERSION = 1
 
 #: method -> "module:function" that raises GainFileError when the certificate fails.
 CERTIFICATE_CHECKS: dict[str, str] = {
-    "qb": "fd_monitor.core.qb:check_certificate",
+    "qb": "fd_monitor.core.qb_certificate:check_certificate",
     "thresholds": "fd_monitor.core.thresholds:check_certificate",
     "hinf_sc": "fd_monitor.core.residual_bank:check_certificate",
     "hminus_switched": "fd_monitor.core.generalized_observer:check_certificate",

@@ -7,7 +7,7 @@ this file without importing the package), and ``python -m fd_monitor run <node>`
 __all__ = ["EXECUTABLES", "NODES"]
 
 EXECUTABLES: dict[str, str] = {
-    "fd_monitor": "fd_monitor.cli",
+    "fd_monitor": "fd_monitor.commands.cli",
     "plant_sim": "fd_monitor.nodes.plant_sim",
     "observer": "fd_monitor.nodes.observer",
     "detector": "fd_monitor.nodes.detector",

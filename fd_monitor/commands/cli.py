@@ -16,7 +16,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
-from fd_monitor.errors import FdMonitorError, FdMonitorWarning
+from fd_monitor.model.errors import FdMonitorError, FdMonitorWarning
 
 __all__ = ["ARGV", "SUBCOMMANDS", "build_parser", "main"]
 

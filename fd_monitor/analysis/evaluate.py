@@ -36,9 +36,9 @@ import numpy as np
 from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.runtime import RUNTIMES, runtime_class
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.errors import FdMonitorError, GainFileError
-from fd_monitor.gains import GainFile
-from fd_monitor.scenario import Scenario
+from fd_monitor.model.errors import FdMonitorError, GainFileError
+from fd_monitor.model.gains import GainFile
+from fd_monitor.model.scenario import Scenario
 
 __all__ = ["CampaignRow", "ProgressBar", "get_runner", "run_campaign"]
 

@@ -36,7 +36,7 @@ record one as a side signal (``rho.<name>`` on ``/plant/truth``)::
                  params: {min_difference: 1.0e-3}}                  # the true state (7.19)
 
 Profiles must stay inside the plant's parameter box (``lpv.parameters`` min/max); a map is
-one of :data:`fd_monitor.core.residual_bank.SCHEDULING_MAPS`, evaluated on the true state
+one of :data:`fd_monitor.model.nonlinear.SCHEDULING_MAPS`, evaluated on the true state
 (inside each sample, too, for a plant that depends on it); ``names`` default to the plant's
 lpv parameters.
 
@@ -76,9 +76,9 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import ScenarioError, SystemFileError
-from fd_monitor.paths import find_config_file
-from fd_monitor.system import System, load_system, parse_system, read_yaml, require_memory
+from fd_monitor.model.errors import ScenarioError, SystemFileError
+from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.system import System, load_system, parse_system, read_yaml, require_memory
 
 __all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "Scheduling", "check_horizon",
            "load_scenario", "parse_scenario"]
@@ -148,7 +148,7 @@ class Scheduling:
     profiles : tuple of Profile
         One per name (empty with a map).
     state_map : str or None
-        A key of :data:`fd_monitor.core.residual_bank.SCHEDULING_MAPS`.
+        A key of :data:`fd_monitor.model.nonlinear.SCHEDULING_MAPS`.
     params : dict
         Parameters of the map.
     """
@@ -539,7 +539,7 @@ def _with_fault_channels(origin: str, system: System, raw: Any) -> System:
 
 
 def _scheduling(origin: str, system: System, raw: Any, x0: np.ndarray) -> Scheduling | None:
-    from fd_monitor.core.residual_bank import SCHEDULING_MAPS
+    from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 
     lpv = {p.name: p for p in system.lpv}
     needs = any(m.A_rho is not None or m.B_rho is not None for m in system.modes)

@@ -7,7 +7,7 @@ one function, :func:`read_raw`, that checks every chunk, reports damage by byte 
 and reads bags whose writer died. Messages are (de)serialised with the rosbags ROS 2 Jazzy
 type store; nothing here imports rclpy. Messages on
 fd_monitor topics are self-describing Float64MultiArrays (labels in ``layout.dim[0].label``,
-the sample stamp in ``data[0]``; see :mod:`fd_monitor.nodes.conversions`), so a topic reads
+the sample stamp in ``data[0]``; see :mod:`fd_monitor.wire.conversions`), so a topic reads
 back as arrays::
 
     arrays = read_bag("run1")["/plant/y"]
@@ -56,8 +56,8 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from fd_monitor.errors import BagError, FdMonitorWarning, MessageError
-from fd_monitor.nodes.conversions import ArrivalStamper, decode, encode_data, join_labels
+from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError
+from fd_monitor.wire.conversions import ArrivalStamper, decode, encode_data, join_labels
 
 __all__ = [
     "CHUNK_BYTES",

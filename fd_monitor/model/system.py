@@ -35,7 +35,7 @@ Schema (``format_version: 1``)::
         uncertainty: [...]            # n, |eta_i| <= bound added to x_{k+1} (default zeros)
       tank_mode:
         dynamics: nonlinear
-        model: three_tank             # a model of fd_monitor.core.models
+        model: three_tank             # a model of fd_monitor.model.nonlinear
         params: {name: value, ...}    # checked against the model's parameter list
         C: ...                        # as above
     guards:
@@ -105,8 +105,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from fd_monitor.errors import SystemFileError
-from fd_monitor.paths import find_config_file
+from fd_monitor.model.errors import SystemFileError
+from fd_monitor.model.paths import find_config_file
 
 __all__ = [
     "Condition",
@@ -764,7 +764,7 @@ def parse_system(data: Any, origin: str = "<dict>") -> System:
     origin : str
         Name of the file, used in error messages.
     """
-    from fd_monitor.core.models import get_model  # late: core imports this module's types
+    from fd_monitor.model.nonlinear import get_model  # late: core imports this module's types
 
     ctx = _Ctx(origin)
     if not isinstance(data, Mapping):

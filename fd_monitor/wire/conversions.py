@@ -14,7 +14,7 @@ stamps it on arrival with a per-topic :class:`ArrivalStamper`.
 
 Pure functions over duck-typed messages: the same code decodes rclpy messages and the
 dataclasses ``rosbags`` deserialises, so this module imports no ROS package at import time
-(``fd_monitor.bags`` uses it offline). :func:`to_msg` imports ``std_msgs`` when called.
+(``fd_monitor.wire.bags`` uses it offline). :func:`to_msg` imports ``std_msgs`` when called.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import MessageError
+from fd_monitor.model.errors import MessageError
 
 __all__ = [
     "STAMP_OFFSET",
@@ -66,7 +66,7 @@ def truth_labels(system: Any) -> tuple[str, ...]:
 
     Parameters
     ----------
-    system : fd_monitor.system.System
+    system : fd_monitor.model.system.System
     """
     return ("mode", *(f"x.{s}" for s in system.states),
             *(f"f.{f.name}" for f in system.faults))
@@ -102,7 +102,7 @@ def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None)
         (m,) values.
     msg_type : type, optional
         The message class and its layout classes' owner; default ``std_msgs.msg`` (rclpy).
-        ``fd_monitor.bags`` passes the ``rosbags`` classes.
+        ``fd_monitor.wire.bags`` passes the ``rosbags`` classes.
     """
     data = encode_data(stamp, values)
     if len(data) - 1 != len(labels):

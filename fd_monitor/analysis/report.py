@@ -1,6 +1,6 @@
 """Reports: PNG figures and a one-page ``summary.md`` for a bag, or for a Monte Carlo campaign.
 
-Bag report (:func:`bag_report`), from :func:`fd_monitor.offline.run_bag` (any gain-file
+Bag report (:func:`bag_report`), from :func:`fd_monitor.analysis.offline.run_bag` (any gain-file
 method: the runtime comes from :func:`fd_monitor.core.runtime.runtime_for`):
 
 * ``residuals.png`` -- per alarm channel, the filtered residual against the threshold in force
@@ -16,7 +16,7 @@ method: the runtime comes from :func:`fd_monitor.core.runtime.runtime_for`):
 * ``summary.md`` -- the summary table, the ``expected.yaml`` check when the bag has one, the
   figures.
 
-Campaign report (:func:`campaign_report`), from :func:`fd_monitor.evaluate.run_campaign`:
+Campaign report (:func:`campaign_report`), from :func:`fd_monitor.analysis.evaluate.run_campaign`:
 ``summary.md`` with the metrics table, ``detection.png`` (detection rate and delay against the
 fault magnitude) and ``false_alarms.png`` (false-alarm rate per scenario and variant, or
 against the threshold scale rho).
@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["bag_report", "campaign_report", "figure_residuals", "figure_modes", "figure_bias",
            "figure_qb_bound"]
@@ -97,7 +97,7 @@ def figure_residuals(run: Any, path: str | Path) -> Path:
 
     Parameters
     ----------
-    run : fd_monitor.offline.BagRun
+    run : fd_monitor.analysis.offline.BagRun
     path : str or pathlib.Path
         PNG to write.
     """
@@ -136,7 +136,7 @@ def figure_residuals(run: Any, path: str | Path) -> Path:
 def _true_modes(run: Any) -> np.ndarray | None:
     if run.truth is None or "mode" not in run.truth.labels:
         return None
-    from fd_monitor.offline import truth_at
+    from fd_monitor.analysis.offline import truth_at
 
     return truth_at(run.truth, run.k, ["mode"])[:, 0]
 
@@ -171,7 +171,7 @@ def figure_bias(run: Any, path: str | Path) -> Path:
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.9 * len(names) + 1.0),
                              sharex=True, squeeze=False)
     t = run.t
-    from fd_monitor.offline import truth_at
+    from fd_monitor.analysis.offline import truth_at
 
     qb = run.estimate_kind == "state"   # fault-model states against the true state
     for i, n in enumerate(names):
@@ -308,9 +308,9 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
         ``summary`` (the analysis summary), ``figures`` (paths), ``summary_md`` (path),
         ``expected_failures`` (list, or None without expectations).
     """
-    from fd_monitor.errors import BagError
-    from fd_monitor.library import check_expected, expected_path, load_expected
-    from fd_monitor.offline import run_bag, summarize_run
+    from fd_monitor.analysis.library import check_expected, expected_path, load_expected
+    from fd_monitor.analysis.offline import run_bag, summarize_run
+    from fd_monitor.model.errors import BagError
 
     bagp = Path(bag)
     if not bagp.exists():
@@ -351,7 +351,7 @@ def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],
              f"{s['samples']} samples at Ts = {dt:g} s"
              + (f", transient {run.transient:g} s not evaluated" if run.transient else "")
              + " (the offline run of `python -m fd_monitor analyze`: "
-               "`fd_monitor.offline.run_bag`).", ""]
+               "`fd_monitor.analysis.offline.run_bag`).", ""]
     onsets = _onsets(run)
     alarms = {a["channel"]: a for a in s["alarms"]}
     rows = []
@@ -397,7 +397,7 @@ def campaign_report(rows: Sequence[Any], scenarios: Sequence[Any], out_dir: str 
 
     Parameters
     ----------
-    rows : sequence of fd_monitor.evaluate.CampaignRow
+    rows : sequence of fd_monitor.analysis.evaluate.CampaignRow
     scenarios : sequence of Scenario
         The campaign's scenarios (their first fault's magnitude is the x axis).
     out_dir : str or pathlib.Path

@@ -18,7 +18,7 @@ __all__ = ["check_output", "config_dirs", "config_dir", "default_gain_path", "fi
 
 def repo_root() -> Path | None:
     """The source checkout holding this package, or None for an installed package."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     return root if (root / "package.xml").is_file() and (root / "config").is_dir() else None
 
 

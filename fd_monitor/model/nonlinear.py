@@ -12,10 +12,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-__all__ = ["NonlinearModel", "get_model", "register_model", "model_names", "GRAVITY"]
+__all__ = ["NonlinearModel", "get_model", "register_model", "model_names", "GRAVITY",
+           "SCHEDULING_MAPS"]
 
 GRAVITY = 9.81  # m/s^2
 
@@ -225,3 +227,18 @@ register_model(NonlinearModel(
             "leak_area_3": (0.0, 1.0e3, False), "g": (0.0, 1.0e3, True),
             "substeps": (1.0, 1.0e3, False)},
 ))
+
+
+def _three_tank_sqrt(y: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
+    """rho = [1/sqrt|h1 - h3|, 1/sqrt|h3 - h2|, 1/sqrt h2] of thesis eq. 7.19 (levels in m)."""
+    floor = float(params.get("min_difference", 1e-3))
+    h1, h2, h3 = float(y[0]), float(y[1]), float(y[2])
+    return np.array([1.0 / np.sqrt(max(abs(h1 - h3), floor)),
+                     1.0 / np.sqrt(max(abs(h3 - h2), floor)),
+                     1.0 / np.sqrt(max(h2, floor))])
+
+
+#: Named maps ``(y, params) -> rho`` that schedule an LPV bank from its measurements.
+SCHEDULING_MAPS: dict[str, Callable[[np.ndarray, Mapping[str, Any]], np.ndarray]] = {
+    "three_tank_sqrt": _three_tank_sqrt,
+}

@@ -41,7 +41,7 @@ Corruptions (applied to the simulated messages, in this order; ``samples`` are s
 * ``{kind: out_of_order, topic, samples}`` -- messages k and k + 1 are recorded in the
   opposite order (stamp k + 1 arrives first).
 
-Nothing here imports rclpy; the analysis itself is :func:`fd_monitor.offline.run_bag` (the
+Nothing here imports rclpy; the analysis itself is :func:`fd_monitor.analysis.offline.run_bag` (the
 same run as ``python -m fd_monitor analyze``), summarised by :func:`analyze_summary`.
 """
 
@@ -57,13 +57,13 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.errors import FdMonitorError, ScenarioError
-from fd_monitor.offline import (
+from fd_monitor.analysis.offline import (
     INPUT_ERROR_KINDS,
     collapse,
     run_bag,
     summarize_run,
 )
+from fd_monitor.model.errors import FdMonitorError, ScenarioError
 
 __all__ = [
     "CORRUPTION_KINDS",
@@ -85,7 +85,6 @@ __all__ = [
     "propose_expected",
     "read_bag_truth",
     "settled_modes",
-    "simulate_library_command",
     "truth_facts",
     "write_expected",
 ]
@@ -196,7 +195,7 @@ class Library:
 def default_library() -> Path:
     """``bags/library.yaml`` beside the shipped ``config/``: of the source checkout, or
     ``share/fd_monitor/bags`` of a pip or colcon install."""
-    from fd_monitor.paths import config_dirs
+    from fd_monitor.model.paths import config_dirs
 
     for d in config_dirs():
         if (d.parent / "bags" / "library.yaml").is_file():
@@ -256,7 +255,7 @@ def load_library(path: str | Path | None = None) -> Library:
     LibraryError
         One line naming the file and the key.
     """
-    from fd_monitor.system import read_yaml
+    from fd_monitor.model.system import read_yaml
 
     p = Path(path) if path is not None else default_library()
     if not p.is_file():
@@ -337,7 +336,7 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
         truth_labels,
         truth_values,
     )
-    from fd_monitor.scenario import load_scenario
+    from fd_monitor.model.scenario import load_scenario
 
     sc = load_scenario(spec.scenario)
     sys_ = sc.system
@@ -388,7 +387,7 @@ def _corrupt(msgs: list[_Msg], c: Corruption, spec: BagSpec) -> list[_Msg]:
 
 
 def _write_messages(path: Path, msgs: Sequence[_Msg]) -> None:
-    from fd_monitor.bags import BagWriter, serialize_array
+    from fd_monitor.wire.bags import BagWriter, serialize_array
 
     with BagWriter(path) as w:
         for topic in dict.fromkeys(m.topic for m in msgs):
@@ -451,7 +450,7 @@ def generate_library(library: Library, names: Sequence[str] | None = None,
 
 
 def _sample_time(spec: BagSpec) -> float:
-    from fd_monitor.scenario import load_scenario
+    from fd_monitor.model.scenario import load_scenario
 
     return float(load_scenario(spec.scenario).system.sample_time)
 
@@ -504,9 +503,9 @@ def settled_modes(segments: Sequence[Sequence[Any]], min_dwell: int) -> list[str
 
 def analyze_summary(bag: str | Path, gains: str | Path, *,
                     transient: float = 0.0) -> dict[str, Any]:
-    """The summary the regression suite checks: :func:`fd_monitor.offline.run_bag` (what
+    """The summary the regression suite checks: :func:`fd_monitor.analysis.offline.run_bag` (what
     ``python -m fd_monitor analyze`` runs, for every gain-file method alike)
-    summarised by :func:`fd_monitor.offline.summarize_run`.
+    summarised by :func:`fd_monitor.analysis.offline.summarize_run`.
 
     Returns
     -------
@@ -532,7 +531,7 @@ def load_expected(path: str | Path) -> dict[str, Any]:
     ------
     LibraryError
     """
-    from fd_monitor.system import read_yaml
+    from fd_monitor.model.system import read_yaml
 
     p = Path(path)
     if p.is_dir():
@@ -645,7 +644,7 @@ def truth_facts(bag: str | Path, system: Any = None) -> dict[str, Any]:
         that is ever non-zero (``target`` the output or state it acts on); ``modes``: the true
         mode sequence (repeats collapsed); ``samples``.
     """
-    from fd_monitor.bags import read_bag
+    from fd_monitor.wire.bags import read_bag
 
     tr = read_bag(bag, ["/plant/truth"])["/plant/truth"]
     if system is None:
@@ -681,7 +680,7 @@ def propose_expected(spec: BagSpec, summary: Mapping[str, Any], system: Any, *,
     input errors are the analysis'; :func:`check_truth` then asserts they agree with the truth
     (no alarm before the onset, the faulty sensor isolated).
     """
-    from fd_monitor.gains import load_gains
+    from fd_monitor.model.gains import load_gains
 
     facts = truth_facts(spec.folder, system)
     # fault-model states estimated with a guaranteed band (qb): looser alarm tolerance
@@ -745,9 +744,9 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
         switched observer), ``samples``, ``input_errors`` and ``restarts`` (empty: library
         bags of these methods carry no corruption).
     """
-    from fd_monitor.bags import read_bag
-    from fd_monitor.gains import load_gains
-    from fd_monitor.system import load_system
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
+    from fd_monitor.wire.bags import read_bag
 
     if system is None:
         system = load_system(load_gains(spec.gains, verify=False).system_name)
@@ -788,8 +787,8 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
 
 
 def read_bag_truth(bag: str | Path) -> Any:
-    """``/plant/truth`` of a bag as :class:`~fd_monitor.bags.TopicArrays`."""
-    from fd_monitor.bags import read_bag
+    """``/plant/truth`` of a bag as :class:`~fd_monitor.wire.bags.TopicArrays`."""
+    from fd_monitor.wire.bags import read_bag
 
     return read_bag(bag, ["/plant/truth"])["/plant/truth"]
 
@@ -798,7 +797,7 @@ def write_expected(path: str | Path, doc: Mapping[str, Any], header: str = "") -
     """Write an ``expected.yaml`` (flow style for short lists and mappings)."""
     import yaml
 
-    from fd_monitor.gains import to_plain
+    from fd_monitor.model.gains import to_plain
 
     lines = [f"# {h}" if h else "#" for h in header.splitlines()]
     body = yaml.safe_dump(to_plain(dict(doc)), sort_keys=False, default_flow_style=None,
@@ -857,19 +856,3 @@ def check_truth(spec: BagSpec, expected: Mapping[str, Any], system: Any) -> list
         if got != {k: sorted(v) for k, v in want.items()}:
             out.append(f"input_errors {got} but the corruptions are {want}")
     return out
-
-
-def simulate_library_command(library: str | Path, only: Sequence[str] | None,
-                             as_json: bool) -> int:
-    """``python -m fd_monitor simulate --library LIBRARY [--only NAME...]``: rebuild bags."""
-    from fd_monitor.commands._common import print_json, print_table
-
-    lib = load_library(library)
-    rows = generate_library(lib, only)
-    if as_json:
-        print_json({"library": str(lib.path), "bags": rows})
-    else:
-        print_table([(r["name"], r["samples"], f"{r['bytes'] / 1e3:.0f} kB", r["folder"])
-                     for r in rows], header=("bag", "samples", "size", "folder"),
-                    title=f"regenerated {len(rows)} bag(s) of {lib.path}")
-    return 0

@@ -1,7 +1,7 @@
 """Offline runs of a monitor over a bag: tolerant input reading, per-sample arrays, summaries.
 
 One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag reports
-(:mod:`fd_monitor.report`) and the regression suite (:mod:`fd_monitor.library`):
+(:mod:`fd_monitor.analysis.report`) and the regression suite (:mod:`fd_monitor.analysis.library`):
 
 1. :func:`read_inputs` reads ``/plant/u`` and ``/plant/y`` message by message, as the nodes
    receive them: a message that does not decode (NaN/Inf, wrong length, bad layout) is
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.runtime import runtime_for
-from fd_monitor.errors import BagError, FdMonitorError, ImplausibleError, MessageError
+from fd_monitor.model.errors import BagError, FdMonitorError, ImplausibleError, MessageError
 
 __all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs",
            "read_streams", "run_bag", "run_runtime", "run_thresholds", "scan_bag",
@@ -104,8 +104,8 @@ class BagScan:
 
     def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         """``(topic, timestamp_ns, message)`` of ``topics`` in file order (as
-        :func:`fd_monitor.bags.read_messages`)."""
-        from fd_monitor.bags import messages_from_raw
+        :func:`fd_monitor.wire.bags.read_messages`)."""
+        from fd_monitor.wire.bags import messages_from_raw
 
         want = set(topics)
         yield from messages_from_raw(self.bag, (r for r in self.records if r[0] in want))
@@ -113,7 +113,7 @@ class BagScan:
     def first_labels(self, topic: str) -> tuple[str, ...] | None:
         """Channel labels of the first message of a Float64MultiArray ``topic`` (None when
         it has none or no message); BagError when the topic has another type."""
-        from fd_monitor.bags import FLOAT64_MULTI_ARRAY
+        from fd_monitor.wire.bags import FLOAT64_MULTI_ARRAY
 
         if topic in self.present and self.present[topic][0] != FLOAT64_MULTI_ARRAY:
             raise BagError(f"{self.bag}: {topic} is {self.present[topic][0]}, not "
@@ -124,9 +124,9 @@ class BagScan:
         return None
 
     def truth(self) -> Any:
-        """``/plant/truth`` as :class:`~fd_monitor.bags.TopicArrays`, or None (absent or
+        """``/plant/truth`` as :class:`~fd_monitor.wire.bags.TopicArrays`, or None (absent or
         unreadable)."""
-        from fd_monitor.bags import FLOAT64_MULTI_ARRAY, arrays_from_raw
+        from fd_monitor.wire.bags import FLOAT64_MULTI_ARRAY, arrays_from_raw
 
         if self.present.get("/plant/truth", ("", 0))[0] != FLOAT64_MULTI_ARRAY:
             return None
@@ -146,7 +146,7 @@ def scan_bag(bag: str | Path) -> BagScan:
     BagError
         Missing bag, not a bag, unreadable data (the bag named).
     """
-    from fd_monitor.bags import read_raw
+    from fd_monitor.wire.bags import read_raw
 
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
@@ -207,7 +207,7 @@ def read_streams(bag: str | Path, system: Any,
     (dict, dict, dict, InputReport)
         stamp -> u (nu,), stamp -> y (ny,), name -> (stamp -> value), the report.
     """
-    from fd_monitor.bags import FLOAT64_MULTI_ARRAY
+    from fd_monitor.wire.bags import FLOAT64_MULTI_ARRAY
 
     if scan is None:
         scan = scan_bag(bag)
@@ -242,7 +242,7 @@ def _read_streams(messages: Any, labels: dict[str, tuple[str, ...]],
                   streams: dict[str, dict[int, np.ndarray]], top: dict[str, int],
                   rep: InputReport) -> None:
     """The message loop of :func:`read_inputs`."""
-    from fd_monitor.nodes.conversions import decode
+    from fd_monitor.wire.conversions import decode
 
     for topic, _t, msg in messages:
         raw_stamp: int | None = None
@@ -415,8 +415,8 @@ class BagRun:
 
 def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, Any]:
     """The gain file and its plant (the plant file named by the gain file)."""
-    from fd_monitor.gains import load_gains
-    from fd_monitor.system import load_system
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
 
     raw = load_gains(gains_source, None, verify=False)
     system = load_system(raw.system_name)
@@ -456,14 +456,14 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     GainFileError
         Unknown or invalid gain file.
     """
-    from fd_monitor.gains import GainFile, load_gains
+    from fd_monitor.model.gains import GainFile, load_gains
 
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     if isinstance(gains, GainFile):
         gf = gains
         if system is None:
-            from fd_monitor.system import load_system
+            from fd_monitor.model.system import load_system
 
             system = load_system(gf.system_name)
     elif system is None:
@@ -495,7 +495,7 @@ def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
     Returns the per-sample fields of a :class:`BagRun`. A sample the runtime refuses as
     implausible (:mod:`fd_monitor.core.plausibility`) is reported in ``rep`` and left out,
     and the runtime restarts at the next sample, as after a hole. Another invalid sample
-    raises :class:`~fd_monitor.errors.MessageError` naming its stamp (:func:`read_streams`
+    raises :class:`~fd_monitor.model.errors.MessageError` naming its stamp (:func:`read_streams`
     has already left such samples out of a bag).
 
     Parameters

@@ -1,0 +1,85 @@
+"""``python -m fd_monitor design thresholds``: the command line of
+:mod:`fd_monitor.design.thresholds`.
+
+``add_arguments(parser)`` adds the method's options (SYSTEM, ``-o`` and ``--json`` come from
+:mod:`fd_monitor.commands.design`); ``run(args)`` designs, writes the gain file and prints the
+summary. The designer itself is a function of the plant and its options.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from fd_monitor.commands._common import emit
+from fd_monitor.core.agei import DEFAULT_DELTA
+from fd_monitor.design.thresholds import design_thresholds
+from fd_monitor.model.gains import save_gains
+from fd_monitor.model.paths import default_gain_path
+from fd_monitor.model.system import load_system
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``design thresholds`` (SYSTEM, -o and --json come from the dispatcher)."""
+    parser.add_argument("--scenario", action="append", default=None, metavar="SCENARIO",
+                        help="design scenario (repeatable); default every shipped "
+                             "<plant>_*.yaml scenario, faults removed")
+    parser.add_argument("--seeds", type=int, default=4, help="fault-free runs per scenario")
+    parser.add_argument("--tube", type=float, default=None,
+                        help="widening of the operating region, state units (default 20 v_bar)")
+    parser.add_argument("--mc-samples", type=int, default=200000,
+                        help="Monte Carlo samples per mode (default 200000)")
+    parser.add_argument("--mc-margin", type=float, default=0.25,
+                        help="relative margin on Monte Carlo maxima (default 0.25)")
+    parser.add_argument("--mc-seed", type=int, default=0)
+    parser.add_argument("--filter", choices=("fir", "iir"), default="fir")
+    parser.add_argument("--length", type=int, default=None,
+                        help="moving-average length (default: automatic)")
+    parser.add_argument("--pole", type=float, default=None, help="IIR pole in [0, 1)")
+    parser.add_argument("--max-window", type=float, default=2.0,
+                        help="longest filter window, s (default 2.0)")
+    parser.add_argument("--delta", type=float, default=DEFAULT_DELTA,
+                        help="AGEI band delta of eq. 21 (default 0.05)")
+    parser.add_argument("--gamma", type=float, default=0.02,
+                        help="estimator learning rate: Gamma = gamma I (default 0.02)")
+    parser.add_argument("--lambda", dest="lam", type=float, default=1e-3,
+                        help="estimator output injection: Lambda = lambda I (default 1e-3)")
+    parser.add_argument("--alpha", type=float, default=0.02,
+                        help="presmoother gain (default 0.02)")
+    parser.add_argument("--init", choices=("presmoother", "measurement"),
+                        default="presmoother",
+                        help="estimator initial state at detection (default presmoother; "
+                             "measurement = the paper's x^s = y)")
+    parser.add_argument("--envelope", choices=("scenarios", "declared"), default="scenarios",
+                        help="region to certify: the simulated design scenarios (sampled "
+                             "bounds) or the plant file's declared envelope (rho_bar a bound "
+                             "over it)")
+    parser.add_argument("--box-width", type=float, default=0.01,
+                        help="--envelope declared: side of the interval-arithmetic boxes, "
+                             "state units (default 0.01)")
+    parser.add_argument("--m-sigma", type=float, default=None,
+                        help="projection radius M_sigma (default 100 v_bar)")
+
+
+
+def run(args: argparse.Namespace) -> int:
+    """Design, write the gain file, re-load it (certificate check) and print a summary."""
+    from fd_monitor.model.gains import load_gains
+
+    system = load_system(args.system)
+    d = design_thresholds(system, scenarios=args.scenario, seeds=args.seeds, tube=args.tube,
+                          mc_samples=args.mc_samples, mc_margin=args.mc_margin,
+                          mc_seed=args.mc_seed, filter_kind=args.filter, length=args.length,
+                          pole=args.pole, max_window=args.max_window, delta=args.delta,
+                          gamma=args.gamma, lam=args.lam, alpha=args.alpha, init=args.init,
+                          M_sigma=args.m_sigma, envelope=args.envelope,
+                          box_width=args.box_width)
+    out = Path(args.output) if args.output else default_gain_path(system.name, "thresholds")
+    save_gains(out, "thresholds", system, d["parameters"], d["results"], d["certificate"],
+               d["solver"])
+    load_gains(out, system)  # re-verifies the certificate
+    summary = {"gain_file": str(out), **d["summary"]}
+    emit(summary, args.json, title=f"thresholds design of {system.name} -> {out}")
+    return 0
