@@ -255,7 +255,7 @@ def load_library(path: str | Path | None = None) -> Library:
     LibraryError
         One line naming the file and the key.
     """
-    from fd_monitor.model.system import read_yaml
+    from fd_monitor.model.yaml_io import read_yaml
 
     p = Path(path) if path is not None else default_library()
     if not p.is_file():
@@ -531,7 +531,7 @@ def load_expected(path: str | Path) -> dict[str, Any]:
     ------
     LibraryError
     """
-    from fd_monitor.model.system import read_yaml
+    from fd_monitor.model.yaml_io import read_yaml
 
     p = Path(path)
     if p.is_dir():

@@ -27,7 +27,8 @@ import cvxpy as cp
 import numpy as np
 
 from fd_monitor.model.errors import DesignError
-from fd_monitor.model.system import System, parse_yaml_text
+from fd_monitor.model.system import System
+from fd_monitor.model.yaml_io import parse_yaml_text
 
 __all__ = ["Ctx", "load_design_section", "solve", "left_pinv", "complement_projector",
            "is_observable", "is_detectable", "region_blocks", "SOLVER"]

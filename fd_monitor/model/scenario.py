@@ -78,7 +78,8 @@ import numpy as np
 
 from fd_monitor.model.errors import ScenarioError, SystemFileError
 from fd_monitor.model.paths import find_config_file
-from fd_monitor.model.system import System, load_system, parse_system, read_yaml, require_memory
+from fd_monitor.model.system import System, load_system, parse_system
+from fd_monitor.model.yaml_io import read_yaml, require_memory
 
 __all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "Scheduling", "check_horizon",
            "load_scenario", "parse_scenario"]
