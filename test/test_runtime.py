@@ -362,9 +362,9 @@ def test_regression_library_takes_an_hinf_sc_bag(tmp_path):
         check_expected,
         check_truth,
         generate_bag,
-        load_library,
         propose_expected,
     )
+    from fd_monitor.analysis.library_spec import load_library
 
     (tmp_path / "library.yaml").write_text(yaml.safe_dump({"format_version": 1, "bags": [
         {"name": "lpv_leaks", "scenario": "three_tank_lpv_abrupt", "seed": 2,
