@@ -2,18 +2,8 @@
 
 The library is a spec file listing small rosbag2 MCAP bags, each simulated from a scenario
 file with a fixed seed and duration (so ``python -m fd_monitor simulate --library
-bags/library.yaml`` rebuilds every bag bit for bit) and analysed with a named gain file::
-
-    format_version: 1
-    bags:
-      - name: three_tank_bias_h1                 # bags/<name>/ is the bag folder
-        scenario: bag_three_tank_bias_h1         # shipped name (config/scenarios/) or path
-        seed: 12
-        duration: 250.0                          # s
-        gains: three_tank_thresholds             # shipped name (config/gains/) or path
-        transient: 0.0                           # s: alarms before it are not counted
-        live: true                               # also replayed through the live nodes
-        corruptions: []                          # bad input applied to the messages
+bags/library.yaml`` rebuilds every bag bit for bit) and analysed with a named gain file
+(format: :mod:`fd_monitor.analysis.library_spec`).
 
 Each bag folder holds ``metadata.yaml``, ``<name>.mcap`` (zstd-compressed chunks) and
 ``expected.yaml``: what analysing the bag must give (see :func:`check_expected`)::

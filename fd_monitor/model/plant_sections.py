@@ -8,9 +8,9 @@ names the file, the key path and what was expected.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -38,6 +38,14 @@ __all__ = ["Channels", "Header", "canonical_form", "parse_bounds", "parse_channe
            "parse_envelope", "parse_faults", "parse_guards", "parse_header", "parse_initial",
            "parse_limits", "parse_lpv", "parse_modes", "parse_shared", "parse_switching",
            "parse_units"]
+
+
+class _HasName(Protocol):
+    @property
+    def name(self) -> str: ...
+
+
+_Named = TypeVar("_Named", bound=_HasName)
 
 
 @dataclass(frozen=True)
@@ -235,66 +243,70 @@ def _mode_ref(ck: Checker, modes: Sequence[Mode], key: str, v: Any) -> int:
     return mode_names.index(v)
 
 
+def _named_entries(ck: Checker, data: Mapping[str, Any], key: str, list_of: str, unique: str,
+                   parse: Callable[[str, Any], _Named]) -> tuple[_Named, ...]:
+    """The optional list ``key`` (``list_of`` names what it holds), each entry parsed by
+    ``parse(key_path, entry)``; their names must be unique (``unique`` names them)."""
+    raw = data.get(key, []) or []
+    if not isinstance(raw, list):
+        ck.fail(key, f"a list of {list_of}", raw)
+    out = tuple(parse(f"{key}[{i}]", e) for i, e in enumerate(raw))
+    names = [e.name for e in out]
+    if len(set(names)) != len(names):
+        ck.fail(key, f"unique {unique} names", names)
+    return out
+
+
 def parse_guards(ck: Checker, data: Mapping[str, Any], ch: Channels,
                  modes: Sequence[Mode]) -> tuple[Guard, ...]:
     """``guards``: transitions between the modes, on states or on inputs."""
-    guards: list[Guard] = []
-    graw = data.get("guards", []) or []
-    if not isinstance(graw, list):
-        ck.fail("guards", "a list of guards", graw)
-    for gi, g in enumerate(graw):
-        key = f"guards[{gi}]"
-        g = ck.mapping(key, g, {"name", "from", "to", "kind", "when"})
-        ck.require(key, g, ("from", "to", "kind", "when"))
-        src = _mode_ref(ck, modes, f"{key}.from", g["from"])
-        dst = _mode_ref(ck, modes, f"{key}.to", g["to"])
-        if src == dst:
-            ck.fail(f"{key}.to", "a mode other than 'from'", g["to"])
-        kind = g["kind"]
-        if kind not in ("autonomous", "controlled"):
-            ck.fail(f"{key}.kind", "'autonomous' (on states) or 'controlled' (on inputs)", kind)
-        names = ch.states if kind == "autonomous" else ch.inputs
-        what = "state" if kind == "autonomous" else "input"
-        when = g["when"]
-        if isinstance(when, Mapping):
-            when = [when]
-        if not isinstance(when, list) or not when:
-            ck.fail(f"{key}.when", "a non-empty list of {var, op, value}", when)
-        conds = []
-        for ci, c in enumerate(when):
-            ckey = f"{key}.when[{ci}]"
-            c = ck.mapping(ckey, c, {"var", "op", "value"})
-            var = c.get("var")
-            if var not in names:
-                ck.fail(f"{ckey}.var", f"a {what} of a {kind} guard: {list(names)}", var)
-            op = c.get("op")
-            if op not in GUARD_OPS:
-                ck.fail(f"{ckey}.op", f"one of {list(GUARD_OPS)}", op)
-            if "value" not in c:
-                ck.fail(f"{ckey}.value", "a number (missing key)", show=False)
-            conds.append(Condition(str(var), names.index(var), str(op),
-                                   ck.number(f"{ckey}.value", c["value"])))
-        gname = g.get("name", f"{g['from']}->{g['to']}")
-        if not isinstance(gname, str):
-            ck.fail(f"{key}.name", "a string", gname)
-        guards.append(Guard(gname, src, dst, kind, tuple(conds)))
-    if len({g.name for g in guards}) != len(guards):
-        ck.fail("guards", "unique guard names", [g.name for g in guards])
-    return tuple(guards)
+    return _named_entries(ck, data, "guards", "guards", "guard",
+                          lambda key, g: _parse_guard(ck, key, g, ch, modes))
+
+
+def _parse_guard(ck: Checker, key: str, g: Any, ch: Channels, modes: Sequence[Mode]) -> Guard:
+    """One entry ``guards[i]``."""
+    g = ck.mapping(key, g, {"name", "from", "to", "kind", "when"})
+    ck.require(key, g, ("from", "to", "kind", "when"))
+    src = _mode_ref(ck, modes, f"{key}.from", g["from"])
+    dst = _mode_ref(ck, modes, f"{key}.to", g["to"])
+    if src == dst:
+        ck.fail(f"{key}.to", "a mode other than 'from'", g["to"])
+    kind = g["kind"]
+    if kind not in ("autonomous", "controlled"):
+        ck.fail(f"{key}.kind", "'autonomous' (on states) or 'controlled' (on inputs)", kind)
+    names = ch.states if kind == "autonomous" else ch.inputs
+    what = "state" if kind == "autonomous" else "input"
+    when = g["when"]
+    if isinstance(when, Mapping):
+        when = [when]
+    if not isinstance(when, list) or not when:
+        ck.fail(f"{key}.when", "a non-empty list of {var, op, value}", when)
+    conds = []
+    for ci, c in enumerate(when):
+        ckey = f"{key}.when[{ci}]"
+        c = ck.mapping(ckey, c, {"var", "op", "value"})
+        var = c.get("var")
+        if var not in names:
+            ck.fail(f"{ckey}.var", f"a {what} of a {kind} guard: {list(names)}", var)
+        op = c.get("op")
+        if op not in GUARD_OPS:
+            ck.fail(f"{ckey}.op", f"one of {list(GUARD_OPS)}", op)
+        if "value" not in c:
+            ck.fail(f"{ckey}.value", "a number (missing key)", show=False)
+        conds.append(Condition(str(var), names.index(var), str(op),
+                               ck.number(f"{ckey}.value", c["value"])))
+    gname = g.get("name", f"{g['from']}->{g['to']}")
+    if not isinstance(gname, str):
+        ck.fail(f"{key}.name", "a string", gname)
+    return Guard(gname, src, dst, kind, tuple(conds))
 
 
 def parse_faults(ck: Checker, data: Mapping[str, Any], ch: Channels,
                  modes: Sequence[Mode]) -> tuple[FaultChannel, ...]:
     """``faults``: the fault channels (see :class:`~fd_monitor.model.plant_parts.FaultChannel`)."""
-    faults: list[FaultChannel] = []
-    fraw = data.get("faults", []) or []
-    if not isinstance(fraw, list):
-        ck.fail("faults", "a list of fault channels", fraw)
-    for fi, f in enumerate(fraw):
-        faults.append(_parse_fault(ck, f"faults[{fi}]", f, ch, modes))
-    if len({f.name for f in faults}) != len(faults):
-        ck.fail("faults", "unique fault names", [f.name for f in faults])
-    return tuple(faults)
+    return _named_entries(ck, data, "faults", "fault channels", "fault",
+                          lambda key, f: _parse_fault(ck, key, f, ch, modes))
 
 
 def _parse_fault(ck: Checker, key: str, f: Any, ch: Channels, modes: Sequence[Mode]
