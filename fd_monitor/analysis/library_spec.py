@@ -231,7 +231,9 @@ def _bag_spec(ck: Checker, key: str, e: Any, p: Path, taken: set[str]) -> BagSpe
     name = str(e["name"])
     if not name.replace("_", "").isalnum() or name in taken:
         _fail(ck, f"{key}.name", "a unique name of letters, digits and _", name)
-    seed = ck.integer(f"{key}.seed", e["seed"])
+    seed = e["seed"]
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        _fail(ck, f"{key}.seed", "an integer >= 0", seed)
     dur = e["duration"]
     if isinstance(dur, bool) or not isinstance(dur, (int, float)) or not dur > 0:
         _fail(ck, f"{key}.duration", "a duration > 0 in s", dur)
@@ -244,7 +246,7 @@ def _bag_spec(ck: Checker, key: str, e: Any, p: Path, taken: set[str]) -> BagSpe
     scen = str(e["scenario"])
     rel = p.parent / scen
     return BagSpec(
-        name=name, scenario=str(rel) if rel.is_file() else scen, seed=seed,
+        name=name, scenario=str(rel) if rel.is_file() else scen, seed=int(seed),
         duration=float(dur), gains=str(e["gains"]), transient=float(tr),
         live=bool(e.get("live", False)), description=str(e.get("description", "")),
         corruptions=tuple(_corruption(ck, f"{key}.corruptions[{j}]", c)
