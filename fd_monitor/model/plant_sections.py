@@ -14,7 +14,7 @@ from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
-from fd_monitor.model.nonlinear import NonlinearModel, get_model
+from fd_monitor.model.nonlinear import get_model
 from fd_monitor.model.plant_parts import (
     Condition,
     Envelope,
@@ -193,26 +193,25 @@ def _parse_mode(ck: Checker, mname: Any, spec: Any, shared: Mapping[str, Any], c
         if "A" in spec:
             ck.fail(f"{key}.A", "no 'A' in a nonlinear mode (the model gives the "
                     "dynamics)", show=False)
-        if "model" not in spec:
-            ck.fail(f"{key}.model", "the name of a nonlinear model (missing key)",
-                    show=False)
-        model = spec["model"]
-        try:
-            mdl = get_model(str(model))
-        except KeyError as exc:
-            ck.fail(f"{key}.model", str(exc.args[0]), show=False)
-        if mdl.n_states != n or mdl.n_inputs != nu:
-            ck.fail(f"{key}.model", f"a model with {n} states and {nu} inputs (model "
-                    f"{model!r} has {mdl.n_states} and {mdl.n_inputs})", show=False)
-        params = _model_params(ck, key, spec, mdl)
+        model, params = _nonlinear_model(ck, key, spec, n, nu)
     return Mode(mname, dyn, mtime, A, B, C, D, E, offset, unc, model, params, A_rho, B_rho)
 
 
-def _model_params(ck: Checker, key: str, spec: Mapping[str, Any], mdl: NonlinearModel
-                  ) -> dict[str, float]:
-    """``<key>.params`` of a nonlinear mode: checked against the model's parameter list,
-    defaults and physical ranges."""
+def _nonlinear_model(ck: Checker, key: str, spec: Mapping[str, Any], n: int, nu: int
+                     ) -> tuple[str, dict[str, float]]:
+    """``<key>.model`` and ``<key>.params`` of a nonlinear mode: a registered model of n
+    states and nu inputs, its parameters checked against the model's list, defaults and
+    physical ranges."""
+    if "model" not in spec:
+        ck.fail(f"{key}.model", "the name of a nonlinear model (missing key)", show=False)
     model = spec["model"]
+    try:
+        mdl = get_model(str(model))
+    except KeyError as exc:
+        ck.fail(f"{key}.model", str(exc.args[0]), show=False)
+    if mdl.n_states != n or mdl.n_inputs != nu:
+        ck.fail(f"{key}.model", f"a model with {n} states and {nu} inputs (model "
+                f"{model!r} has {mdl.n_states} and {mdl.n_inputs})", show=False)
     params: dict[str, float] = {}
     praw = ck.mapping(f"{key}.params", spec.get("params", {}) or {})
     for p in praw:
@@ -232,7 +231,7 @@ def _model_params(ck: Checker, key: str, spec: Mapping[str, Any], mdl: Nonlinear
             ck.fail(f"{key}.params.{p}", f"a value in {'(' if lo_open else '['}"
                     f"{lo:g}, {hi:g}] (the physical range of model {model!r})",
                     praw.get(p, v))
-    return params
+    return model, params
 
 
 def _mode_ref(ck: Checker, modes: Sequence[Mode], key: str, v: Any) -> int:
