@@ -28,7 +28,7 @@ import numpy as np
 
 from fd_monitor.model.errors import DesignError
 from fd_monitor.model.system import System
-from fd_monitor.model.validate import Checker
+from fd_monitor.model.validate import Checker, Got
 from fd_monitor.model.yaml_io import parse_yaml_text
 
 __all__ = ["design_checker", "load_design_section", "solve", "left_pinv", "complement_projector",
@@ -70,25 +70,25 @@ def load_design_section(system: System, section: str, path: str | Path | None = 
         return {}, str(p), ""
     raw = p.read_bytes()
     data = parse_yaml_text(raw, str(p), DesignError)
-    ctx = design_checker(str(p), "(top level)")
     if not isinstance(data, Mapping):
-        ctx.fail("", "a mapping of design-file keys", type(data).__name__)
+        design_checker(str(p), "(top level)").fail("", "a mapping of design-file keys",
+                                                    type(data).__name__)
+    ck = Checker(str(p), DesignError, clip=None)
     for k in data:
         if k not in ("format_version", "plant", "description", "hinf_sc", "hminus_switched"):
-            raise DesignError(f"{p}: {k}: expected one of format_version, plant, description, "
-                              f"hinf_sc, hminus_switched (unknown key)")
+            ck.fail(k, "one of format_version, plant, description, hinf_sc, hminus_switched "
+                    "(unknown key)", show=False)
     if isinstance(data.get("format_version"), bool) or data.get("format_version", 1) != 1:
-        raise DesignError(f"{p}: format_version: expected 1, got {data.get('format_version')!r}")
+        ck.fail("format_version", "1", data.get("format_version"))
     if data.get("plant") != system.name:
-        raise DesignError(f"{p}: plant: expected {system.name!r} (the plant being designed "
-                          f"for), got {data.get('plant')!r}")
+        ck.fail("plant", f"{system.name!r} (the plant being designed for)", data.get("plant"))
     sec = data.get(section)
     if sec is None:
         if path is not None:
             raise DesignError(f"{p}: {section}: missing section")
         return {}, str(p), hashlib.sha256(raw).hexdigest()
     if not isinstance(sec, Mapping):
-        raise DesignError(f"{p}: {section}: expected a mapping, got {type(sec).__name__}")
+        ck.fail(section, "a mapping", Got(type(sec).__name__))
     return sec, str(p), hashlib.sha256(raw).hexdigest()
 
 
