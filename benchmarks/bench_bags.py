@@ -15,7 +15,8 @@ import argparse
 import tempfile
 import time
 
-from fd_monitor.analysis.library import analyze_summary, load_library
+from fd_monitor.analysis.library import analyze_summary
+from fd_monitor.analysis.library_spec import load_library
 from fd_monitor.analysis.report import bag_report
 
 

@@ -5,14 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fd_monitor.analysis.library import (
-    LibraryError,
-    check_expected,
-    check_truth,
-    generate_bag,
-    load_expected,
-    load_library,
-)
+from fd_monitor.analysis.library import check_expected, check_truth, generate_bag
+from fd_monitor.analysis.library_spec import LibraryError, load_expected, load_library
 from fd_monitor.analysis.offline import read_inputs
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.system import load_system

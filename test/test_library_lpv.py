@@ -8,14 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fd_monitor.analysis.library import (
-    check_expected,
-    core_summary,
-    generate_bag,
-    load_expected,
-    load_library,
-    truth_facts,
-)
+from fd_monitor.analysis.library import check_expected, core_summary, generate_bag, truth_facts
+from fd_monitor.analysis.library_spec import load_expected, load_library
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.scenario import load_scenario

@@ -15,7 +15,8 @@ import sys
 import pytest
 import yaml
 
-from fd_monitor.analysis.library import analyze_summary, check_expected, load_expected, load_library
+from fd_monitor.analysis.library import analyze_summary, check_expected
+from fd_monitor.analysis.library_spec import load_expected, load_library
 from fd_monitor.commands.analyze import analyze_bag
 from fd_monitor.model.errors import GainFileError
 from fd_monitor.model.gains import load_gains, write_gain_doc

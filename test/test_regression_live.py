@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from ros_util import Proc, replay_through
 
-from fd_monitor.analysis.library import check_expected, load_expected, load_library
+from fd_monitor.analysis.library import check_expected
+from fd_monitor.analysis.library_spec import load_expected, load_library
 from fd_monitor.analysis.offline import run_bag, stamp_runs
 from fd_monitor.wire.bags import read_bag
 

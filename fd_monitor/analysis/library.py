@@ -2,18 +2,8 @@
 
 The library is a spec file listing small rosbag2 MCAP bags, each simulated from a scenario
 file with a fixed seed and duration (so ``python -m fd_monitor simulate --library
-bags/library.yaml`` rebuilds every bag bit for bit) and analysed with a named gain file::
-
-    format_version: 1
-    bags:
-      - name: three_tank_bias_h1                 # bags/<name>/ is the bag folder
-        scenario: bag_three_tank_bias_h1         # shipped name (config/scenarios/) or path
-        seed: 12
-        duration: 250.0                          # s
-        gains: three_tank_thresholds             # shipped name (config/gains/) or path
-        transient: 0.0                           # s: alarms before it are not counted
-        live: true                               # also replayed through the live nodes
-        corruptions: []                          # bad input applied to the messages
+bags/library.yaml`` rebuilds every bag bit for bit) and analysed with a named gain file
+(format: :mod:`fd_monitor.analysis.library_spec`).
 
 Each bag folder holds ``metadata.yaml``, ``<name>.mcap`` (zstd-compressed chunks) and
 ``expected.yaml``: what analysing the bag must give (see :func:`check_expected`)::
@@ -41,6 +31,7 @@ Corruptions (applied to the simulated messages, in this order; ``samples`` are s
 * ``{kind: out_of_order, topic, samples}`` -- messages k and k + 1 are recorded in the
   opposite order (stamp k + 1 arrives first).
 
+Reading and validating the spec and ``expected.yaml``: :mod:`fd_monitor.analysis.library_spec`.
 Nothing here imports rclpy; the analysis itself is :func:`fd_monitor.analysis.offline.run_bag` (the
 same run as ``python -m fd_monitor analyze``), summarised by :func:`analyze_summary`.
 """
@@ -57,256 +48,28 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.analysis.library_spec import BagSpec, Corruption, Library, LibraryError
 from fd_monitor.analysis.offline import (
-    INPUT_ERROR_KINDS,
     collapse,
     run_bag,
     summarize_run,
 )
-from fd_monitor.model.errors import FdMonitorError, ScenarioError
+from fd_monitor.model.errors import ScenarioError
 
 __all__ = [
-    "CORRUPTION_KINDS",
-    "BagSpec",
-    "Corruption",
-    "Library",
-    "LibraryError",
     "analyze_summary",
     "bag_messages",
     "check_expected",
     "check_truth",
     "core_summary",
-    "default_library",
-    "expected_path",
     "generate_bag",
     "generate_library",
-    "load_expected",
-    "load_library",
     "propose_expected",
     "read_bag_truth",
     "settled_modes",
     "truth_facts",
     "write_expected",
 ]
-
-CORRUPTION_KINDS = ("nan", "wrong_length", "gap", "duplicate", "out_of_order")
-
-FORMAT_VERSION = 1
-
-
-class LibraryError(FdMonitorError, ValueError):
-    """The library spec or an expected.yaml is invalid (file and key named)."""
-
-
-# --------------------------------------------------------------------------------------
-# spec
-
-
-@dataclass(frozen=True)
-class Corruption:
-    """One corruption of the simulated messages (see the module docstring).
-
-    Attributes
-    ----------
-    kind : str
-        One of :data:`CORRUPTION_KINDS`.
-    topic : str
-        Topic it applies to (``gap``: every topic).
-    samples : tuple of int
-        Stamps k it applies to (``gap``: the first missing stamp and the count).
-    channel : str or None
-        ``nan`` only: the channel set to NaN.
-    """
-
-    kind: str
-    topic: str = "/plant/y"
-    samples: tuple[int, ...] = ()
-    channel: str | None = None
-
-
-@dataclass(frozen=True)
-class BagSpec:
-    """One bag of the library.
-
-    Attributes
-    ----------
-    name : str
-    scenario : str
-        Scenario name or path (resolved against the spec's folder first).
-    seed : int
-    duration : float
-        s
-    gains : str
-        Gain file name or path.
-    transient : float
-        s; alarms before it do not count (QB observers: the bound holds after eq. 5's
-        transient).
-    live : bool
-        Part of the live-node regression subset.
-    description : str
-    corruptions : tuple of Corruption
-    folder : pathlib.Path
-        The bag folder (``<library folder>/<name>``).
-    """
-
-    name: str
-    scenario: str
-    seed: int
-    duration: float
-    gains: str
-    transient: float = 0.0
-    live: bool = False
-    description: str = ""
-    corruptions: tuple[Corruption, ...] = ()
-    folder: Path = Path(".")
-
-    @property
-    def expected_file(self) -> Path:
-        """``<folder>/expected.yaml``."""
-        return self.folder / "expected.yaml"
-
-
-@dataclass(frozen=True)
-class Library:
-    """A loaded ``library.yaml``.
-
-    Attributes
-    ----------
-    path : pathlib.Path
-    bags : tuple of BagSpec
-    """
-
-    path: Path
-    bags: tuple[BagSpec, ...]
-
-    def __getitem__(self, name: str) -> BagSpec:
-        for b in self.bags:
-            if b.name == name:
-                return b
-        raise LibraryError(f"{self.path}: no bag {name!r} (bags: "
-                           f"{', '.join(b.name for b in self.bags)})")
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """Bag names in spec order."""
-        return tuple(b.name for b in self.bags)
-
-
-def default_library() -> Path:
-    """``bags/library.yaml`` beside the shipped ``config/``: of the source checkout, or
-    ``share/fd_monitor/bags`` of a pip or colcon install."""
-    from fd_monitor.model.paths import config_dirs
-
-    for d in config_dirs():
-        if (d.parent / "bags" / "library.yaml").is_file():
-            return d.parent / "bags" / "library.yaml"
-    raise LibraryError("no bag library found (bags/library.yaml): give the path of a "
-                       "library.yaml")
-
-
-def _fail(origin: Any, key: str, expected: str, got: Any = None) -> None:
-    tail = "" if got is None else f", got {got!r}"
-    raise LibraryError(f"{origin}: {key}: expected {expected}{tail}")
-
-
-def _int_list(origin: Any, key: str, v: Any) -> tuple[int, ...]:
-    if isinstance(v, int) and not isinstance(v, bool):
-        v = [v]
-    if not isinstance(v, list) or not v or not all(
-            isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in v):
-        _fail(origin, key, "a non-empty list of sample indices >= 0", v)
-    return tuple(int(i) for i in v)
-
-
-def _corruption(origin: Any, key: str, c: Any) -> Corruption:
-    if not isinstance(c, Mapping) or c.get("kind") not in CORRUPTION_KINDS:
-        _fail(origin, f"{key}.kind", f"one of {list(CORRUPTION_KINDS)}",
-              c.get("kind") if isinstance(c, Mapping) else c)
-    kind = str(c["kind"])
-    allowed = {"kind", "topic", "samples", "channel", "start"}
-    extra = set(c) - allowed
-    if extra:
-        _fail(origin, f"{key}.{sorted(extra)[0]}", f"one of {sorted(allowed)} (unknown key)")
-    topic = str(c.get("topic", "/plant/y"))
-    if kind == "gap":
-        if "start" not in c or "samples" not in c:
-            _fail(origin, key, "{kind: gap, start: k0, samples: count}", dict(c))
-        start = _int_list(origin, f"{key}.start", c["start"])
-        count = c["samples"]
-        if not isinstance(count, int) or isinstance(count, bool) or count < 1:
-            _fail(origin, f"{key}.samples", "a count >= 1", count)
-        return Corruption(kind, "*", (start[0], int(count)))
-    if "samples" not in c:
-        _fail(origin, f"{key}.samples", "a list of sample indices (missing key)")
-    samples = _int_list(origin, f"{key}.samples", c["samples"])
-    channel = None
-    if kind == "nan":
-        if not isinstance(c.get("channel"), str):
-            _fail(origin, f"{key}.channel", "the channel to set to NaN", c.get("channel"))
-        channel = str(c["channel"])
-    return Corruption(kind, topic, samples, channel)
-
-
-def load_library(path: str | Path | None = None) -> Library:
-    """Load and validate a library spec (default ``bags/library.yaml``).
-
-    Raises
-    ------
-    LibraryError
-        One line naming the file and the key.
-    """
-    from fd_monitor.model.system import read_yaml
-
-    p = Path(path) if path is not None else default_library()
-    if not p.is_file():
-        raise LibraryError(f"{p}: library spec not found")
-    data = read_yaml(p, LibraryError)
-    if not isinstance(data, Mapping) or not isinstance(data.get("bags"), list):
-        _fail(p, "bags", "a list of bag entries")
-    if (isinstance(data.get("format_version"), bool)
-            or data.get("format_version", FORMAT_VERSION) != FORMAT_VERSION):
-        _fail(p, "format_version", str(FORMAT_VERSION), data.get("format_version"))
-    bags: list[BagSpec] = []
-    seen: set[str] = set()
-    for i, e in enumerate(data["bags"]):
-        key = f"bags[{i}]"
-        if not isinstance(e, Mapping):
-            _fail(p, key, "a mapping {name, scenario, seed, duration, gains, ...}", e)
-        allowed = {"name", "scenario", "seed", "duration", "gains", "transient", "live",
-                   "description", "corruptions"}
-        extra = set(e) - allowed
-        if extra:
-            _fail(p, f"{key}.{sorted(extra)[0]}", f"one of {sorted(allowed)} (unknown key)")
-        for req in ("name", "scenario", "seed", "duration", "gains"):
-            if req not in e:
-                _fail(p, f"{key}.{req}", "a value (missing key)")
-        name = str(e["name"])
-        if not name.replace("_", "").isalnum() or name in seen:
-            _fail(p, f"{key}.name", "a unique name of letters, digits and _", name)
-        seen.add(name)
-        seed = e["seed"]
-        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-            _fail(p, f"{key}.seed", "an integer >= 0", seed)
-        dur = e["duration"]
-        if isinstance(dur, bool) or not isinstance(dur, (int, float)) or not dur > 0:
-            _fail(p, f"{key}.duration", "a duration > 0 in s", dur)
-        tr = e.get("transient", 0.0)
-        if isinstance(tr, bool) or not isinstance(tr, (int, float)) or tr < 0:
-            _fail(p, f"{key}.transient", "a time >= 0 in s", tr)
-        cors = e.get("corruptions") or []
-        if not isinstance(cors, list):
-            _fail(p, f"{key}.corruptions", "a list", cors)
-        scen = str(e["scenario"])
-        rel = p.parent / scen
-        bags.append(BagSpec(
-            name=name, scenario=str(rel) if rel.is_file() else scen, seed=int(seed),
-            duration=float(dur), gains=str(e["gains"]), transient=float(tr),
-            live=bool(e.get("live", False)), description=str(e.get("description", "")),
-            corruptions=tuple(_corruption(p, f"{key}.corruptions[{j}]", c)
-                              for j, c in enumerate(cors)),
-            folder=p.parent / name))
-    return Library(p, tuple(bags))
-
 
 # --------------------------------------------------------------------------------------
 # generation
@@ -517,54 +280,6 @@ def analyze_summary(bag: str | Path, gains: str | Path, *,
         after a hole), ``samples``.
     """
     return summarize_run(run_bag(bag, gains, transient=transient))
-
-
-def expected_path(bag: str | Path) -> Path:
-    """``<bag>/expected.yaml``."""
-    return Path(bag) / "expected.yaml"
-
-
-def load_expected(path: str | Path) -> dict[str, Any]:
-    """Read and validate an ``expected.yaml`` (see the module docstring).
-
-    Raises
-    ------
-    LibraryError
-    """
-    from fd_monitor.model.system import read_yaml
-
-    p = Path(path)
-    if p.is_dir():
-        p = expected_path(p)
-    if not p.is_file():
-        raise LibraryError(f"{p}: expected results not found")
-    d = read_yaml(p, LibraryError)
-    if not isinstance(d, Mapping):
-        _fail(p, "(top level)", "a mapping")
-    allowed = {"bag", "gains", "description", "alarms", "no_alarm", "isolated",
-               "bias_estimate", "modes", "mode_min_dwell", "input_errors", "restarts",
-               "fault_onset_sample", "transient"}
-    extra = set(d) - allowed
-    if extra:
-        _fail(p, sorted(extra)[0], f"one of {sorted(allowed)} (unknown key)")
-    alarms = d.get("alarms") or {}
-    if not isinstance(alarms, Mapping):
-        _fail(p, "alarms", "channel -> {first_sample, tolerance}", alarms)
-    for c, a in alarms.items():
-        if not isinstance(a, Mapping) or set(a) != {"first_sample", "tolerance"}:
-            _fail(p, f"alarms.{c}", "{first_sample, tolerance}", a)
-    for key in ("no_alarm", "isolated", "modes", "restarts"):
-        if key in d and not isinstance(d[key], list):
-            _fail(p, key, "a list", d[key])
-    be = d.get("bias_estimate") or {}
-    for c, a in be.items():
-        if not isinstance(a, Mapping) or set(a) != {"value", "tolerance"}:
-            _fail(p, f"bias_estimate.{c}", "{value, tolerance}", a)
-    ie = d.get("input_errors")
-    if ie is not None:
-        if not isinstance(ie, Mapping) or not set(ie) <= set(INPUT_ERROR_KINDS):
-            _fail(p, "input_errors", f"a mapping with keys among {list(INPUT_ERROR_KINDS)}", ie)
-    return dict(d)
 
 
 def check_expected(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:

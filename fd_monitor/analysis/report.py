@@ -308,7 +308,8 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
         ``summary`` (the analysis summary), ``figures`` (paths), ``summary_md`` (path),
         ``expected_failures`` (list, or None without expectations).
     """
-    from fd_monitor.analysis.library import check_expected, expected_path, load_expected
+    from fd_monitor.analysis.library import check_expected
+    from fd_monitor.analysis.library_spec import expected_path, load_expected
     from fd_monitor.analysis.offline import run_bag, summarize_run
     from fd_monitor.model.errors import BagError
 

@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _simulate_library(library: str | Path, only: Sequence[str] | None, as_json: bool) -> int:
     """``python -m fd_monitor simulate --library LIBRARY [--only NAME...]``: rebuild bags."""
-    from fd_monitor.analysis.library import generate_library, load_library
+    from fd_monitor.analysis.library import generate_library
+    from fd_monitor.analysis.library_spec import load_library
 
     lib = load_library(library)
     rows = generate_library(lib, only)

@@ -24,7 +24,8 @@ from scipy.linalg import expm
 
 from fd_monitor.core.residual_bank import rk4_step
 from fd_monitor.model.nonlinear import get_model
-from fd_monitor.model.system import Mode, System
+from fd_monitor.model.plant_parts import Mode
+from fd_monitor.model.system import System
 
 __all__ = ["LPV_SUBSTEPS", "DiscreteMode", "SampledPlant", "zoh"]
 
