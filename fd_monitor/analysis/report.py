@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.analysis.summary import episodes, summarize_run, truth_at, truth_facts
 from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["bag_report", "campaign_report", "figure_residuals", "figure_modes", "figure_bias",
@@ -50,26 +51,13 @@ def _plt() -> Any:
     return plt
 
 
-def _episodes(flags: np.ndarray) -> list[tuple[int, int]]:
-    f = np.concatenate([[False], np.asarray(flags, bool), [False]]).astype(int)
-    d = np.diff(f)
-    return list(zip(np.flatnonzero(d == 1).tolist(), (np.flatnonzero(d == -1) - 1).tolist()))
-
-
 def _onsets(run: Any) -> list[tuple[str, float]]:
     """(fault name, onset time s) of every fault channel that is ever non-zero in the truth."""
-    tr = run.truth
-    if tr is None:
+    if run.truth is None:
         return []
     dt = float(run.system.sample_time)
-    out = []
-    for f in run.system.faults:
-        lab = f"f.{f.name}"
-        if lab in tr.labels:
-            nz = np.flatnonzero(tr.column(lab) != 0.0)
-            if nz.size:
-                out.append((f.name, float(tr.stamps[nz[0]]) * dt))
-    return out
+    return [(name, f["onset_sample"] * dt)
+            for name, f in truth_facts(run.truth, run.system)["faults"].items()]
 
 
 def _decorate(ax: Any, run: Any, t: np.ndarray, alarm: np.ndarray | None,
@@ -82,7 +70,7 @@ def _decorate(ax: Any, run: Any, t: np.ndarray, alarm: np.ndarray | None,
         label_once["tr"] = True
     if alarm is not None and t.size:
         half = max(dt / 2, 0.002 * float(t[-1] - t[0]))  # short alarms stay visible
-        for a, b in _episodes(alarm):
+        for a, b in episodes(alarm):
             ax.axvspan(t[a] - half, t[b] + half, color=_ALARM, alpha=0.3, lw=0,
                        label=None if label_once.get("al") else "alarm period")
             label_once["al"] = True
@@ -136,8 +124,6 @@ def figure_residuals(run: Any, path: str | Path) -> Path:
 def _true_modes(run: Any) -> np.ndarray | None:
     if run.truth is None or "mode" not in run.truth.labels:
         return None
-    from fd_monitor.analysis.offline import truth_at
-
     return truth_at(run.truth, run.k, ["mode"])[:, 0]
 
 
@@ -171,8 +157,6 @@ def figure_bias(run: Any, path: str | Path) -> Path:
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.9 * len(names) + 1.0),
                              sharex=True, squeeze=False)
     t = run.t
-    from fd_monitor.analysis.offline import truth_at
-
     qb = run.estimate_kind == "state"   # fault-model states against the true state
     for i, n in enumerate(names):
         ax = axes[i, 0]
@@ -308,8 +292,9 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
         ``summary`` (the analysis summary), ``figures`` (paths), ``summary_md`` (path),
         ``expected_failures`` (list, or None without expectations).
     """
-    from fd_monitor.analysis.library import check_expected, expected_path, load_expected
-    from fd_monitor.analysis.offline import run_bag, summarize_run
+    from fd_monitor.analysis.expectations import check_expected
+    from fd_monitor.analysis.library import expected_path, load_expected
+    from fd_monitor.analysis.offline import run_bag
     from fd_monitor.model.errors import BagError
 
     bagp = Path(bag)
