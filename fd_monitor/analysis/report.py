@@ -396,45 +396,62 @@ def campaign_report(rows: Sequence[Any], scenarios: Sequence[Any], out_dir: str 
     dict
         ``figures`` and ``summary_md`` paths.
     """
-    plt = _plt()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     by_name = {sc.name: sc for sc in scenarios}
+    figs: dict[str, Path] = {}
+    if any(r.detection_rate is not None for r in rows):
+        figs["detection"] = _detection_figure(rows, by_name, gains, out / "detection.png")
+    figs["false_alarms"] = _false_alarm_figure(rows, out / "false_alarms.png")
+    md = _campaign_markdown(rows, by_name, figs, gains, transient)
+    (out / "summary.md").write_text(md, encoding="utf-8")
+    return {"figures": {k: str(v) for k, v in figs.items()},
+            "summary_md": str(out / "summary.md")}
+
+
+def _detection_figure(rows: Sequence[Any], by_name: Mapping[str, Any], gains: str,
+                      path: Path) -> Path:
+    """Detection rate and delay against the fault magnitude, a line per variant (and rho,
+    and fault profile)."""
+    plt = _plt()
     series: dict[str, list[Any]] = {}
     for r in rows:
         sc = by_name.get(r.scenario)
         prof = f" ({sc.faults[0].profile})" if sc is not None and sc.faults else ""
         key = r.variant + ("" if r.rho is None else f", rho={r.rho:g}") + prof
         series.setdefault(key, []).append(r)
-    figs: dict[str, Path] = {}
-    faulty = [r for r in rows if r.detection_rate is not None]
-    if faulty:
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-        for key, rs in series.items():
-            pts = sorted(((_magnitude(by_name[r.scenario]) or 0.0, r) for r in rs
-                          if r.detection_rate is not None and r.scenario in by_name),
-                         key=lambda p: p[0])
-            if not pts:
-                continue
-            x = [p[0] for p in pts]
-            a1.plot(x, [100 * p[1].detection_rate for p in pts], "o-", label=key)
-            dm = [np.nan if p[1].delay_mean_s is None else p[1].delay_mean_s for p in pts]
-            dx = [np.nan if p[1].delay_max_s is None else p[1].delay_max_s for p in pts]
-            line, = a2.plot(x, dm, "o-", label=f"{key} mean")
-            a2.plot(x, dx, "v--", color=line.get_color(), alpha=0.7, label=f"{key} max")
-        a1.set_xlabel("fault magnitude |delta| [fault channel unit]")
-        a1.set_ylabel("detection rate [%]")
-        a1.set_ylim(-5, 105)
-        a1.set_title("detection rate against fault magnitude")
-        a2.set_xlabel("fault magnitude |delta| [fault channel unit]")
-        a2.set_ylabel("detection delay [s]")
-        a2.set_title("detection delay (detected runs)")
-        for a in (a1, a2):
-            a.grid(True, alpha=0.3)
-            a.legend(fontsize=7)
-        fig.suptitle(f"Monte Carlo campaign {gains}")
-        fig.tight_layout()
-        figs["detection"] = _save(fig, out / "detection.png")
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    for key, rs in series.items():
+        pts = sorted(((_magnitude(by_name[r.scenario]) or 0.0, r) for r in rs
+                      if r.detection_rate is not None and r.scenario in by_name),
+                     key=lambda p: p[0])
+        if not pts:
+            continue
+        x = [p[0] for p in pts]
+        a1.plot(x, [100 * p[1].detection_rate for p in pts], "o-", label=key)
+        dm = [np.nan if p[1].delay_mean_s is None else p[1].delay_mean_s for p in pts]
+        dx = [np.nan if p[1].delay_max_s is None else p[1].delay_max_s for p in pts]
+        line, = a2.plot(x, dm, "o-", label=f"{key} mean")
+        a2.plot(x, dx, "v--", color=line.get_color(), alpha=0.7, label=f"{key} max")
+    a1.set_xlabel("fault magnitude |delta| [fault channel unit]")
+    a1.set_ylabel("detection rate [%]")
+    a1.set_ylim(-5, 105)
+    a1.set_title("detection rate against fault magnitude")
+    a2.set_xlabel("fault magnitude |delta| [fault channel unit]")
+    a2.set_ylabel("detection delay [s]")
+    a2.set_title("detection delay (detected runs)")
+    for a in (a1, a2):
+        a.grid(True, alpha=0.3)
+        a.legend(fontsize=7)
+    fig.suptitle(f"Monte Carlo campaign {gains}")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _false_alarm_figure(rows: Sequence[Any], path: Path) -> Path:
+    """False-alarm rate per scenario and variant (bars), or against the threshold scale rho
+    (a sweep)."""
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(10, 4))
     rhos = sorted({r.rho for r in rows if r.rho is not None})
     if len(rhos) > 1:
@@ -462,7 +479,12 @@ def campaign_report(rows: Sequence[Any], scenarios: Sequence[Any], out_dir: str 
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    figs["false_alarms"] = _save(fig, out / "false_alarms.png")
+    return _save(fig, path)
+
+
+def _campaign_markdown(rows: Sequence[Any], by_name: Mapping[str, Any],
+                       figs: Mapping[str, Path], gains: str, transient: float) -> str:
+    """``summary.md`` of a campaign: the metrics table and the figures."""
     table = []
     for r in rows:
         mag = _magnitude(by_name[r.scenario]) if r.scenario in by_name else None
@@ -484,6 +506,4 @@ def campaign_report(rows: Sequence[Any], scenarios: Sequence[Any], out_dir: str 
     lines += ["", "## Figures", ""]
     for k, p in figs.items():
         lines += [f"![{k}]({p.name})", ""]
-    (out / "summary.md").write_text("\n".join(lines), encoding="utf-8")
-    return {"figures": {k: str(v) for k, v in figs.items()},
-            "summary_md": str(out / "summary.md")}
+    return "\n".join(lines)

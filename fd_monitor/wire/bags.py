@@ -56,7 +56,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError
+from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError, WrongLengthError
 from fd_monitor.wire.conversions import ArrivalStamper, decode, encode_data, join_labels
 
 __all__ = [
@@ -141,7 +141,7 @@ def array_msg(labels: Sequence[str], stamp: int, values: Any) -> Any:
     n = len(labels)
     data = np.asarray(encode_data(stamp, values), dtype=np.float64)
     if data.size - 1 != n:
-        raise MessageError(f"{n} labels for {data.size - 1} values")
+        raise WrongLengthError(f"{n} labels for {data.size - 1} values")
     dim = types["std_msgs/msg/MultiArrayDimension"](label=join_labels(labels), size=n,
                                                    stride=n)
     layout = types["std_msgs/msg/MultiArrayLayout"](dim=[dim], data_offset=1)
