@@ -11,6 +11,7 @@ from fd_monitor.analysis.offline import _classify, run_bag
 from fd_monitor.analysis.summary import (
     Outputs,
     episodes,
+    mode_tracking,
     recorded_outputs,
     summarize,
     summarize_run,
@@ -59,6 +60,14 @@ def test_summarize_first_alarm_after_the_transient_isolation_and_modes():
     # no isolation flags: an isolating channel that alarmed is isolated
     out.isolated, out.isolating = None, ("b",)
     assert summarize(out)["isolated"] == ["b"]
+
+
+def test_mode_tracking_delays_and_untracked_transitions():
+    q = np.array([0, 0, 1, 1, 1, 0, 0, 2, 2, 0])
+    q_hat = np.array([0, 0, 0, 1, 1, 1, 1, 1, 1, 1])   # late to 1, never to 0 or 2
+    m = mode_tracking(q, q_hat, 0.5)
+    assert m == {"true": 4, "tracked": 1, "max_delay_s": 0.5, "mode_agreement": 0.4}
+    assert mode_tracking(q, q, 0.5)["max_delay_s"] == 0.0
 
 
 def test_recorded_outputs_read_by_label_not_by_position():

@@ -22,7 +22,8 @@ import numpy as np
 
 from fd_monitor.core.envelope import describe_excess
 
-__all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "outputs_of_run",
+__all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "mode_tracking",
+           "outputs_of_run",
            "read_bag_truth", "recorded_outputs", "segments", "settled_modes", "summarize",
            "summarize_run", "transitions", "true_biases", "truth_at", "truth_facts"]
 
@@ -78,6 +79,39 @@ def transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
                     "from": names[a] if 0 <= a < len(names) else str(a),
                     "to": names[b] if 0 <= b < len(names) else str(b)})
     return out
+
+
+def mode_tracking(q: np.ndarray, q_hat: np.ndarray, dt: float) -> dict[str, Any]:
+    """How the estimated mode follows the true one.
+
+    A true transition to mode m is tracked when the estimated mode becomes m before the
+    plant's next transition; the delay is how long that took.
+
+    Parameters
+    ----------
+    q, q_hat : numpy.ndarray
+        (K,) true and estimated mode indices (the shorter length is used).
+    dt : float
+        Sample time, s.
+
+    Returns
+    -------
+    dict
+        ``true`` (transitions), ``tracked``, ``max_delay_s`` (None when none tracked),
+        ``mode_agreement`` (fraction of samples, 4 decimals).
+    """
+    n = min(len(q), len(q_hat))
+    changes = [int(k) for k in np.flatnonzero(np.diff(q[:n]) != 0) + 1]
+    delays = []
+    for i, k in enumerate(changes):
+        end = changes[i + 1] if i + 1 < len(changes) else n
+        same = np.flatnonzero(q_hat[k:end] == q[k])
+        if same.size:
+            delays.append(float(same[0] * dt))
+    agree = float(np.mean(q_hat[:n] == q[:n])) if n else 0.0
+    return {"true": len(changes), "tracked": len(delays),
+            "max_delay_s": round(max(delays), 6) if delays else None,
+            "mode_agreement": round(agree, 4)}
 
 
 def first_alarms(k: np.ndarray, alarm: np.ndarray, channels: Sequence[str], dt: float,

@@ -24,8 +24,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.domain import die_with_parent
@@ -259,7 +257,12 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         ``bias_estimate`` {output: sigma-hat at the end}, ``true_bias``, ``transitions``
         {true, tracked}, ``samples`` {topic: count}, ``lost`` (samples missing).
     """
-    from fd_monitor.analysis.summary import recorded_outputs, true_biases, truth_facts
+    from fd_monitor.analysis.summary import (
+        mode_tracking,
+        recorded_outputs,
+        true_biases,
+        truth_facts,
+    )
     from fd_monitor.analysis.summary import summarize as summarize_outputs
     from fd_monitor.wire.bags import read_bag
 
@@ -282,19 +285,6 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
     truth = b["/plant/truth"]
     true_bias = {o: 0.0 for o in sys_.outputs}
     true_bias.update(true_biases(truth_facts(truth, sys_)))
-    # Mode transitions: a true transition to mode m is tracked when the estimated mode
-    # becomes m before the plant's next transition; the delay is how long that took.
-    q = truth.column("mode").astype(int)
-    q_hat = out.mode
-    n = min(len(q), len(q_hat))
-    changes = [int(k) for k in np.flatnonzero(np.diff(q[:n]) != 0) + 1]
-    delays = []
-    for i, k in enumerate(changes):
-        end = changes[i + 1] if i + 1 < len(changes) else n
-        same = np.flatnonzero(q_hat[k:end] == q[k])
-        if same.size:
-            delays.append(float(same[0] * dt))
-    agree = float(np.mean(q_hat[:n] == q[:n])) if n else 0.0
     return {
         "scenario": scenario.name,
         "gains": str(gains),
@@ -306,9 +296,7 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         "isolated": s["isolated"],
         "bias_estimate": s["bias_estimate"],
         "true_bias": true_bias,
-        "transitions": {"true": len(changes), "tracked": len(delays),
-                        "max_delay_s": round(max(delays), 6) if delays else None,
-                        "mode_agreement": round(agree, 4)},
+        "transitions": mode_tracking(truth.column("mode").astype(int), out.mode, dt),
         "samples": counts,
         "lost": int(sum(K - c for c in counts.values())),
     }
