@@ -66,6 +66,12 @@ def check_expected(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> l
     list of str
         One line per failed expectation (empty: all hold).
     """
+    return [*_check_alarms(expected, summary), *_check_estimates(expected, summary),
+            *_check_modes(expected, summary), *_check_inputs(expected, summary)]
+
+
+def _check_alarms(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+    """False alarms before the onset, first alarms within tolerance, ``no_alarm``."""
     fails: list[str] = []
     first = {a["channel"]: int(a["first_sample"]) for a in summary.get("alarms", [])}
     onset = expected.get("fault_onset_sample")
@@ -84,6 +90,12 @@ def check_expected(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> l
     for c in expected.get("no_alarm") or []:
         if c in first:
             fails.append(f"no_alarm: channel {c} alarmed at sample {first[c]}")
+    return fails
+
+
+def _check_estimates(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+    """The isolated set and the final bias estimates."""
+    fails: list[str] = []
     if "isolated" in expected:
         got = sorted(summary.get("isolated", []))
         if got != sorted(expected["isolated"]):
@@ -95,15 +107,26 @@ def check_expected(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> l
         elif not abs(float(est[c]) - float(a["value"])) <= float(a["tolerance"]):
             fails.append(f"bias_estimate.{c}: expected {a['value']} +- {a['tolerance']}, "
                          f"got {float(est[c]):.6g}")
-    if "modes" in expected:
-        dwell = int(expected.get("mode_min_dwell", 1))
-        got_modes = list(summary.get("modes", []))
-        if dwell > 1 and "mode_segments" in summary:
-            got_modes = settled_modes(summary["mode_segments"], dwell)
-        if got_modes != list(expected["modes"]):
-            fails.append(f"modes: expected {list(expected['modes'])}, got {got_modes}"
-                         + (f" (runs shorter than {dwell} samples dropped)" if dwell > 1
-                            else ""))
+    return fails
+
+
+def _check_modes(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+    """The estimated mode sequence (runs shorter than ``mode_min_dwell`` dropped)."""
+    if "modes" not in expected:
+        return []
+    dwell = int(expected.get("mode_min_dwell", 1))
+    got_modes = list(summary.get("modes", []))
+    if dwell > 1 and "mode_segments" in summary:
+        got_modes = settled_modes(summary["mode_segments"], dwell)
+    if got_modes == list(expected["modes"]):
+        return []
+    return [f"modes: expected {list(expected['modes'])}, got {got_modes}"
+            + (f" (runs shorter than {dwell} samples dropped)" if dwell > 1 else "")]
+
+
+def _check_inputs(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+    """The input errors by kind and the restarts."""
+    fails: list[str] = []
     if "input_errors" in expected:
         want_ie = {k: sorted(v) for k, v in (expected["input_errors"] or {}).items()}
         got_ie = {k: sorted(v) for k, v in (summary.get("input_errors") or {}).items()}
