@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from fd_monitor.analysis.library_spec import load_library
+from fd_monitor.analysis.library import load_library
 from fd_monitor.commands.simulate import simulate_to_bag
 from fd_monitor.model.errors import BagError
 from fd_monitor.wire.bags import (

@@ -21,7 +21,7 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.analysis.library_spec import load_library
+    from fd_monitor.analysis.library import load_library
     from fd_monitor.model.gains import load_gains
     from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import data_pub_qos

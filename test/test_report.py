@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from fd_monitor.analysis.library_spec import load_library
+from fd_monitor.analysis.library import load_library
 from fd_monitor.analysis.report import bag_report, campaign_report
 from fd_monitor.wire.bags import arrays_from, write_bag
 

@@ -159,8 +159,7 @@ def test_hminus_mode_from_an_input_channel_and_outside_mode():
     """A plant input named ``mode`` is the switching signal (same residuals as the side
     signal); a mode the design does not have is reported in ``outside`` and the last valid
     mode is kept."""
-    from fd_monitor.model.system import parse_system
-    from fd_monitor.model.yaml_io import read_yaml
+    from fd_monitor.model.system import parse_system, read_yaml
 
     system, gf = _loaded("farhat_koenig_hminus_switched")
     u, y, side = _stream(system, gf)
@@ -357,14 +356,14 @@ def test_regression_library_takes_an_hinf_sc_bag(tmp_path):
     """A library bag with an ``hinf_sc`` gain file: generated, its expectations proposed from
     one analysis and the truth, honest (check_truth: no alarm before the onsets, the leaking
     tanks isolated) and met (check_expected)."""
-    from fd_monitor.analysis.library import (
+    from fd_monitor.analysis.expectations import (
         analyze_summary,
         check_expected,
         check_truth,
-        generate_bag,
         propose_expected,
     )
-    from fd_monitor.analysis.library_spec import load_library
+    from fd_monitor.analysis.generate import generate_bag
+    from fd_monitor.analysis.library import load_library
 
     (tmp_path / "library.yaml").write_text(yaml.safe_dump({"format_version": 1, "bags": [
         {"name": "lpv_leaks", "scenario": "three_tank_lpv_abrupt", "seed": 2,
@@ -386,8 +385,7 @@ def test_hminus_mode_from_the_plants_guards():
     """A switched plant whose plant file has guards: the runtime follows them on its estimate
     (no side signal needed) and, once the observer has converged, uses the true mode."""
     from fd_monitor.core.plant import SampledPlant
-    from fd_monitor.model.system import parse_system
-    from fd_monitor.model.yaml_io import read_yaml
+    from fd_monitor.model.system import parse_system, read_yaml
 
     _s, gf = _loaded("farhat_koenig_hminus_switched")
     doc = dict(read_yaml(Path(__file__).resolve().parents[1] / "config" / "systems" /

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from fd_monitor.analysis.library_spec import LibraryError, load_expected, load_library
+from fd_monitor.analysis.library import LibraryError, load_expected, load_library
 from fd_monitor.design._lmi_common import design_checker
 from fd_monitor.model.errors import DesignError, ScenarioError, SystemFileError
 from fd_monitor.model.scenario import parse_scenario

@@ -2,7 +2,7 @@
 
 Plant files (:mod:`fd_monitor.model.system`), scenarios (:mod:`fd_monitor.model.scenario`),
 design files (:mod:`fd_monitor.design._lmi_common` and the designers) and the bag library
-(:mod:`fd_monitor.analysis.library_spec`) check their YAML with a :class:`Checker`. Every error is
+(:mod:`fd_monitor.analysis.library`) check their YAML with a :class:`Checker`. Every error is
 one line naming the file, the key path and what was expected::
 
     <file>: <section>.<key>: expected <expectation>, got <what was found>
