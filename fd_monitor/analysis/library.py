@@ -64,6 +64,7 @@ from fd_monitor.analysis.offline import (
     summarize_run,
 )
 from fd_monitor.model.errors import FdMonitorError, ScenarioError
+from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
 __all__ = [
     "CORRUPTION_KINDS",
@@ -119,7 +120,7 @@ class Corruption:
     """
 
     kind: str
-    topic: str = "/plant/y"
+    topic: str = PLANT_Y.absolute
     samples: tuple[int, ...] = ()
     channel: str | None = None
 
@@ -227,7 +228,7 @@ def _corruption(origin: Any, key: str, c: Any) -> Corruption:
     extra = set(c) - allowed
     if extra:
         _fail(origin, f"{key}.{sorted(extra)[0]}", f"one of {sorted(allowed)} (unknown key)")
-    topic = str(c.get("topic", "/plant/y"))
+    topic = str(c.get("topic", PLANT_Y.absolute))
     if kind == "gap":
         if "start" not in c or "samples" not in c:
             _fail(origin, key, "{kind: gap, start: k0, samples: count}", dict(c))
@@ -333,7 +334,6 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
     from fd_monitor.core.simulator import (
         measured_signals,
         simulate,
-        truth_labels,
         truth_values,
     )
     from fd_monitor.model.scenario import load_scenario
@@ -343,10 +343,10 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
     dt = sys_.sample_time
     K = max(1, round(spec.duration / dt))
     traj = simulate(sc, spec.seed, K)
-    topics = {"/plant/u": (tuple(sys_.inputs), traj.u[0]),
-              "/plant/y": (tuple(sys_.outputs), traj.y[0]),
-              **measured_signals(traj),
-              "/plant/truth": (truth_labels(sc), truth_values(traj))}
+    topics = {PLANT_U.absolute: (PLANT_U.labels(sys_), traj.u[0]),
+              PLANT_Y.absolute: (PLANT_Y.labels(sys_), traj.y[0]),
+              **{side_topic(n).absolute: lv for n, lv in measured_signals(traj).items()},
+              PLANT_TRUTH.absolute: (PLANT_TRUTH.labels(sc), truth_values(traj))}
     msgs = [_Msg(round(k * dt * 1e9), topic, int(k), labels, vals[k].copy())
             for k in range(K) for topic, (labels, vals) in topics.items()]
     for c in spec.corruptions:
@@ -646,7 +646,7 @@ def truth_facts(bag: str | Path, system: Any = None) -> dict[str, Any]:
     """
     from fd_monitor.wire.bags import read_bag
 
-    tr = read_bag(bag, ["/plant/truth"])["/plant/truth"]
+    tr = read_bag(bag, [PLANT_TRUTH.absolute])[PLANT_TRUTH.absolute]
     if system is None:
         raise ScenarioError("truth_facts: give the plant")
     faults: dict[str, Any] = {}
@@ -751,8 +751,9 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
     if system is None:
         system = load_system(load_gains(spec.gains, verify=False).system_name)
     gf = load_gains(spec.gains, system)
-    b = read_bag(spec.folder, ["/plant/u", "/plant/y", "/plant/truth"])
-    u, y, tr = b["/plant/u"], b["/plant/y"], b["/plant/truth"]
+    t_u, t_y, t_tr = PLANT_U.absolute, PLANT_Y.absolute, PLANT_TRUTH.absolute
+    b = read_bag(spec.folder, [t_u, t_y, t_tr])
+    u, y, tr = b[t_u], b[t_y], b[t_tr]
     k = np.asarray(y.stamps)
     if gf.method == "hinf_sc":
         from fd_monitor.core.residual_bank import ResidualBank
@@ -790,7 +791,7 @@ def read_bag_truth(bag: str | Path) -> Any:
     """``/plant/truth`` of a bag as :class:`~fd_monitor.wire.bags.TopicArrays`."""
     from fd_monitor.wire.bags import read_bag
 
-    return read_bag(bag, ["/plant/truth"])["/plant/truth"]
+    return read_bag(bag, [PLANT_TRUTH.absolute])[PLANT_TRUTH.absolute]
 
 
 def write_expected(path: str | Path, doc: Mapping[str, Any], header: str = "") -> Path:

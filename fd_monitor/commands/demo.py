@@ -29,13 +29,23 @@ import numpy as np
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.domain import die_with_parent
+from fd_monitor.wire.topics import (
+    ALARM,
+    BIAS_ESTIMATE,
+    CHAIN_DATA,
+    DIAGNOSTICS,
+    GUARD_EVENT,
+    PLANT_TRUTH,
+    RESIDUAL,
+    STATE_ESTIMATE,
+    THRESHOLD,
+    THRESHOLD_OVERRIDE,
+)
 
 __all__ = ["add_arguments", "run", "summarize"]
 
 FD_NODES = ("observer", "detector", "agei", "bias_estimator")
-TOPICS = ("/plant/u", "/plant/y", "/plant/truth", "/fd/state_estimate", "/fd/residual",
-          "/fd/threshold", "/fd/alarm", "/fd/guard_event", "/fd/threshold_override",
-          "/fd/bias_estimate")
+TOPICS = tuple(t.absolute for t in CHAIN_DATA)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -130,8 +140,9 @@ def _env(out: Path) -> dict[str, str]:
 
 
 #: Subscriptions per fd topic once the chain and record are up (consumers + record).
-GRAPH = {"/fd/state_estimate": 4, "/fd/residual": 2, "/fd/threshold": 2, "/fd/alarm": 2,
-         "/fd/guard_event": 3, "/fd/threshold_override": 2, "/fd/bias_estimate": 3}
+GRAPH = {t.absolute: n for t, n in ((STATE_ESTIMATE, 4), (RESIDUAL, 2), (THRESHOLD, 2),
+                                    (ALARM, 2), (GUARD_EVENT, 3), (THRESHOLD_OVERRIDE, 2),
+                                    (BIAS_ESTIMATE, 3))}
 
 
 def _wait_for_graph(env: dict[str, str], timeout: float, procs: _Processes) -> bool:
@@ -203,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
                             "-p", "gap_timeout:=5.0", "-p", "restart_after:=5.0",
                             *(["-p", "layout:=chain"] if n == "detector" else [])])
         until = [a for t in TOPICS for a in ("--until", f"{t}={K}")]
-        rec = procs.start("record", ["record", *TOPICS, "/diagnostics", "-o", str(bag),
+        rec = procs.start("record", ["record", *TOPICS, DIAGNOSTICS.absolute, "-o", str(bag),
                                      *until])
         # Data topics are volatile: a subscriber matched late misses the first samples, so
         # plant_sim starts only once the chain's and record's endpoints are in the graph.
@@ -276,17 +287,17 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         ch = sys_.faults[f.channel]
         fault = {"channel": ch.name, "output": sys_.outputs[ch.index] if ch.index >= 0 else None,
                  "time": f.time, "magnitude": f.magnitude}
-    alarm = b["/fd/alarm"].values > 0.5
-    ks = b["/fd/alarm"].stamps
+    alarm = b[ALARM.absolute].values > 0.5
+    ks = b[ALARM.absolute].stamps
     hit = np.flatnonzero(alarm.any(axis=1))
     detected_at = float(ks[hit[0]] * dt) if hit.size else None
     alarm_channels = ([o for o, a in zip(sys_.outputs, alarm[hit[0]]) if a] if hit.size
                       else [])
-    bias = b["/fd/bias_estimate"]
+    bias = b[BIAS_ESTIMATE.absolute]
     last = bias.values[-1]
-    ny = sys_.ny
-    isolated = [o for o, v in zip(sys_.outputs, last[ny:2 * ny]) if v > 0.5]
-    truth = b["/plant/truth"]
+    at = BIAS_ESTIMATE.layout(sys_).index
+    isolated = [o for o, v in zip(sys_.outputs, last[at["isolated"]]) if v > 0.5]
+    truth = b[PLANT_TRUTH.absolute]
     true_bias = {o: 0.0 for o in sys_.outputs}
     for fc in sys_.faults:
         if fc.kind == "sensor_bias":
@@ -294,7 +305,7 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
     # Mode transitions: a true transition to mode m is tracked when the estimated mode
     # becomes m before the plant's next transition; the delay is how long that took.
     q = truth.column("mode").astype(int)
-    q_hat = b["/fd/state_estimate"].column("mode").astype(int)
+    q_hat = b[STATE_ESTIMATE.absolute].column("mode").astype(int)
     n = min(len(q), len(q_hat))
     changes = [int(k) for k in np.flatnonzero(np.diff(q[:n]) != 0) + 1]
     delays = []
@@ -313,7 +324,7 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
                             else round(detected_at - fault["time"], 6)),
         "alarm_channels": alarm_channels,
         "isolated": isolated,
-        "bias_estimate": {o: float(v) for o, v in zip(sys_.outputs, last[:ny])},
+        "bias_estimate": {o: float(v) for o, v in zip(sys_.outputs, last[at["sigma_hat"]])},
         "true_bias": true_bias,
         "transitions": {"true": len(changes), "tracked": len(delays),
                         "max_delay_s": round(max(delays), 6) if delays else None,

@@ -46,11 +46,11 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     from fd_monitor.core.simulator import (
         measured_signals,
         simulate,
-        truth_labels,
         truth_values,
     )
     from fd_monitor.model.scenario import check_horizon, load_scenario
     from fd_monitor.wire.bags import arrays_from, write_bag
+    from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
     sc = load_scenario(scenario_source)
     if seed is not None and seed < 0:
@@ -69,14 +69,17 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     ns = np.rint(traj.k * dt * 1e9).astype(np.int64)
     side = measured_signals(traj)
     path = write_bag(output, [
-        arrays_from("/plant/u", sys_.inputs, traj.k, traj.u[0], ns),
-        arrays_from("/plant/y", sys_.outputs, traj.k, traj.y[0], ns),
-        *(arrays_from(t, labels, traj.k, v, ns) for t, (labels, v) in side.items()),
-        arrays_from("/plant/truth", truth_labels(sc), traj.k, truth_values(traj), ns),
+        arrays_from(PLANT_U.absolute, PLANT_U.labels(sys_), traj.k, traj.u[0], ns),
+        arrays_from(PLANT_Y.absolute, PLANT_Y.labels(sys_), traj.k, traj.y[0], ns),
+        *(arrays_from(side_topic(n).absolute, labels, traj.k, v, ns)
+          for n, (labels, v) in side.items()),
+        arrays_from(PLANT_TRUTH.absolute, PLANT_TRUTH.labels(sc), traj.k, truth_values(traj),
+                    ns),
     ])
     return {"bag": str(path), "scenario": sc.name, "system": sys_.name,
             "seed": traj.seeds[0], "samples": K, "sample_time": dt, "duration": K * dt,
-            "topics": ["/plant/u", "/plant/y", *side, "/plant/truth"],
+            "topics": [PLANT_U.absolute, PLANT_Y.absolute,
+                       *(side_topic(n).absolute for n in side), PLANT_TRUTH.absolute],
             "faults": [{"channel": sys_.faults[f.channel].name, "time": f.time,
                         "magnitude": f.magnitude, "profile": f.profile}
                        for f in sc.faults]}
