@@ -139,7 +139,10 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
             n = len(lay.labels) + 1
             cdr = serialize_message(to_msg(lay.labels, 0, [0.0] * len(lay.labels)))
             self._out.append((self.publisher(t), cdr[:-8 * n], struct.Struct(f"<{n}d"),
-                              lay.row, t.next_sample))
+                              lay, t.next_sample))
+        #: per topic: publisher, prefix, packer, which payload holds each field, k or k + 1
+        #: (resolved at the first sample from the runtime's payloads)
+        self._plan: list[tuple[Any, bytes, struct.Struct, Any, bool]] | None = None
         self.sigma_hat = [0.0] * s.ny
         self._alarmed: set[str] = set()
         self._episode = 0
@@ -188,10 +191,21 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         out = self.step_runtime(k, inputs)
         ob, det, ag, est = out.observer, out.detector, out.agei, out.estimator
         stamps = (k, k + 1)
-        pay = {**ob.payload(), **det.payload(), **ag.payload(), **est.payload(),
-               "restart": self.restarting}
-        for pub, prefix, cdr, row, next_sample in self._out:
-            pub.publish(prefix + cdr.pack(stamps[next_sample], *row(pay)))
+        pays = (ob.payload(), det.payload(), ag.payload(), est.payload(),
+                {"restart": self.restarting})
+        if self._plan is None:
+            self._plan = [(pub, prefix, cdr, lay.sources(pays), nxt)
+                          for pub, prefix, cdr, lay, nxt in self._out]
+        for pub, prefix, cdr, src, nxt in self._plan:
+            # [k, *values] as Python numbers (bools and ints pack exactly as float64)
+            data: list[Any] = [stamps[nxt]]
+            for i, name, scalar in src:
+                v = pays[i][name]
+                if scalar:
+                    data.append(v)
+                else:
+                    data.extend(v.tolist())
+            pub.publish(prefix + cdr.pack(*data))
         alarm = det.alarm.tolist()
         # Diagnostics: a full report when a status can change (alarms, mode, AGEI phase,
         # estimator, certified region) and at least every DIAG_REFRESH s; else the channels

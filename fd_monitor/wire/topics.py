@@ -139,17 +139,17 @@ class Layout:
                              f"({','.join(self.labels)})")
         return values
 
-    def row(self, payload: Mapping[str, Any]) -> list[Any]:
-        """The values of one merged ``payload`` as a flat list of Python numbers (the fused
-        node packs it as float64; bools and ints are exact)."""
-        out: list[Any] = []
+    def sources(self, payloads: Sequence[Mapping[str, Any]]) -> tuple[tuple[int, str, bool],
+                                                                         ...]:
+        """Which of ``payloads`` holds each field: ``(payload index, field, scalar)`` in
+        order, resolved once (the fused node's table, read per sample)."""
+        out = []
         for name, scalar in self.fields:
-            v = payload[name]
-            if scalar:
-                out.append(v)
-            else:
-                out.extend(v.tolist())
-        return out
+            i = next((i for i, p in enumerate(payloads) if name in p), None)
+            if i is None:
+                raise ValueError(f"field {name} is in none of the payloads")
+            out.append((i, name, scalar))
+        return tuple(out)
 
 
 @dataclass(frozen=True)
