@@ -137,7 +137,7 @@ class PlantSimNode(Node):
         sc = simulator.scenario
         sys_ = sc.system
         self.labels_u, self.labels_y = PLANT_U.labels(sys_), PLANT_Y.labels(sys_)
-        self.labels_truth = PLANT_TRUTH.labels(sc)
+        self._truth = PLANT_TRUTH.layout(sc)
         duration = p.duration if p.duration > 0 else sc.duration
         #: samples of a run (k = 0 .. n_samples-1), unless keep_going.
         self.n_samples = max(1, round(duration / sys_.sample_time))
@@ -217,9 +217,9 @@ class PlantSimNode(Node):
         for pub, labels, cols in self.pub_side:
             pub.publish(to_msg(labels, k, measured_values(cols, s.mode[0], s.rho[0])))
         if self.pub_truth is not None:
-            self.pub_truth.publish(to_msg(self.labels_truth, k,
-                                          [float(s.mode[0]), *s.x[0], *s.faults[0],
-                                           *s.rho[0]]))
+            # by field: the simulator's sample carries the truth's fields under their names
+            self.pub_truth.publish(to_msg(self._truth.labels, k, self._truth.encode(
+                {"mode": s.mode[0], "x": s.x[0], "faults": s.faults[0], "rho": s.rho[0]})))
         self.published += 1
         self.diag.touch("simulation")
         if not self._pacer.published():
