@@ -22,6 +22,7 @@ from fd_monitor.wire.topics import (
     RESIDUAL,
     STATE_ESTIMATE,
     TOPICS,
+    runtime_estimate,
 )
 
 PKG = Path(__file__).resolve().parent.parent / "fd_monitor"
@@ -117,3 +118,22 @@ def test_truth_labels_come_from_the_scenario():
     assert labels[0] == "mode"
     assert labels[1:1 + sc.system.n] == tuple(f"x.{x}" for x in sc.system.states)
     assert len(labels) == 1 + sc.system.n + len(sc.system.faults) + len(sc.rho_names)
+
+
+def test_runtime_layouts_take_the_runtimes_channels():
+    """A registry runtime publishes the declared topics with its own channels as labels."""
+    s = load_system("three_tank")
+    lay = RESIDUAL.channels(("g0", "g1"))
+    assert lay.labels == ("g0", "g1") and lay.index == {"residual": slice(0, 2)}
+    one = runtime_estimate(s, ("g0", "g1"), np.zeros(s.n))
+    assert one.labels == ("mode", *(f"x.{x}" for x in s.states))
+    bank = runtime_estimate(s, ("g0", "g1"), np.zeros((2, s.n)))
+    assert bank.labels[1:1 + s.n] == tuple(f"g0.{x}" for x in s.states)
+    assert bank.labels[bank.index["x_hat"]][-1] == f"g1.{s.states[-1]}"
+    np.testing.assert_array_equal(
+        bank.encode({"mode": 1, "x_hat": np.arange(2.0 * s.n).reshape(2, s.n)}),
+        [1.0, *range(2 * s.n)])
+    with pytest.raises(ValueError, match="no field"):
+        STATE_ESTIMATE.with_labels({"nope": ("a",)})
+    with pytest.raises(ValueError, match="one value"):
+        STATE_ESTIMATE.with_labels({"mode": ("a", "b")})

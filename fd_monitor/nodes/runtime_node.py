@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.core.runtime import RUNTIMES, Runtime, runtime_for
+from fd_monitor.core.runtime import RUNTIMES, runtime_for
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage, Param
@@ -49,10 +49,12 @@ from fd_monitor.wire.topics import (
     RESIDUAL,
     STATE_ESTIMATE,
     THRESHOLD,
+    Layout,
+    runtime_estimate,
     side_topic,
 )
 
-__all__ = ["RuntimeNode", "PARAMS", "USAGE", "estimate_labels", "gain_method"]
+__all__ = ["RuntimeNode", "PARAMS", "USAGE", "gain_method"]
 
 PARAMS = (
     Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
@@ -78,16 +80,6 @@ USAGE = NodeUsage(
                (STATE_ESTIMATE, "mode, x^ (flattened per generator) (stamp k)"),
                (DIAGNOSTICS, "input, estimate (WARN outside certified region), residual "
                                 "<channel>")))
-
-
-def estimate_labels(system: Any, runtime: Runtime, x_hat: np.ndarray) -> tuple[str, ...]:
-    """Labels of ``fd/state_estimate``: ``mode``, then ``x.<state>`` for one estimate (n,)
-    or ``<channel>.<state>`` for a bank (n_gen, n)."""
-    x = np.asarray(x_hat)
-    if x.ndim == 1:
-        return ("mode", *(f"x.{s}" for s in system.states[:x.size]))
-    return ("mode", *(f"{c}.{s}" for c in runtime.channels[:x.shape[0]]
-                      for s in system.states[:x.shape[1]]))
 
 
 class RuntimeNode(EstimateReport, ResidualReport, FdNode):
@@ -141,7 +133,8 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
         self.channels = tuple(f"residual {c}" for c in rt.channels)
         #: residual, threshold, alarm: one value per channel of the runtime
         self._layouts = [(t, t.channels(rt.channels)) for t in (RESIDUAL, THRESHOLD, ALARM)]
-        self._labels: tuple[str, ...] | None = None
+        #: fd/state_estimate: mode and x^ (its labels known at the first estimate's shape)
+        self._state: Layout | None = None
         self._alarmed: set[str] = set()
         self._episode = 0
         self._was_outside = False
@@ -164,10 +157,10 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
         for t, lay in self._layouts:
             self.publish_array(self.pubs[t], lay.labels, k, lay.encode(pay))
         x_hat = np.asarray(out.estimates.get("x_hat", np.zeros(0)), float)
-        if self._labels is None:
-            self._labels = estimate_labels(self.system, rt, x_hat)
-        self.publish_array(self.pubs[STATE_ESTIMATE], self._labels, k,
-                           np.concatenate([[float(out.mode)], np.ravel(x_hat)]))
+        if self._state is None:
+            self._state = runtime_estimate(self.system, rt.channels, x_hat)
+        self.publish_array(self.pubs[STATE_ESTIMATE], self._state.labels, k,
+                           self._state.encode({"mode": out.mode, "x_hat": x_hat}))
         self._report_sample(k, out, x_hat)
 
     def _report_sample(self, k: int, out: Any, x_hat: np.ndarray) -> None:

@@ -30,7 +30,7 @@ fd/bias_estimate           sigma_hat (outputs), isolated (``iso:<out>``), active
 
 A node running a registry runtime (``qb``, ``hinf_sc``, ``hminus_switched``) publishes
 ``fd/residual``, ``fd/threshold``, ``fd/alarm`` and ``fd/state_estimate`` with the runtime's
-channels as labels (:func:`fd_monitor.nodes.runtime_node.estimate_labels`).
+channels as labels (:meth:`Topic.channels`, :func:`runtime_estimate`).
 """
 
 from __future__ import annotations
@@ -65,6 +65,7 @@ __all__ = [
     "THRESHOLD_OVERRIDE",
     "TOPICS",
     "Topic",
+    "runtime_estimate",
     "side_topic",
 ]
 
@@ -194,11 +195,31 @@ class Topic:
             labels.extend(labs)
         return Layout(tuple(labels), tuple((f.name, f.scalar) for f in self.fields), index)
 
+    def with_labels(self, labels: Mapping[str, Sequence[str]]) -> Layout:
+        """A layout of some of the topic's fields, in their declared order, with the labels
+        given per field (what a registry runtime publishes: its own channels)."""
+        unknown = set(labels) - {f.name for f in self.fields}
+        if unknown:
+            raise ValueError(f"{self.name}: no field {', '.join(sorted(unknown))}")
+        index: dict[str, int | slice] = {}
+        out: list[str] = []
+        fields = []
+        for f in self.fields:
+            if f.name not in labels:
+                continue
+            labs = tuple(labels[f.name])
+            if f.scalar and len(labs) != 1:
+                raise ValueError(f"{self.name}: field {f.name} is one value, got {len(labs)} "
+                                 f"labels")
+            index[f.name] = len(out) if f.scalar else slice(len(out), len(out) + len(labs))
+            out.extend(labs)
+            fields.append((f.name, f.scalar))
+        return Layout(tuple(out), tuple(fields), index)
+
     def channels(self, labels: Sequence[str]) -> Layout:
         """The layout a registry runtime publishes: the topic's first field, one value per
         channel (``labels``: the runtime's channels)."""
-        first = self.fields[0].name
-        return Layout(tuple(labels), ((first, False),), {first: slice(0, len(labels))})
+        return self.with_labels({self.fields[0].name: labels})
 
 
 def _inputs(s: Any) -> tuple[str, ...]:
@@ -262,6 +283,18 @@ TOPICS = (PLANT_U, PLANT_Y, PLANT_RHO, PLANT_MODE, PLANT_TRUTH, *CHAIN_OUTPUTS, 
 CHAIN_DATA = (PLANT_U, PLANT_Y, PLANT_TRUTH, *CHAIN_OUTPUTS)
 
 _SIDE = {"rho": PLANT_RHO, "mode": PLANT_MODE}
+
+
+def runtime_estimate(system: Any, channels: Sequence[str], x_hat: Any) -> Layout:
+    """``fd/state_estimate`` of a registry runtime: ``mode``, then x^ flattened, labelled
+    ``x.<state>`` for one estimate (n,) or ``<channel>.<state>`` for a bank (n_gen, n)."""
+    x = np.asarray(x_hat)
+    if x.ndim == 1:
+        names: tuple[str, ...] = tuple(f"x.{s}" for s in system.states[:x.size])
+    else:
+        names = tuple(f"{c}.{s}" for c in channels[:x.shape[0]]
+                      for s in system.states[:x.shape[1]])
+    return STATE_ESTIMATE.with_labels({"mode": ("mode",), "x_hat": names})
 
 
 def side_topic(name: str) -> Topic:
