@@ -101,6 +101,8 @@ def test_encode_refuses_a_payload_of_the_wrong_size():
     lay = RESIDUAL.layout(s)
     with pytest.raises(ValueError, match="values for 6 labels"):
         lay.encode({"residual": np.zeros(2), "w": np.zeros(3)})
+    with pytest.raises(ValueError, match="field w is in none"):
+        lay.encode({"residual": np.zeros(3)})
 
 
 def test_a_message_with_the_fields_in_another_order_is_refused():

@@ -131,8 +131,11 @@ class Layout:
             Fields given directly (``restart`` of ``fd/state_estimate``).
         """
         parts = []
+        srcs = (*payloads, extra)
         for name, _ in self.fields:
-            src = next((p for p in payloads if name in p), extra)
+            src = next((p for p in srcs if name in p), None)
+            if src is None:
+                raise ValueError(f"field {name} is in none of the payloads")
             parts.append(np.ravel(np.asarray(src[name], dtype=float)))
         values = np.concatenate(parts) if parts else np.zeros(0)
         if values.size != len(self.labels):
