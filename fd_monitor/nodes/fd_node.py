@@ -145,6 +145,11 @@ class Input:
     sequence: bool = False
     layout: Layout | None = None
 
+    def __post_init__(self) -> None:
+        if self.sequence and self.layout is None:
+            raise ValueError(f"input {self.name}: a sequence input is read by field: give "
+                             f"its layout (Input.of)")
+
     @classmethod
     def of(cls, name: str, topic: Topic, source: Any, **kwargs: Any) -> Input:
         """The input of a declared topic (:mod:`fd_monitor.wire.topics`) for a plant."""
@@ -469,11 +474,7 @@ class FdNode(LifecycleNode):
         topic = self.resolve_topic_name(inp.topic)
         order = _TopicOrder(topic)
         # the restart flag of the sequence input, by field (resolved once)
-        i_restart: Any = None
-        if inp.sequence:
-            if inp.layout is None:
-                raise FdMonitorError(f"input {inp.name}: a sequence input needs its layout")
-            i_restart = inp.layout.index["restart"]
+        i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
 
         def cb(msg: Any, info: Any) -> None:
             if not self.active:
