@@ -153,7 +153,11 @@ class Input:
     @classmethod
     def of(cls, name: str, topic: Topic, source: Any, **kwargs: Any) -> Input:
         """The input of a declared topic (:mod:`fd_monitor.wire.topics`) for a plant."""
-        layout = topic.layout(source)
+        return cls.laid_out(name, topic, topic.layout(source), **kwargs)
+
+    @classmethod
+    def laid_out(cls, name: str, topic: Topic, layout: Layout, **kwargs: Any) -> Input:
+        """The input of a declared topic with a given layout (a runtime's own labels)."""
         return cls(name, topic.name, layout.labels, layout=layout, **kwargs)
 
 

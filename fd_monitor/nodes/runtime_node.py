@@ -114,7 +114,8 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
         self.start_inputs([
             *([Input.of("u", PLANT_U, s, plain_ok=True, hold=True)] if s.nu else []),
             Input.of("y", PLANT_Y, s, plain_ok=True),
-            *(Input(n, side_topic(n).name, rt.side_labels[n]) for n in rt.side_inputs),
+            *(Input.laid_out(n, side_topic(n), side_topic(n).with_labels({n: rt.side_labels[n]}))
+              for n in rt.side_inputs),
         ], gap_timeout=self.params.gap_timeout)
 
     def build_core(self, gains: GainFile) -> None:
