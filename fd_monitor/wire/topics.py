@@ -8,7 +8,7 @@ fields' labels in order, a function of the plant (:meth:`Topic.labels`). The fie
 those of the core outputs' ``payload()`` (``ObserverOutput``, ``DetectorOutput``,
 ``AgeiOutput``, ``BiasOutput``), so a message is encoded from payloads by field name
 (:meth:`Layout.encode`) and decoded by field name through an index table built once per
-subscription (:meth:`Layout.index`), never by position written in a node.
+subscription (:attr:`Layout.index`), never by position written in a node.
 
 =========================  ======================================================
 topic                      fields (labels)
