@@ -55,6 +55,7 @@ import rclpy
 from std_msgs.msg import Float64MultiArray
 from fd_monitor.nodes.common import data_pub_qos, use_dds_profile
 from fd_monitor.wire.conversions import to_msg
+from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 use_dds_profile(); rclpy.init()
 mode, total = sys.argv[1], int(sys.argv[2])
 node = rclpy.create_node("bench_driver")
@@ -70,7 +71,7 @@ else:
     u, y = tr.u[0].tolist(), tr.y[0].tolist()
     lab_u, lab_y = sc.system.inputs, sc.system.outputs
     pubs = [node.create_publisher(Float64MultiArray, t, data_pub_qos())
-            for t in ("/plant/u", "/plant/y")]
+            for t in (PLANT_U.absolute, PLANT_Y.absolute)]
 need = int(sys.argv[3])
 while any(p.get_subscription_count() < need for p in pubs):
     time.sleep(0.02)   # discovery (the graph is updated by rmw threads)
@@ -198,7 +199,9 @@ def bench(layout: str, rates: list[float], seconds: float, e: dict[str, str]) ->
     procs = [subprocess.Popen([sys.executable, "-m", "fd_monitor", "run", *n], env=e,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
              for n in nodes]
-    rx = Receiver("/bench/raw" if raw else "/fd/alarm")
+    from fd_monitor.wire.topics import ALARM
+
+    rx = Receiver("/bench/raw" if raw else ALARM.absolute)
     # subscribers of /plant/u and /plant/y: fused 1, chain observer + bias_estimator
     need = 1 if layout in ("raw", "fused") else 2
     drv = subprocess.Popen([sys.executable, "-c", DRIVER, "raw" if raw else "plant",
@@ -210,7 +213,7 @@ def bench(layout: str, rates: list[float], seconds: float, e: dict[str, str]) ->
         if _line(drv, rx, 60.0) is None:
             raise RuntimeError(f"{what}: the driver found no subscriber in 60 s")
         if not raw:
-            rx.spin_until(lambda: rx.node.count_publishers("/fd/alarm") >= 1, 60.0)
+            rx.spin_until(lambda: rx.node.count_publishers(ALARM.absolute) >= 1, 60.0)
         # warm-up: every link matched (outputs before that are lost: volatile) and samples
         # through, before anything is measured
         deadline = time.monotonic() + 60.0

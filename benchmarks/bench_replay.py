@@ -66,15 +66,17 @@ def live_monitor(bag: Path, env: dict[str, str], tmp: Path) -> dict[str, float]:
     import numpy as np
 
     from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.topics import ALARM, PLANT_U, PLANT_Y
 
-    n = len(read_bag(bag, ["/plant/y"])["/plant/y"])
+    t_u, t_y, t_alarm = PLANT_U.absolute, PLANT_Y.absolute, ALARM.absolute
+    n = len(read_bag(bag, [t_y])[t_y])
     mon = _fd(["run", "monitor"], env, tmp / "monitor.log")
-    rec = _fd(["record", "/fd/alarm", "-o", str(tmp / "rec"), "--until", f"/fd/alarm={n}"],
+    rec = _fd(["record", t_alarm, "-o", str(tmp / "rec"), "--until", f"{t_alarm}={n}"],
               env, tmp / "record.log")
     try:
         t0 = time.perf_counter()
         rep = subprocess.run([sys.executable, "-m", "fd_monitor", "replay", str(bag),
-                              "--topics", "/plant/u", "/plant/y", "--rate", "0",
+                              "--topics", t_u, t_y, "--rate", "0",
                               "--wait-subscribers", "1"], cwd=REPO, env=env,
                              capture_output=True, text=True, timeout=600)
         if rep.returncode != 0:
@@ -84,7 +86,7 @@ def live_monitor(bag: Path, env: dict[str, str], tmp: Path) -> dict[str, float]:
     finally:
         _stop(rec)
         _stop(mon)
-    a = read_bag(tmp / "rec", ["/fd/alarm"])["/fd/alarm"]
+    a = read_bag(tmp / "rec", [t_alarm])[t_alarm]
     lost = n - len(np.unique(a.stamps))
     span = (a.receive_ns[-1] - a.receive_ns[0]) / 1e9
     return {"samples": n, "lost": lost, "rate": (len(a) - 1) / span, "wall_s": wall}
@@ -124,8 +126,10 @@ def raw_rclpy(bag: Path, env: dict[str, str]) -> dict[str, float]:
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.wire.bags import read_raw
+    from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
-    msgs = [(t, raw) for t, _m, _ts, raw in read_raw(bag, ["/plant/u", "/plant/y"])]
+    plant = (PLANT_U.absolute, PLANT_Y.absolute)
+    msgs = [(t, raw) for t, _m, _ts, raw in read_raw(bag, list(plant))]
     n_msgs = len(msgs)
     sub = subprocess.Popen([sys.executable, __file__, "--raw-sub", str(n_msgs)], cwd=REPO,
                            env=env, stdout=subprocess.PIPE, text=True)
@@ -139,7 +143,7 @@ def raw_rclpy(bag: Path, env: dict[str, str]) -> dict[str, float]:
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
         pubs = {t: node.create_publisher(Float64MultiArray, t.replace("/plant", "/bench"), qos)
-                for t in ("/plant/u", "/plant/y")}
+                for t in plant}
         deadline = time.monotonic() + 60
         while any(p.get_subscription_count() < 1 for p in pubs.values()):
             if time.monotonic() > deadline:

@@ -19,6 +19,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from fd_monitor.wire.topics import CHAIN_OUTPUTS
+
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -265,24 +267,24 @@ class Collector:
         return [s for a in self.diagnostics for s in a.status if name_part in s.name]
 
 
-FD_TOPICS = ["/fd/state_estimate", "/fd/residual", "/fd/threshold", "/fd/alarm",
-             "/fd/guard_event", "/fd/threshold_override", "/fd/bias_estimate"]
+FD_TOPICS = [t.absolute for t in CHAIN_OUTPUTS]
 
 
 def expected_payloads(outs: Sequence[Any]) -> dict[str, Any]:
-    """The values the chain publishes on each topic for Monitor outputs (one run from 0)."""
+    """The values the chain publishes on each topic for Monitor outputs (one run from 0):
+    the components' payloads, encoded by field name with the topics' declarations."""
     import numpy as np
 
     from fd_monitor.model.system import load_system
 
     system = load_system("three_tank")
+    layouts = {t.absolute: t.layout(system) for t in CHAIN_OUTPUTS}
     rows: dict[str, list] = {t: [] for t in FD_TOPICS}
     for o in outs:
-        _, st = o.observer.payload(system)
-        rows["/fd/state_estimate"].append([*st, 1.0 if o.k == 0 else 0.0])   # restart
-        for t, (_, v) in {**o.detector.payloads(system), **o.agei.payloads(system)}.items():
-            rows[t].append(v)
-        rows["/fd/bias_estimate"].append(o.estimator.payload(system)[1])
+        pays = (o.observer.payload(), o.detector.payload(), o.agei.payload(),
+                o.estimator.payload())
+        for t, lay in layouts.items():
+            rows[t].append(lay.encode(*pays, restart=o.k == 0))
     return {t: np.array(v, dtype=float) for t, v in rows.items()}
 
 

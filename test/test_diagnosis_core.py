@@ -28,6 +28,7 @@ from fd_monitor.model.errors import GainFileError, MessageError
 from fd_monitor.model.gains import load_gains, write_gain_doc
 from fd_monitor.model.scenario import FaultEvent, load_scenario
 from fd_monitor.model.system import load_system
+from fd_monitor.wire.topics import STATE_ESTIMATE
 
 REPO = Path(__file__).resolve().parent.parent
 GAINS = REPO / "config" / "gains" / "three_tank_thresholds.yaml"
@@ -210,8 +211,10 @@ def test_components_composed_by_hand_equal_monitor(system, gains):
         assert np.array_equal(m.detector.residual, d.residual)
         assert np.array_equal(m.estimator.sigma_hat, e.sigma_hat)
         assert m.agei.trigger == a.trigger
-    labels, vals = m.observer.payload(system)
-    assert len(labels) == vals.size == 1 + 3 + 3
+    lay = STATE_ESTIMATE.layout(system)
+    vals = lay.encode(m.observer.payload(), restart=False)
+    assert len(lay.labels) == vals.size == 1 + 3 + 3 + 1
+    assert vals[lay.index["x_hat"]].tolist() == m.observer.x_hat.tolist()
 
 
 @pytest.mark.parametrize("u, y, match", [

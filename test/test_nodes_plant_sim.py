@@ -168,14 +168,14 @@ def test_plant_sim_publishes_rho_and_mode_of_lpv_and_switched_scenarios(scenario
     from fd_monitor.core.simulator import (
         PlantSimulator,
         measured_signals,
-        truth_labels,
         truth_values,
     )
     from fd_monitor.nodes.plant_sim import PlantSimNode
+    from fd_monitor.wire.topics import PLANT_TRUTH, side_topic
 
     sc = load_scenario(scenario)
     K = 40
-    side = measured_signals(simulate(sc, None, K))
+    side = {side_topic(n).absolute: v for n, v in measured_signals(simulate(sc, None, K)).items()}
     assert set(side) == {"thesis_6_5_overlap": {"/plant/rho"},
                          "bag_farhat_koenig_fault": {"/plant/mode"}}[scenario]
     with ros_context() as ctx:
@@ -192,7 +192,7 @@ def test_plant_sim_publishes_rho_and_mode_of_lpv_and_switched_scenarios(scenario
         node.destroy_node()
         col.node.destroy_node()
     got = col.decoded("/plant/truth")
-    assert got[0].labels == truth_labels(sc)
+    assert got[0].labels == PLANT_TRUTH.labels(sc)
     assert [d.stamp for d in got] == list(range(K))
     np.testing.assert_array_equal(np.array([d.values for d in got]),
                                   truth_values(simulate(sc, None, K)))

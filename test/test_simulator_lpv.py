@@ -15,13 +15,14 @@ import yaml
 
 from fd_monitor.core.generalized_observer import simulate_switched
 from fd_monitor.core.residual_bank import AffineModel, simulate_affine_plant
-from fd_monitor.core.simulator import simulate, truth_labels, truth_values
+from fd_monitor.core.simulator import simulate, truth_values
 from fd_monitor.model.errors import ScenarioError
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.scenario import load_scenario, parse_scenario
 from fd_monitor.model.system import load_system, parse_system
+from fd_monitor.wire.topics import PLANT_TRUTH, side_topic
 
 SCEN = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 SYS = Path(__file__).resolve().parent.parent / "config" / "systems"
@@ -63,7 +64,7 @@ def test_lpv_profile_run_equals_simulate_affine_plant(name):
         np.zeros((system.n, 0)), lambda tt: np.zeros(0), substeps=10)
     np.testing.assert_allclose(tr.x[0], x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(tr.y[0], y, rtol=1e-12, atol=1e-12)
-    assert truth_labels(sc)[-len(prof):] == tuple(f"rho.{p.name}" for p in system.lpv)
+    assert PLANT_TRUTH.labels(sc)[-len(prof):] == tuple(f"rho.{p.name}" for p in system.lpv)
     np.testing.assert_array_equal(tr.rho[0], rho)
     if name == "thesis_5_3_overlap":
         np.testing.assert_allclose(tr.rho[0, :, 0], np.sin(2 * np.pi * t), atol=1e-12)
@@ -108,7 +109,7 @@ def test_lpv_rho_from_the_state_reproduces_the_nonlinear_three_tank():
     # truth rho is the map of the true state at t_k, in both
     want = np.array([SCHEDULING_MAPS["three_tank_sqrt"](x, {}) for x in b.x[0]])
     np.testing.assert_allclose(b.rho[0], want, rtol=1e-12)
-    assert truth_labels(nl)[-3:] == ("rho.rho1", "rho.rho2", "rho.rho3")
+    assert PLANT_TRUTH.labels(nl)[-3:] == ("rho.rho1", "rho.rho2", "rho.rho3")
     assert truth_values(b).shape == (1000, 1 + 3 + 3 + 3)
 
 
@@ -290,7 +291,7 @@ def test_measured_side_signals_are_what_a_monitor_may_measure(scenario, topics):
 
     sc = load_scenario(scenario)
     traj = simulate(sc, n_samples=300)
-    got = measured_signals(traj)
+    got = {side_topic(n).absolute: v for n, v in measured_signals(traj).items()}
     assert {t: labels for t, (labels, _) in got.items()} == topics
     if "/plant/rho" in got:
         np.testing.assert_array_equal(got["/plant/rho"][1], traj.rho[0])

@@ -28,6 +28,7 @@ from fd_monitor.analysis.summary import (
     true_biases,
     truth_facts,
 )
+from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y
 
 __all__ = ["analyze_summary", "check_expected", "check_truth", "core_summary",
            "propose_expected", "write_expected"]
@@ -224,8 +225,9 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
     if system is None:
         system = load_system(load_gains(spec.gains, verify=False).system_name)
     gf = load_gains(spec.gains, system)
-    b = read_bag(spec.folder, ["/plant/u", "/plant/y", "/plant/truth"])
-    u, y, tr = b["/plant/u"], b["/plant/y"], b["/plant/truth"]
+    t_u, t_y, t_tr = PLANT_U.absolute, PLANT_Y.absolute, PLANT_TRUTH.absolute
+    b = read_bag(spec.folder, [t_u, t_y, t_tr])
+    u, y, tr = b[t_u], b[t_y], b[t_tr]
     k = np.asarray(y.stamps)
     if gf.method == "hinf_sc":
         from fd_monitor.core.residual_bank import ResidualBank

@@ -23,6 +23,7 @@ import numpy as np
 
 from fd_monitor.analysis.library import BagSpec, Corruption, Library, LibraryError
 from fd_monitor.wire.bags import write_messages
+from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
 __all__ = ["bag_messages", "generate_bag", "generate_library", "simulate_bag",
            "simulated_messages"]
@@ -54,17 +55,16 @@ def simulated_messages(scenario: Any, seed: int | None, n_samples: int) -> list[
     from fd_monitor.core.simulator import (
         measured_signals,
         simulate,
-        truth_labels,
         truth_values,
     )
 
     sys_ = scenario.system
     dt = sys_.sample_time
     traj = simulate(scenario, seed, n_samples)
-    topics = {"/plant/u": (tuple(sys_.inputs), traj.u[0]),
-              "/plant/y": (tuple(sys_.outputs), traj.y[0]),
-              **measured_signals(traj),
-              "/plant/truth": (truth_labels(scenario), truth_values(traj))}
+    topics = {PLANT_U.absolute: (PLANT_U.labels(sys_), traj.u[0]),
+              PLANT_Y.absolute: (PLANT_Y.labels(sys_), traj.y[0]),
+              **{side_topic(n).absolute: lv for n, lv in measured_signals(traj).items()},
+              PLANT_TRUTH.absolute: (PLANT_TRUTH.labels(scenario), truth_values(traj))}
     return [_Msg(round(k * dt * 1e9), topic, int(k), labels, vals[k].copy())
             for k in range(n_samples) for topic, (labels, vals) in topics.items()]
 

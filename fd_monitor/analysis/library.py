@@ -61,6 +61,7 @@ from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import config_dirs
 from fd_monitor.model.validate import Checker
 from fd_monitor.model.yaml_io import read_yaml
+from fd_monitor.wire.topics import PLANT_Y
 
 __all__ = ["CORRUPTION_KINDS", "FORMAT_VERSION", "BagSpec", "Corruption", "Library",
            "LibraryError", "default_library", "expected_path", "load_expected", "load_library"]
@@ -91,7 +92,7 @@ class Corruption:
     """
 
     kind: str
-    topic: str = "/plant/y"
+    topic: str = PLANT_Y.absolute
     samples: tuple[int, ...] = ()
     channel: str | None = None
 
@@ -202,7 +203,7 @@ def _corruption(ck: Checker, key: str, c: Any) -> Corruption:
     extra = set(c) - allowed
     if extra:
         _fail(ck, f"{key}.{sorted(extra)[0]}", f"one of {sorted(allowed)} (unknown key)")
-    topic = str(c.get("topic", "/plant/y"))
+    topic = str(c.get("topic", PLANT_Y.absolute))
     if kind == "gap":
         if "start" not in c or "samples" not in c:
             _fail(ck, key, "{kind: gap, start: k0, samples: count}", dict(c))

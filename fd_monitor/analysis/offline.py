@@ -10,7 +10,8 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
 2. :func:`run_bag` runs the gain file's runtime (:func:`fd_monitor.core.runtime.runtime_for`,
    one registry keyed by the gain file's ``method``: ``thresholds``, ``qb``, ``hinf_sc``,
    ``hminus_switched``) over the valid samples, with the side signals the runtime needs read
-   from ``/plant/<name>`` (:func:`side_topic`: ``/plant/rho``, ``/plant/mode``), and restarts
+   from ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`: ``/plant/rho``,
+   ``/plant/mode``), and restarts
    it after a hole (the state estimate is re-initialised from the next measurement and the
    filters start again, so no stale estimate is carried across missing data). Nothing is
    lost: every valid sample is processed and every rejected one is reported.
@@ -43,10 +44,17 @@ from fd_monitor.model.errors import (
     NonFiniteError,
     WrongLengthError,
 )
+from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY, PLANT_TRUTH, PLANT_U, PLANT_Y
+from fd_monitor.wire.topics import side_topic as _side_topic
 
 __all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "read_inputs",
            "read_streams", "run_bag", "run_runtime", "run_thresholds", "scan_bag",
-           "side_topic", "stamp_runs"]
+           "stamp_runs"]
+
+#: Prefix of the plant's topics in a bag (the records a scan keeps).
+_PLANT = PLANT_U.absolute.rsplit("/", 1)[0] + "/"
+#: The joined inputs, as an error report names them.
+_UY = f"{PLANT_U.absolute},{PLANT_Y.absolute}"
 
 #: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml).
 INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
@@ -118,8 +126,6 @@ class BagScan:
     def first_labels(self, topic: str) -> tuple[str, ...] | None:
         """Channel labels of the first message of a Float64MultiArray ``topic`` (None when
         it has none or no message); BagError when the topic has another type."""
-        from fd_monitor.wire.bags import FLOAT64_MULTI_ARRAY
-
         if topic in self.present and self.present[topic][0] != FLOAT64_MULTI_ARRAY:
             raise BagError(f"{self.bag}: {topic} is {self.present[topic][0]}, not "
                            f"{FLOAT64_MULTI_ARRAY}")
@@ -131,14 +137,15 @@ class BagScan:
     def truth(self) -> Any:
         """``/plant/truth`` as :class:`~fd_monitor.wire.bags.TopicArrays`, or None (absent or
         unreadable)."""
-        from fd_monitor.wire.bags import FLOAT64_MULTI_ARRAY, arrays_from_raw
+        from fd_monitor.wire.bags import arrays_from_raw
 
-        if self.present.get("/plant/truth", ("", 0))[0] != FLOAT64_MULTI_ARRAY:
+        truth = PLANT_TRUTH.absolute
+        if self.present.get(truth, ("", 0))[0] != FLOAT64_MULTI_ARRAY:
             return None
         try:
             with _bag_errors(self.bag):
                 return arrays_from_raw(self.bag, (r for r in self.records
-                                                  if r[0] == "/plant/truth"))["/plant/truth"]
+                                                  if r[0] == truth))[truth]
         except BagError:
             return None
 
@@ -161,15 +168,9 @@ def scan_bag(bag: str | Path) -> BagScan:
         for rec in read_raw(bag):
             topic, ty = rec[0], rec[1]
             present[topic] = (ty, present.get(topic, (ty, 0))[1] + 1)
-            if topic.startswith("/plant/"):
+            if topic.startswith(_PLANT):
                 records.append(rec)
     return BagScan(str(bag), present, records)
-
-
-def side_topic(name: str) -> str:
-    """Topic of a runtime's side signal ``name`` (``rho`` -> ``/plant/rho``): stamped
-    Float64MultiArray, labels the runtime's :attr:`~fd_monitor.core.runtime.Runtime.side_labels`."""
-    return f"/plant/{name}"
 
 
 def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
@@ -202,7 +203,8 @@ def read_streams(bag: str | Path, system: Any,
     bag : str or pathlib.Path
     system : System
     side : dict, optional
-        Side signal name -> its labels (read from :func:`side_topic`); a stamp without a
+        Side signal name -> its labels (read from
+        :func:`~fd_monitor.wire.topics.side_topic`); a stamp without a
         valid value of every side signal is not a usable sample (reported as missing).
     scan : BagScan, optional
         The bag already read (:func:`scan_bag`); default: read it now.
@@ -212,20 +214,19 @@ def read_streams(bag: str | Path, system: Any,
     (dict, dict, dict, InputReport)
         stamp -> u (nu,), stamp -> y (ny,), name -> (stamp -> value), the report.
     """
-    from fd_monitor.wire.bags import FLOAT64_MULTI_ARRAY
-
     if scan is None:
         scan = scan_bag(bag)
     rep = InputReport()
     side = dict(side or {})
-    streams: dict[str, dict[int, np.ndarray]] = {"/plant/u": {}, "/plant/y": {}}
-    labels = {"/plant/u": tuple(system.inputs), "/plant/y": tuple(system.outputs)}
+    t_u, t_y = PLANT_U.absolute, PLANT_Y.absolute
+    streams: dict[str, dict[int, np.ndarray]] = {t_u: {}, t_y: {}}
+    labels = {t_u: PLANT_U.labels(system), t_y: PLANT_Y.labels(system)}
     for name, labs in side.items():
-        streams[side_topic(name)] = {}
-        labels[side_topic(name)] = tuple(labs)
+        streams[_side_topic(name).absolute] = {}
+        labels[_side_topic(name).absolute] = tuple(labs)
     top: dict[str, int] = {}
-    topics = (["/plant/y"] + (["/plant/u"] if system.nu else [])
-              + [side_topic(n) for n in side])
+    topics = ([t_y] + ([t_u] if system.nu else [])
+              + [_side_topic(n).absolute for n in side])
 
     present = scan.present
     missing = [t for t in topics if t not in present]
@@ -238,7 +239,7 @@ def read_streams(bag: str | Path, system: Any,
                            f"{FLOAT64_MULTI_ARRAY}")
     with _bag_errors(bag):
         _read_streams(scan.messages(topics), labels, streams, top, rep)
-    sides = {n: streams[side_topic(n)] for n in side}
+    sides = {n: streams[_side_topic(n).absolute] for n in side}
     us, ys, rep = _after_read(system, streams, rep, list(sides.values()))
     return us, ys, sides, rep
 
@@ -293,14 +294,14 @@ def _after_read(system: Any, streams: dict[str, dict[int, np.ndarray]], rep: Inp
                 sides: Sequence[dict[int, np.ndarray]] = ()
                 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], InputReport]:
     """The end of :func:`read_streams`: the (u, y) pairs and the missing stamps."""
-    us, ys = streams["/plant/u"], streams["/plant/y"]
+    us, ys = streams[PLANT_U.absolute], streams[PLANT_Y.absolute]
     if not system.nu:
         us = {k: np.zeros(0) for k in ys}
     ks = sorted(set(us).intersection(ys, *sides))
     rejected = sorted({e["sample"] for e in rep.errors if isinstance(e["sample"], int)})
     if ks:
         for a, b in _gaps(ks, rejected):
-            rep.errors.append({"kind": "missing", "topic": "/plant/u,/plant/y",
+            rep.errors.append({"kind": "missing", "topic": _UY,
                                "sample": [a, b], "message": f"no message for stamps {a}..{b} "
                                f"({b - a + 1} samples)"})
     return us, ys, rep
@@ -435,7 +436,8 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
 
     The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so
     every gain-file method runs; the side signals it needs are read from
-    ``/plant/<name>`` (:func:`side_topic`). The runtime restarts (``reset``) after a hole in
+    ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`). The runtime restarts
+    (``reset``) after a hole in
     the stamps.
 
     Parameters
@@ -485,8 +487,8 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     truth = scan.truth()
     ks = sorted(set(us).intersection(ys, *sides.values()))
     if not ks:
-        raise BagError(f"{bag}: no valid (u, y) sample on /plant/u and /plant/y"
-                       + "".join(f" and {side_topic(n)}" for n in sides))
+        raise BagError(f"{bag}: no valid (u, y) sample on {PLANT_U.absolute} and {PLANT_Y.absolute}"
+                       + "".join(f" and {_side_topic(n).absolute}" for n in sides))
     out = run_runtime(rt, ks, us, ys, rep, sides, truth)
     return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
                   transient=float(transient), **out)
@@ -545,5 +547,5 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
 
 def _refused(rep: InputReport, k: int, exc: MessageError) -> None:
     """Report sample k refused by the runtime (implausible) as an input error."""
-    rep.errors.append({"kind": _classify(exc), "topic": "/plant/u,/plant/y", "sample": k,
+    rep.errors.append({"kind": _classify(exc), "topic": _UY, "sample": k,
                        "message": str(exc)})

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.envelope import describe_excess
+from fd_monitor.wire.topics import ALARM, BIAS_ESTIMATE, PLANT_TRUTH, STATE_ESTIMATE
 
 __all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "mode_tracking",
            "outputs_of_run",
@@ -306,8 +307,8 @@ def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
         (:func:`fd_monitor.wire.bags.read_bag` of the recorded bag).
     system : System
     """
-    al, st = topics["/fd/alarm"], topics["/fd/state_estimate"]
-    be = topics["/fd/bias_estimate"]
+    al, st = topics[ALARM.absolute], topics[STATE_ESTIMATE.absolute]
+    be = topics[BIAS_ESTIMATE.absolute]
     outputs = tuple(system.outputs)
     restart = st.column("restart")
     return Outputs(
@@ -328,7 +329,7 @@ def read_bag_truth(bag: str | Path) -> Any:
     """``/plant/truth`` of a bag as :class:`~fd_monitor.wire.bags.TopicArrays`."""
     from fd_monitor.wire.bags import read_bag
 
-    return read_bag(bag, ["/plant/truth"])["/plant/truth"]
+    return read_bag(bag, [PLANT_TRUTH.absolute])[PLANT_TRUTH.absolute]
 
 
 def truth_at(truth: Any, ks: Sequence[int], labels: Sequence[str]) -> np.ndarray:

@@ -39,6 +39,7 @@ from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.core.runtime import runtime_for
 from fd_monitor.model.errors import BagError
 from fd_monitor.model.system import System
+from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y
 
 __all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag"]
 
@@ -99,7 +100,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     fields = run_runtime(rt, ks, us, ys, rep, sides)
     truth = None
     if true_mode is not None:
-        truth = TopicArrays("/plant/truth", ("mode",), np.asarray(ks),
+        truth = TopicArrays(PLANT_TRUTH.absolute, ("mode",), np.asarray(ks),
                             np.asarray(true_mode, float).reshape(-1, 1), np.zeros(len(ks)))
     run = BagRun(bag="<arrays>", gains=str(getattr(gains, "path", "<gains>")), system=system,
                  truth=truth, inputs=rep, **fields)
@@ -131,14 +132,14 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
         raise BagError(f"{bag}: no such bag")
     scan = scan_bag(bag)                        # the one read of the bag
     present = scan.present
-    needed = ["/plant/y"] + (["/plant/u"] if system.nu else [])
+    needed = [PLANT_Y.absolute] + ([PLANT_U.absolute] if system.nu else [])
     for t in needed:
         if t not in present:
             raise BagError(f"{bag}: topic {t} missing (topics: "
                            f"{', '.join(sorted(present)) or 'none'})")
     # A bag of another plant would have every message rejected: say so at once instead.
-    for t, names, what in (("/plant/u", system.inputs, "inputs"),
-                           ("/plant/y", system.outputs, "outputs")):
+    for t, names, what in ((PLANT_U.absolute, system.inputs, "inputs"),
+                           (PLANT_Y.absolute, system.outputs, "outputs")):
         labels = scan.first_labels(t) if t in present else None
         if labels and tuple(labels) != tuple(names):
             raise BagError(f"{bag}: {t} has channels {list(labels)} but plant {system.name} "

@@ -27,13 +27,23 @@ from typing import Any
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.domain import die_with_parent
+from fd_monitor.wire.topics import (
+    ALARM,
+    BIAS_ESTIMATE,
+    CHAIN_DATA,
+    DIAGNOSTICS,
+    GUARD_EVENT,
+    PLANT_TRUTH,
+    RESIDUAL,
+    STATE_ESTIMATE,
+    THRESHOLD,
+    THRESHOLD_OVERRIDE,
+)
 
 __all__ = ["add_arguments", "run", "summarize"]
 
 FD_NODES = ("observer", "detector", "agei", "bias_estimator")
-TOPICS = ("/plant/u", "/plant/y", "/plant/truth", "/fd/state_estimate", "/fd/residual",
-          "/fd/threshold", "/fd/alarm", "/fd/guard_event", "/fd/threshold_override",
-          "/fd/bias_estimate")
+TOPICS = tuple(t.absolute for t in CHAIN_DATA)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -124,8 +134,9 @@ def _env(out: Path) -> dict[str, str]:
 
 
 #: Subscriptions per fd topic once the chain and record are up (consumers + record).
-GRAPH = {"/fd/state_estimate": 4, "/fd/residual": 2, "/fd/threshold": 2, "/fd/alarm": 2,
-         "/fd/guard_event": 3, "/fd/threshold_override": 2, "/fd/bias_estimate": 3}
+GRAPH = {t.absolute: n for t, n in ((STATE_ESTIMATE, 4), (RESIDUAL, 2), (THRESHOLD, 2),
+                                    (ALARM, 2), (GUARD_EVENT, 3), (THRESHOLD_OVERRIDE, 2),
+                                    (BIAS_ESTIMATE, 3))}
 
 
 def _wait_for_graph(env: dict[str, str], timeout: float, procs: _Processes) -> bool:
@@ -197,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
                             "-p", "gap_timeout:=5.0", "-p", "restart_after:=5.0",
                             *(["-p", "layout:=chain"] if n == "detector" else [])])
         until = [a for t in TOPICS for a in ("--until", f"{t}={K}")]
-        rec = procs.start("record", ["record", *TOPICS, "/diagnostics", "-o", str(bag),
+        rec = procs.start("record", ["record", *TOPICS, DIAGNOSTICS.absolute, "-o", str(bag),
                                      *until])
         # Data topics are volatile: a subscriber matched late misses the first samples, so
         # plant_sim starts only once the chain's and record's endpoints are in the graph.
@@ -282,7 +293,7 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
     first = min((a["first_sample"] for a in s["alarms"]), default=None)
     detected_at = None if first is None else float(first * dt)
     alarm_channels = [a["channel"] for a in s["alarms"] if a["first_sample"] == first]
-    truth = b["/plant/truth"]
+    truth = b[PLANT_TRUTH.absolute]
     true_bias = {o: 0.0 for o in sys_.outputs}
     true_bias.update(true_biases(truth_facts(truth, sys_)))
     return {

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -76,9 +77,8 @@ class AgeiOutput:
         row with affected residuals): q^ may differ from q, so the bias estimator must not
         learn at this sample (batch: (N,)).
 
-    Topics: ``/fd/guard_event`` = ``[trigger, phase, row, mode_uncertain]``;
-    ``/fd/threshold_override`` =
-    override (output names; NaN = none). See :meth:`payloads`.
+    :meth:`payload` names the fields; :mod:`fd_monitor.wire.topics` says which topic
+    carries which.
     """
 
     k: int
@@ -88,16 +88,11 @@ class AgeiOutput:
     row: int | np.ndarray
     mode_uncertain: bool | np.ndarray = False
 
-    def payloads(self, system: System) -> dict[str, tuple[tuple[str, ...], np.ndarray]]:
-        """``{topic: (labels, values)}`` (single stream)."""
-        return {
-            "/fd/guard_event": (("trigger", "phase", "row", "mode_uncertain"),
-                                np.array([float(np.asarray(self.trigger)),
-                                          float(np.asarray(self.phase)),
-                                          float(np.asarray(self.row)),
-                                          float(np.asarray(self.mode_uncertain))])),
-            "/fd/threshold_override": (tuple(system.outputs), np.asarray(self.override)),
-        }
+    def payload(self) -> dict[str, Any]:
+        """Field name -> value: ``trigger``, ``phase``, ``row``, ``mode_uncertain``,
+        ``override``."""
+        return {"trigger": self.trigger, "phase": self.phase, "row": self.row,
+                "mode_uncertain": self.mode_uncertain, "override": self.override}
 
 
 class Agei:

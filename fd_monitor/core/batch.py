@@ -32,7 +32,7 @@ class BatchResult:
     ----------
     alarm : numpy.ndarray
         (N, K, n_channels) bool: alarm flag of each channel at each sample, as the method would
-        publish it on ``/fd/alarm`` at that sample (no latching).
+        publish it as the alarm at that sample (no latching).
     channels : tuple of str
         (n_channels,) names of the alarm channels, in the order of ``alarm``'s last axis.
     residual : numpy.ndarray or None

@@ -38,6 +38,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -114,7 +115,7 @@ def project(sigma: np.ndarray, step: np.ndarray, Gamma: np.ndarray,
 
 @dataclass(frozen=True)
 class BiasOutput:
-    """Estimator output at sample k (published on ``/fd/bias_estimate``).
+    """Estimator output at sample k (published as the bias estimate).
 
     Attributes
     ----------
@@ -128,8 +129,7 @@ class BiasOutput:
     k_detect : int
         K_d, or -1 before the first detection.
 
-    ``/fd/bias_estimate`` layout: sigma_hat (output names), isolation flags (``iso:<name>``,
-    0/1), ``active``, ``k_detect``. See :meth:`payload`.
+    :meth:`payload` names the fields (:mod:`fd_monitor.wire.topics`: their topic).
     """
 
     k: int
@@ -138,14 +138,10 @@ class BiasOutput:
     active: bool | np.ndarray
     k_detect: int | np.ndarray
 
-    def payload(self, system: System) -> tuple[tuple[str, ...], np.ndarray]:
-        """Labels and values for ``/fd/bias_estimate`` (single stream)."""
-        o = system.outputs
-        labels = (*o, *(f"iso:{n}" for n in o), "active", "k_detect")
-        vals = np.concatenate([self.sigma_hat, np.asarray(self.isolated, float),
-                               [float(np.asarray(self.active)),
-                                float(np.asarray(self.k_detect))]])
-        return labels, vals
+    def payload(self) -> dict[str, Any]:
+        """Field name -> value: ``sigma_hat``, ``isolated``, ``active``, ``k_detect``."""
+        return {"sigma_hat": self.sigma_hat, "isolated": self.isolated, "active": self.active,
+                "k_detect": self.k_detect}
 
 
 class BiasEstimator:

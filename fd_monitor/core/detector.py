@@ -7,13 +7,14 @@ Per sample k: ``w_k = H[y~]_k`` (eq. 10), ``w^_k = H[x^]_k`` (eq. 13), ``r_k = w
     nominal_{i,k} = noise_term_i + H_p_bar[eta_bar_i(q^) + remainder_bar_i(q^)]_k
 
 (the combined form of eq. 19, see :mod:`fd_monitor.core.thresholds`). ``alarm_{i,k} = |r_{i,k}| >
-R_{i,k}``: no latching (a per-sample flag, as published on ``/fd/alarm``).
+R_{i,k}``: no latching (a per-sample flag, as published).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -48,9 +49,8 @@ class DetectorOutput:
     alarm : numpy.ndarray
         (ny,) bool, |r_k| > R_k.
 
-    Topics: ``/fd/residual`` = residual then w (labels ``r:<name>``, ``w:<name>``);
-    ``/fd/threshold`` = threshold then nominal (``R:<name>``, ``rbar:<name>``); ``/fd/alarm`` =
-    alarm as 0.0/1.0 (output names). See :meth:`payloads`.
+    :meth:`payload` names the fields; :mod:`fd_monitor.wire.topics` says which topic
+    carries which.
     """
 
     k: int
@@ -60,16 +60,10 @@ class DetectorOutput:
     nominal: np.ndarray
     alarm: np.ndarray
 
-    def payloads(self, system: System) -> dict[str, tuple[tuple[str, ...], np.ndarray]]:
-        """``{topic: (labels, values)}`` for the detector's three topics (single stream)."""
-        o = system.outputs
-        return {
-            "/fd/residual": ((*(f"r:{n}" for n in o), *(f"w:{n}" for n in o)),
-                             np.concatenate([self.residual, self.w])),
-            "/fd/threshold": ((*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o)),
-                              np.concatenate([self.threshold, self.nominal])),
-            "/fd/alarm": (tuple(o), np.asarray(self.alarm, dtype=float)),
-        }
+    def payload(self) -> dict[str, Any]:
+        """Field name -> value: ``residual``, ``w``, ``threshold``, ``nominal``, ``alarm``."""
+        return {"residual": self.residual, "w": self.w, "threshold": self.threshold,
+                "nominal": self.nominal, "alarm": self.alarm}
 
 
 class ResidualDetector:

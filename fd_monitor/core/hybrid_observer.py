@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -109,7 +110,7 @@ def _holds(v: float, op: str, value: float) -> bool:
 
 @dataclass(frozen=True)
 class ObserverOutput:
-    """Observer output at sample k (published on ``/fd/state_estimate``).
+    """Observer output at sample k (published as the state estimate).
 
     Attributes
     ----------
@@ -126,8 +127,7 @@ class ObserverOutput:
         (:meth:`~fd_monitor.core.envelope.CertifiedRegion.excess`: 0 inside, signed); None
         without a region (single stream only).
 
-    ``/fd/state_estimate`` layout (Float64MultiArray, data[0] = k, then): ``mode``, ``x_hat``
-    (state names), ``y_tilde`` (labels ``y~<name>``); see :meth:`payload`.
+    :meth:`payload` names the fields (:mod:`fd_monitor.wire.topics`: their topic).
     """
 
     k: int
@@ -136,12 +136,9 @@ class ObserverOutput:
     y_tilde: np.ndarray
     outside: np.ndarray | None = None
 
-    def payload(self, system: System) -> tuple[tuple[str, ...], np.ndarray]:
-        """Labels and values for ``/fd/state_estimate`` (single stream)."""
-        labels = ("mode", *system.states, *(f"y~{o}" for o in system.outputs))
-        vals = np.concatenate([[float(np.asarray(self.mode))], np.ravel(self.x_hat),
-                               np.ravel(self.y_tilde)])
-        return labels, vals
+    def payload(self) -> dict[str, Any]:
+        """Field name -> value: ``mode``, ``x_hat``, ``y_tilde``."""
+        return {"mode": self.mode, "x_hat": self.x_hat, "y_tilde": self.y_tilde}
 
 
 class HybridObserver:

@@ -19,21 +19,18 @@ past, so five processes joining messages on the sample stamp compute the same bi
 :meth:`Monitor.step` (each component's arithmetic does not depend on the batch size either:
 :func:`run_batch` gives the same numbers per run).
 
-Topics (``payload``/``payloads`` of each output give labels and values):
+Each output's ``payload()`` gives its values by field name (no topic, no label):
 
-==========================  =====================  =============================================
-topic                       from                   data (after data[0] = k)
-==========================  =====================  =============================================
-/fd/state_estimate          ObserverOutput         mode, x^ (states), y~ (``y~<out>``)
-/fd/residual                DetectorOutput         r (``r:<out>``), w (``w:<out>``)
-/fd/threshold               DetectorOutput         R in force (``R:<out>``), nominal (``rbar:``)
-/fd/alarm                   DetectorOutput         alarm flags 0/1 (outputs)
-/fd/guard_event             AgeiOutput             trigger (guard index or -1), phase, row,
-                                                   mode_uncertain (0/1)
-/fd/threshold_override      AgeiOutput             override per output (NaN = none)
-/fd/bias_estimate           BiasOutput             sigma^_{k+1} (outputs), ``iso:<out>``, active,
-                                                   k_detect
-==========================  =====================  =============================================
+==============  ==========================================================================
+output          fields
+==============  ==========================================================================
+ObserverOutput  mode, x_hat (states), y_tilde
+DetectorOutput  residual, w, threshold (in force), nominal, alarm (0/1)
+AgeiOutput      trigger (guard index or -1), phase, row, mode_uncertain, override (NaN = none)
+BiasOutput      sigma_hat (sigma^_{k+1}), isolated, active, k_detect
+==============  ==========================================================================
+
+The topics carrying them, and their labels, are declared in :mod:`fd_monitor.wire.topics`.
 
 Invalid samples (NaN/Inf, wrong length, non-consecutive k) raise
 :class:`~fd_monitor.model.errors.MessageError` from :func:`validate_sample` before any state

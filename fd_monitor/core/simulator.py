@@ -19,8 +19,8 @@ guard takes effect at the sample after the input that enables it. A scenario's
 The scheduling signal ``rho_k`` of a scenario (a profile of time, or a map of the true
 state, thesis eq. 7.19) is recorded with the truth; a parameter-dependent plant (``A_rho``,
 ``B_rho``) is integrated with it inside the sample (:meth:`SampledPlant.step`). The truth of
-a sample (:func:`truth_labels`, :func:`truth_values`) is ``mode``, ``x.<state>``,
-``f.<fault>`` and ``rho.<name>``.
+a sample (:func:`truth_values`; labels: :data:`fd_monitor.wire.topics.PLANT_TRUTH`) is
+``mode``, ``x.<state>``, ``f.<fault>`` and ``rho.<name>``.
 
 Each run has its own generator, seeded from ``SeedSequence(seed)``; noise is drawn in blocks
 of :data:`BLOCK` samples in a fixed order (w, v, eta), so a run is the same whichever batch it
@@ -40,7 +40,7 @@ from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.scenario import PIController, Profile, Scenario
 
 __all__ = ["BLOCK", "PlantSimulator", "Sample", "Trajectory", "simulate", "simulate_batch",
-           "truth_labels", "truth_values", "measured_layout", "measured_signals",
+           "truth_values", "measured_layout", "measured_signals",
            "measured_values"]
 
 BLOCK = 256
@@ -320,16 +320,9 @@ def simulate(scenario: Scenario, seed: int | None = None,
     return simulate_batch(scenario, [scenario.seed if seed is None else seed], n_samples)
 
 
-def truth_labels(scenario: Scenario) -> tuple[str, ...]:
-    """Channel names of ``/plant/truth``: ``mode``, ``x.<state>``..., ``f.<fault>``...,
-    ``rho.<parameter>``... (the scenario's scheduling parameters, if any)."""
-    sys_ = scenario.system
-    return ("mode", *(f"x.{s}" for s in sys_.states), *(f"f.{f.name}" for f in sys_.faults),
-            *(f"rho.{n}" for n in scenario.rho_names))
-
-
 def truth_values(traj: Trajectory | Sample, run: int = 0) -> np.ndarray:
-    """``/plant/truth`` values of one run, columns as :func:`truth_labels`: (K, m) of a
+    """``/plant/truth`` values of one run, columns mode, x (states), faults, rho (scheduling
+    parameters): (K, m) of a
     :class:`Trajectory`, (m,) of a :class:`Sample` (what ``plant_sim`` publishes)."""
     mode = np.asarray(traj.mode[run], dtype=float)
     return np.concatenate([mode[..., None], traj.x[run], traj.faults[run], traj.rho[run]],
@@ -338,32 +331,33 @@ def truth_values(traj: Trajectory | Sample, run: int = 0) -> np.ndarray:
 
 def measured_layout(scenario: Scenario) -> dict[str, tuple[tuple[str, ...],
                                                               tuple[int, ...] | None]]:
-    """What a monitor may measure besides u and y, as topics: ``/plant/rho`` (the measured
-    scheduling parameters of an LPV plant, thesis ch. 6) and ``/plant/mode`` (the mode of a
+    """What a monitor may measure besides u and y, by side-signal name: ``rho`` (the measured
+    scheduling parameters of an LPV plant, thesis ch. 6) and ``mode`` (the mode of a
     plant whose switching no guard decides -- ``switching: arbitrary``, or several modes and
     no guards -- measured, as Farhat & Koenig assume, A.3).
 
     Returns
     -------
     dict
-        Topic -> (labels, columns of the scenario's rho, or None for the mode); empty for a
-        plant with neither. The side signals of :mod:`fd_monitor.core.runtime` (``rho``,
-        ``mode``) are read from these topics.
+        Side-signal name (``rho``, ``mode``: the side signals of
+        :mod:`fd_monitor.core.runtime`) -> (labels, columns of the scenario's rho, or None for
+        the mode); empty for a plant with neither. Their topics:
+        :func:`fd_monitor.wire.topics.side_topic`.
     """
     sys_ = scenario.system
     out: dict[str, tuple[tuple[str, ...], tuple[int, ...] | None]] = {}
     measured = {p.name for p in sys_.lpv if p.measured}
     cols = tuple(j for j, n in enumerate(scenario.rho_names) if n in measured)
     if cols:
-        out["/plant/rho"] = (tuple(scenario.rho_names[j] for j in cols), cols)
+        out["rho"] = (tuple(scenario.rho_names[j] for j in cols), cols)
     if len(sys_.modes) > 1 and (sys_.switching == "arbitrary" or not sys_.guards):
         # no guard decides the mode: it is exogenous, and the monitor must be told it
-        out["/plant/mode"] = (("mode",), None)
+        out["mode"] = (("mode",), None)
     return out
 
 
 def measured_values(cols: tuple[int, ...] | None, mode: Any, rho: Any) -> np.ndarray:
-    """Values of one :func:`measured_layout` topic: ``rho[..., cols]``, or the mode as a
+    """Values of one :func:`measured_layout` signal: ``rho[..., cols]``, or the mode as a
     column ((..., 1) float) when ``cols`` is None."""
     if cols is None:
         return np.asarray(mode, dtype=float)[..., None]
@@ -372,6 +366,6 @@ def measured_values(cols: tuple[int, ...] | None, mode: Any, rho: Any) -> np.nda
 
 def measured_signals(traj: Trajectory, run: int = 0) -> dict[str, tuple[tuple[str, ...],
                                                                           np.ndarray]]:
-    """:func:`measured_layout` topics of one run: topic -> (labels, (K, m) values)."""
+    """:func:`measured_layout` signals of one run: name -> (labels, (K, m) values)."""
     return {t: (labels, measured_values(cols, traj.mode[run], traj.rho[run]))
             for t, (labels, cols) in measured_layout(traj.scenario).items()}

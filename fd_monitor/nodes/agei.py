@@ -16,7 +16,14 @@ from fd_monitor.core.agei import Agei
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
-from fd_monitor.wire.topics import state_labels
+from fd_monitor.wire.topics import (
+    DIAGNOSTICS,
+    GUARD_EVENT,
+    RESIDUAL,
+    STATE_ESTIMATE,
+    THRESHOLD,
+    THRESHOLD_OVERRIDE,
+)
 
 __all__ = ["AgeiNode", "USAGE", "main"]
 
@@ -27,12 +34,12 @@ PARAMS = (
 USAGE = NodeUsage(
     "agei", "agei: autonomous guard event identification (thresholds gain files only).",
     (*COMMON_PARAMS, *PARAMS),
-    subscribes=(("/fd/state_estimate", "q^_k from observer"),
-                ("/fd/residual", "r_k, w_k from detector"),
-                ("/fd/threshold", "nominal threshold at k from detector")),
-    publishes=(("/fd/guard_event", "trigger, phase, row, mode_uncertain (stamp k + 1)"),
-               ("/fd/threshold_override", "override per output, NaN = none (stamp k + 1)"),
-               ("/diagnostics", "input and tracker status")))
+    subscribes=((STATE_ESTIMATE, "q^_k from observer"),
+                (RESIDUAL, "r_k, w_k from detector"),
+                (THRESHOLD, "nominal threshold at k from detector")),
+    publishes=((GUARD_EVENT, "trigger, phase, row, mode_uncertain (stamp k + 1)"),
+               (THRESHOLD_OVERRIDE, "override per output, NaN = none (stamp k + 1)"),
+               (DIAGNOSTICS, "input and tracker status")))
 
 
 class AgeiNode(FdNode):
@@ -46,7 +53,7 @@ class AgeiNode(FdNode):
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
-    outputs = ("fd/guard_event", "fd/threshold_override")
+    outputs = (GUARD_EVENT, THRESHOLD_OVERRIDE)
 
     def __init__(self, agei: Agei | None = None, system=None, gains=None, qos=None,
                  node_name: str = "agei", **kwargs: Any) -> None:
@@ -71,16 +78,14 @@ class AgeiNode(FdNode):
         s = self.system
         self.agei = (agei if agei is not None
                      else Agei(s, as_gains(s, self.gain_file), enabled=self.params.enabled))
-        self.pub_guard = self.publisher("fd/guard_event")
-        self.pub_override = self.publisher("fd/threshold_override")
+        self._out = [(self.publisher(t), t.layout(s)) for t in self.outputs]
         self.diag.add("tracker", self.params.stale_timeout)
-        o = s.outputs
-        self.start_inputs([
-            Input("est", "fd/state_estimate", state_labels(s), sequence=True),
-            Input("residual", "fd/residual", (*(f"r:{n}" for n in o), *(f"w:{n}" for n in o))),
-            Input("threshold", "fd/threshold",
-                  (*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o))),
-        ])
+        inputs = [Input.of("est", STATE_ESTIMATE, s, sequence=True),
+                  Input.of("residual", RESIDUAL, s), Input.of("threshold", THRESHOLD, s)]
+        # the fields read, resolved once: q^, r, w, the nominal threshold
+        est, res, thr = (i.layout.index for i in inputs if i.layout is not None)
+        self._i = (est["mode"], res["residual"], res["w"], thr["nominal"])
+        self.start_inputs(inputs)
 
     def reset(self) -> None:
         """Back to monitoring (Monitor.reset)."""
@@ -88,15 +93,13 @@ class AgeiNode(FdNode):
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """q^_k, w_k, r_k, nominal_k -> trigger and override for k + 1."""
-        ny = self.system.ny
-        mode = int(inputs["est"][0])
-        r, w = inputs["residual"][:ny], inputs["residual"][ny:]
-        out = self.agei.step(k, mode, w, r, inputs["threshold"][ny:])
-        pay = out.payloads(self.system)
-        for pub, topic in ((self.pub_guard, "/fd/guard_event"),
-                           (self.pub_override, "/fd/threshold_override")):
-            labels, values = pay[topic]
-            self.publish_array(pub, labels, k + 1, values)
+        i_mode, i_r, i_w, i_nominal = self._i
+        res = inputs["residual"]
+        out = self.agei.step(k, int(inputs["est"][i_mode]), res[i_w], res[i_r],
+                             inputs["threshold"][i_nominal])
+        pay = out.payload()
+        for pub, lay in self._out:
+            self.publish_array(pub, lay.labels, k + 1, lay.encode(pay))
         self.diag.update("tracker", OK, f"phase {out.phase}", {
             "sample": k, "trigger": out.trigger, "phase": out.phase, "row": out.row,
             **self.gain_values()})

@@ -25,18 +25,13 @@ from fd_monitor.nodes.common import (
     pub_events,
     sub_events,
 )
-from fd_monitor.wire.bags import DIAGNOSTIC_ARRAY, FLOAT64_MULTI_ARRAY, BagWriter, read_raw
+from fd_monitor.wire.bags import BagWriter, read_raw
+from fd_monitor.wire.topics import CHAIN_DATA, DIAGNOSTIC_ARRAY, DIAGNOSTICS, FLOAT64_MULTI_ARRAY
 
 __all__ = ["KNOWN_TYPES", "RecorderNode", "ReplayNode", "message_class"]
 
 #: Default types of the fd_monitor topics.
-KNOWN_TYPES: dict[str, str] = {
-    **{t: FLOAT64_MULTI_ARRAY for t in (
-        "/plant/u", "/plant/y", "/plant/truth", "/fd/state_estimate", "/fd/residual",
-        "/fd/threshold", "/fd/alarm", "/fd/guard_event", "/fd/threshold_override",
-        "/fd/bias_estimate")},
-    "/diagnostics": DIAGNOSTIC_ARRAY,
-}
+KNOWN_TYPES: dict[str, str] = {t.absolute: t.msg_type for t in (*CHAIN_DATA, DIAGNOSTICS)}
 
 
 def message_class(msgtype: str) -> Any:

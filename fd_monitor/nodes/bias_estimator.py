@@ -17,7 +17,15 @@ from fd_monitor.core.bias_estimator import BiasEstimator
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.nodes.common import OK, WARN, NodeUsage, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
-from fd_monitor.wire.topics import GUARD_LABELS, state_labels
+from fd_monitor.wire.topics import (
+    ALARM,
+    BIAS_ESTIMATE,
+    DIAGNOSTICS,
+    GUARD_EVENT,
+    PLANT_U,
+    PLANT_Y,
+    STATE_ESTIMATE,
+)
 
 __all__ = ["BiasEstimatorNode", "BiasReport", "USAGE", "main"]
 
@@ -26,13 +34,13 @@ PARAMS: tuple = ()
 USAGE = NodeUsage(
     "bias_estimator", "bias_estimator: adaptive sensor-bias estimator (thresholds gain files "
     "only).", (*COMMON_PARAMS, *PARAMS),
-    subscribes=(("/plant/u", "u_k"), ("/plant/y", "raw y_k"),
-                ("/fd/state_estimate", "q^_k from observer"),
-                ("/fd/alarm", "alarm_k from detector (the first one starts estimation)"),
-                ("/fd/guard_event", "AGEI mode_uncertain at k (stamped k + 1)")),
-    publishes=(("/fd/bias_estimate", "sigma^_{k+1}, iso:<out>, active, k_detect "
+    subscribes=((PLANT_U, "u_k"), (PLANT_Y, "raw y_k"),
+                (STATE_ESTIMATE, "q^_k from observer"),
+                (ALARM, "alarm_k from detector (the first one starts estimation)"),
+                (GUARD_EVENT, "AGEI mode_uncertain at k (stamped k + 1)")),
+    publishes=((BIAS_ESTIMATE, "sigma^_{k+1}, iso:<out>, active, k_detect "
                 "(stamp k + 1)"),
-               ("/diagnostics", "input and estimate status")))
+               (DIAGNOSTICS, "input and estimate status")))
 
 
 class BiasReport:
@@ -77,7 +85,7 @@ class BiasEstimatorNode(BiasReport, FdNode):
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
-    outputs = ("fd/bias_estimate",)
+    outputs = (BIAS_ESTIMATE,)
 
     def __init__(self, estimator: BiasEstimator | None = None, system=None, gains=None,
                  qos=None, node_name: str = "bias_estimator", **kwargs: Any) -> None:
@@ -104,16 +112,21 @@ class BiasEstimatorNode(BiasReport, FdNode):
         s = self.system
         self.estimator = (estimator if estimator is not None
                           else BiasEstimator(s, as_gains(s, self.gain_file)))
-        self.pub = self.publisher("fd/bias_estimate")
+        self.pub = self.publisher(BIAS_ESTIMATE)
+        self._bias = BIAS_ESTIMATE.layout(s)
         # A fault found stays visible (with its estimate) when the input stops.
         self.diag.add("estimate", self.params.stale_timeout, keep_on_stale=True)
-        self.start_inputs([
-            Input("u", "plant/u", s.inputs, plain_ok=True, hold=True),
-            Input("y", "plant/y", s.outputs, plain_ok=True),
-            Input("est", "fd/state_estimate", state_labels(s), sequence=True),
-            Input("alarm", "fd/alarm", tuple(s.outputs)),
-            Input("guard", "fd/guard_event", GUARD_LABELS, stamp_offset=-1),
-        ])
+        inputs = [
+            Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
+            Input.of("y", PLANT_Y, s, plain_ok=True),
+            Input.of("est", STATE_ESTIMATE, s, sequence=True),
+            Input.of("alarm", ALARM, s),
+            Input.of("guard", GUARD_EVENT, s, stamp_offset=-1),
+        ]
+        # the fields read, resolved once: q^, the alarms, mode_uncertain
+        lay = {i.name: i.layout.index for i in inputs if i.layout is not None}
+        self._i = (lay["est"]["mode"], lay["alarm"]["alarm"], lay["guard"]["mode_uncertain"])
+        self.start_inputs(inputs)
 
     def reset(self) -> None:
         """Back to inactive, sigma^ = 0 (Monitor.reset)."""
@@ -122,12 +135,12 @@ class BiasEstimatorNode(BiasReport, FdNode):
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """u_k, y_k, q^_k, alarm_k, AGEI row at k -> sigma^_{k+1}, isolation flags."""
-        s = self.system
-        out = self.estimator.step(k, inputs["u"], inputs["y"], int(inputs["est"][0]),
-                                  inputs["alarm"] > 0.5,
-                                  bool(inputs["guard"][3] > 0.5))
-        labels, values = out.payload(s)
-        self.publish_array(self.pub, labels, k + 1, values)
+        i_mode, i_alarm, i_uncertain = self._i
+        out = self.estimator.step(k, inputs["u"], inputs["y"], int(inputs["est"][i_mode]),
+                                  inputs["alarm"][i_alarm] > 0.5,
+                                  bool(inputs["guard"][i_uncertain] > 0.5))
+        lay = self._bias
+        self.publish_array(self.pub, lay.labels, k + 1, lay.encode(out.payload()))
         self.report_bias(k, out)
 
 

@@ -50,6 +50,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.ros_args import init_ros, shown_params_file
+from fd_monitor.wire.topics import DIAGNOSTICS, Topic
 
 __all__ = [
     "OK", "WARN", "ERROR", "STALE", "LEVEL_NAMES",
@@ -304,7 +305,7 @@ class Diagnostics:
         self._hardware_id = hardware_id
         self._clock = clock
         self._channels: dict[str, _Channel] = {}
-        self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", diagnostics_qos(),
+        self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS.name, diagnostics_qos(),
                                          **pub_events())
         self._last_publish = -float("inf")
         self._dirty = False
@@ -498,15 +499,15 @@ class NodeUsage:
         One line.
     params : sequence of Param
         The same declarations the node passes to :func:`declare_parameters`.
-    subscribes, publishes : sequence of (str, str)
-        ``(topic, meaning)``.
+    subscribes, publishes : sequence of (Topic, str)
+        ``(topic, meaning)`` (:mod:`fd_monitor.wire.topics`).
     """
 
     name: str
     summary: str
     params: Sequence[Param]
-    subscribes: Sequence[tuple[str, str]] = ()
-    publishes: Sequence[tuple[str, str]] = ()
+    subscribes: Sequence[tuple[Topic, str]] = ()
+    publishes: Sequence[tuple[Topic, str]] = ()
 
 
 def wants_help(args: Sequence[str] | None) -> bool:
@@ -555,7 +556,7 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
             lines.append(f"  {p.name:<{width}}  {p.description} (default {p.default!r}{rng})")
         for head, declared in (("subscribes", u.subscribes), ("publishes", u.publishes)):
             # The names as the node resolves them: data topics relative to its namespace.
-            topics = [(t if t == "/diagnostics" else t.lstrip("/"), m) for t, m in declared]
+            topics = [(t.name, m) for t, m in declared]
             if topics:
                 lines += ["", f"{head} ({u.name}):"]
                 tw = max(len(t) for t, _ in topics)

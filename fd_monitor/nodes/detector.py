@@ -38,7 +38,15 @@ from fd_monitor.nodes.common import (
 )
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.wire.conversions import decode
-from fd_monitor.wire.topics import bias_labels, state_labels
+from fd_monitor.wire.topics import (
+    ALARM,
+    BIAS_ESTIMATE,
+    DIAGNOSTICS,
+    RESIDUAL,
+    STATE_ESTIMATE,
+    THRESHOLD,
+    THRESHOLD_OVERRIDE,
+)
 
 __all__ = ["DetectorNode", "ResidualReport", "USAGE", "main"]
 
@@ -55,13 +63,13 @@ LAYOUTS = ("standalone", "chain")
 USAGE = NodeUsage(
     "detector", "detector: filtered residuals, thresholds and alarms (QB bounds for a qb "
     "gain file).", (*COMMON_PARAMS, *PARAMS),
-    subscribes=(("/fd/state_estimate", "mode, x^_k, y~_k from observer"),
-                ("/fd/threshold_override", "AGEI override for k (stamped k; NaN = none)"),
-                ("/fd/bias_estimate", "latest sigma^ (diagnostics only)")),
-    publishes=(("/fd/residual", "r:<out>, w:<out> (stamp k)"),
-               ("/fd/threshold", "R:<out> in force, rbar:<out> nominal"),
-               ("/fd/alarm", "0/1 per channel"),
-               ("/diagnostics", "one status per channel: residual, threshold, margin")))
+    subscribes=((STATE_ESTIMATE, "mode, x^_k, y~_k from observer"),
+                (THRESHOLD_OVERRIDE, "AGEI override for k (stamped k; NaN = none)"),
+                (BIAS_ESTIMATE, "latest sigma^ (diagnostics only)")),
+    publishes=((RESIDUAL, "r:<out>, w:<out> (stamp k)"),
+               (THRESHOLD, "R:<out> in force, rbar:<out> nominal"),
+               (ALARM, "0/1 per channel"),
+               (DIAGNOSTICS, "one status per channel: residual, threshold, margin")))
 
 
 class ResidualReport:
@@ -119,7 +127,7 @@ class DetectorNode(ResidualReport, FdNode):
     """
 
     runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds", "qb": "_start_qb"}
-    outputs = ("fd/residual", "fd/threshold", "fd/alarm")
+    outputs = (RESIDUAL, THRESHOLD, ALARM)
 
     def __init__(self, detector: ResidualDetector | None = None, system=None, gains=None,
                  qos=None, node_name: str = "detector", **kwargs: Any) -> None:
@@ -133,6 +141,9 @@ class DetectorNode(ResidualReport, FdNode):
         """Publishers, detector and inputs (at configure)."""
         self.detector: Any = self._detector_arg
         self.pubs = {t: self.publisher(t) for t in self.outputs}
+        est = STATE_ESTIMATE.layout(self.system)
+        # the fields of the state estimate, resolved once
+        self._i_est = (est.index["mode"], est.index["x_hat"], est.index["y_tilde"])
         self.sigma_hat = np.zeros(self.system.ny)
         self._alarmed: set[str] = set()
         self._episode = 0
@@ -151,12 +162,14 @@ class DetectorNode(ResidualReport, FdNode):
         if self.detector is None:
             self.detector = ResidualDetector(s, as_gains(s, self.gain_file))
         self.channels = [f"residual {o}" for o in s.outputs]
+        self._layouts = {t: t.layout(s) for t in self.outputs}
         # The latest bias estimate, for diagnostics only (not joined: it does not enter r_k).
-        self.subscribe("fd/bias_estimate", self._on_bias)
+        self._bias = BIAS_ESTIMATE.layout(s)
+        self.subscribe(BIAS_ESTIMATE.name, self._on_bias)
         self.start_inputs([
-            Input("est", "fd/state_estimate", state_labels(s), sequence=True),
-            Input("override", "fd/threshold_override", tuple(s.outputs),
-                  initial=no_override(s.ny), allow_nan=True),
+            Input.of("est", STATE_ESTIMATE, s, sequence=True),
+            Input.of("override", THRESHOLD_OVERRIDE, s, initial=no_override(s.ny),
+                     allow_nan=True),
         ])
         self._step = self._step_thresholds
 
@@ -165,20 +178,20 @@ class DetectorNode(ResidualReport, FdNode):
         self.detector = QBDetector(s, self.gain_file)
         self._C = qb_model(s).C                 # r = y - C_q x^ (QBObserver.residual)
         self.channels = [f"residual {c}" for c in self.detector.channels]
-        self.start_inputs([Input("est", "fd/state_estimate", state_labels(s), sequence=True)])
+        self._layouts = {t: t.channels(self.detector.channels) for t in self.outputs}
+        self.start_inputs([Input.of("est", STATE_ESTIMATE, s, sequence=True)])
         self._step = self._step_qb
 
     def _on_bias(self, msg: Any) -> None:
         if not self.active:
             return
         try:
-            d = decode(msg, self.resolve_topic_name("fd/bias_estimate"),
-                       labels=bias_labels(self.system),
-                       require_stamp=True)
+            d = decode(msg, self.resolve_topic_name(BIAS_ESTIMATE.name),
+                       labels=self._bias.labels, require_stamp=True)
         except MessageError as exc:
             self.bad_input(str(exc))
             return
-        self.sigma_hat = d.values[:self.system.ny]
+        self.sigma_hat = d.values[self._bias.index["sigma_hat"]]
 
     def reset(self) -> None:
         """Forget the filters' history (Monitor.reset); the QB detector has no state."""
@@ -190,26 +203,23 @@ class DetectorNode(ResidualReport, FdNode):
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """(q^_k, x^_k, y~_k), override -> residual, threshold, alarm at k."""
-        s = self.system
         est = inputs["est"]
-        mode, x_hat, y_t = int(est[0]), est[1:1 + s.n], est[1 + s.n:1 + s.n + s.ny]
-        signal, threshold, alarm, extra = self._step(k, mode, x_hat, y_t, inputs)
-        for topic, (labels, values) in extra.items():
-            self.publish_array(self.pubs[topic.lstrip("/")], labels, k, values)
-        self._report(k, mode, signal, threshold, alarm)
+        i_mode, i_x, i_y = self._i_est
+        mode, x_hat, y_t = int(est[i_mode]), est[i_x], est[i_y]
+        pay = self._step(k, mode, x_hat, y_t, inputs)
+        for topic, pub in self.pubs.items():
+            lay = self._layouts[topic]
+            self.publish_array(pub, lay.labels, k, lay.encode(pay))
+        self._report(k, mode, pay["residual"], pay["threshold"], pay["alarm"])
 
     def _step_thresholds(self, k, mode, x_hat, y_t, inputs):
-        out = self.detector.step(k, y_t, x_hat, mode, inputs["override"])
-        return out.residual, out.threshold, out.alarm, out.payloads(self.system)
+        return self.detector.step(k, y_t, x_hat, mode, inputs["override"]).payload()
 
     def _step_qb(self, k, mode, x_hat, y_t, inputs):
         det = self.detector
         sig = det.signals(x_hat, y_t - self._C[mode] @ x_hat)
         thr = det.rho * det.bounds(mode)
-        alarm = sig > thr
-        ch = det.channels
-        return sig, thr, alarm, {"fd/residual": (ch, sig), "fd/threshold": (ch, thr),
-                                 "fd/alarm": (ch, alarm.astype(float))}
+        return {"residual": sig, "threshold": thr, "alarm": sig > thr}
 
 
 def make_nodes(**kwargs: Any) -> list:

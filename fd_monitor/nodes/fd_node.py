@@ -58,6 +58,7 @@ from fd_monitor.nodes.common import (
 )
 from fd_monitor.wire.conversions import ArrivalStamper, decode, readable_stamp, to_msg
 from fd_monitor.wire.join import Sample, StampJoin
+from fd_monitor.wire.topics import Layout, Topic
 
 __all__ = ["COMMON_PARAMS", "RUNTIME_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
 
@@ -125,8 +126,11 @@ class Input:
         is needed at the sample it was decided at (k).
     sequence : bool
         ``fd/state_estimate`` of the entry node: its stamps are the samples this node
-        processes and its last value (``restart``) flags a restart (downstream role of
+        processes and its ``restart`` field flags a restart (downstream role of
         :class:`~fd_monitor.wire.join.StampJoin`).
+    layout : Layout, optional
+        The topic's layout for the plant (:meth:`of`): labels and field index table, built
+        once; ``process`` reads the fields through it.
     """
 
     name: str
@@ -139,6 +143,22 @@ class Input:
     allow_nan: bool = False
     stamp_offset: int = 0
     sequence: bool = False
+    layout: Layout | None = None
+
+    def __post_init__(self) -> None:
+        if self.sequence and self.layout is None:
+            raise ValueError(f"input {self.name}: a sequence input is read by field: give "
+                             f"its layout (Input.of)")
+
+    @classmethod
+    def of(cls, name: str, topic: Topic, source: Any, **kwargs: Any) -> Input:
+        """The input of a declared topic (:mod:`fd_monitor.wire.topics`) for a plant."""
+        return cls.laid_out(name, topic, topic.layout(source), **kwargs)
+
+    @classmethod
+    def laid_out(cls, name: str, topic: Topic, layout: Layout, **kwargs: Any) -> Input:
+        """The input of a declared topic with a given layout (a runtime's own labels)."""
+        return cls(name, topic.name, layout.labels, layout=layout, **kwargs)
 
 
 def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainFile]:
@@ -178,8 +198,8 @@ class FdNode(LifecycleNode):
     events_executor = False
     #: Gain-file method -> name of the method building the node's runtime for it.
     runtimes: Mapping[str, str] = {}
-    #: Output topics (relative), for the start line and the second-publisher check.
-    outputs: Sequence[str] = ()
+    #: Output topics, for the start line and the second-publisher check.
+    outputs: Sequence[Topic] = ()
 
     def __init__(self, node_name: str, params: Sequence[Param] = (),
                  system: System | None = None, gains: GainFile | None = None, qos=None,
@@ -314,7 +334,7 @@ class FdNode(LifecycleNode):
         raise NotImplementedError
 
     def _topic_names(self, inputs: bool) -> list[str]:
-        topics = [i.topic for i in self.inputs] if inputs else list(self.outputs)
+        topics = [i.topic for i in self.inputs] if inputs else [t.name for t in self.outputs]
         return [self.resolve_topic_name(t) for t in topics]
 
     def _waits_for(self) -> list[str]:
@@ -385,11 +405,11 @@ class FdNode(LifecycleNode):
         """Build the runtime of the gain file's method (the one factory of the chain nodes)."""
         getattr(self, self.runtimes[self.gain_file.method])()
 
-    def publisher(self, topic: str) -> Any:
-        """A data-path publisher of Float64MultiArray (relative topic)."""
-        name = self.resolve_topic_name(topic)
+    def publisher(self, topic: Topic) -> Any:
+        """A data-path publisher of Float64MultiArray (a declared topic, relative)."""
+        name = self.resolve_topic_name(topic.name)
         pub = self.create_publisher(
-            Float64MultiArray, topic, self._qos,
+            Float64MultiArray, topic.name, self._qos,
             **pub_events(lambda info: self._graph_note(
                 incompatible_text(name, "publisher", info))))
         self._entities.append(pub)
@@ -397,7 +417,7 @@ class FdNode(LifecycleNode):
         return pub
 
     def subscribe(self, topic: str, callback: Callable[..., None]) -> DataInput:
-        """A data-path subscription of Float64MultiArray (relative topic)."""
+        """A data-path subscription of Float64MultiArray (relative topic name)."""
         sub = DataInput(self, Float64MultiArray, topic, callback, self._graph_note)
         self._entities.append(sub)
         return sub
@@ -457,6 +477,8 @@ class FdNode(LifecycleNode):
         stamper = self._stamper
         topic = self.resolve_topic_name(inp.topic)
         order = _TopicOrder(topic)
+        # the restart flag of the sequence input, by field (resolved once)
+        i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
 
         def cb(msg: Any, info: Any) -> None:
             if not self.active:
@@ -490,7 +512,7 @@ class FdNode(LifecycleNode):
             stamp = int(d.stamp) + inp.stamp_offset
             if stamp >= 0:
                 self.on_input(inp.name, stamp, d.values,
-                              restart=inp.sequence and d.values[-1] > 0.5)
+                              restart=inp.sequence and d.values[i_restart] > 0.5)
         return cb
 
     def _pair_plain(self, now: float | None = None) -> None:

@@ -44,7 +44,19 @@ from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.nodes.observer import EstimateReport, ObserverNode
 from fd_monitor.nodes.runtime_node import RuntimeNode, gain_method
 from fd_monitor.wire.conversions import to_msg
-from fd_monitor.wire.topics import GUARD_LABELS, bias_labels, state_labels
+from fd_monitor.wire.topics import (
+    ALARM,
+    BIAS_ESTIMATE,
+    CHAIN_OUTPUTS,
+    DIAGNOSTICS,
+    GUARD_EVENT,
+    PLANT_U,
+    PLANT_Y,
+    RESIDUAL,
+    STATE_ESTIMATE,
+    THRESHOLD,
+    THRESHOLD_OVERRIDE,
+)
 
 __all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main"]
 
@@ -69,18 +81,18 @@ PARAMS = (
 USAGE = NodeUsage(
     "monitor", "monitor: the diagnosis chain (observer, detector, AGEI, bias estimator) as "
     "one node (layout:=chain: the four nodes in one process).", (*COMMON_PARAMS, *PARAMS),
-    subscribes=(("/plant/u", "u_k (stamped, or plain: stamped on arrival)"),
-                ("/plant/y", "y_k (stamped, or plain: stamped on arrival)")),
-    publishes=(("/fd/state_estimate", "mode, x^_k, y~_k, restart (stamp k)"),
-               ("/fd/residual", "r:<out>, w:<out> (stamp k)"),
-               ("/fd/threshold", "R:<out> in force, rbar:<out> nominal (stamp k)"),
-               ("/fd/alarm", "0/1 per output (stamp k)"),
-               ("/fd/guard_event", "trigger, phase, row, mode_uncertain (stamp k + 1)"),
-               ("/fd/threshold_override", "AGEI override per output, NaN = none "
+    subscribes=((PLANT_U, "u_k (stamped, or plain: stamped on arrival)"),
+                (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)")),
+    publishes=((STATE_ESTIMATE, "mode, x^_k, y~_k, restart (stamp k)"),
+               (RESIDUAL, "r:<out>, w:<out> (stamp k)"),
+               (THRESHOLD, "R:<out> in force, rbar:<out> nominal (stamp k)"),
+               (ALARM, "0/1 per output (stamp k)"),
+               (GUARD_EVENT, "trigger, phase, row, mode_uncertain (stamp k + 1)"),
+               (THRESHOLD_OVERRIDE, "AGEI override per output, NaN = none "
                 "(stamp k + 1)"),
-               ("/fd/bias_estimate", "sigma^_{k+1}, iso:<out>, active, k_detect "
+               (BIAS_ESTIMATE, "sigma^_{k+1}, iso:<out>, active, k_detect "
                 "(stamp k + 1)"),
-               ("/diagnostics", "input, estimate, residual <out>, tracker, bias estimate")))
+               (DIAGNOSTICS, "input, estimate, residual <out>, tracker, bias estimate")))
 
 
 class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
@@ -94,8 +106,7 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
     """
 
     runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds"}
-    outputs = ("fd/state_estimate", "fd/residual", "fd/threshold", "fd/alarm",
-               "fd/guard_event", "fd/threshold_override", "fd/bias_estimate")
+    outputs = CHAIN_OUTPUTS
     bias_channel = "bias estimate"
     # message-only callbacks: runs under the EventsExecutor (run_node)
     message_info = False
@@ -117,24 +128,21 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         """Publishers, runtime, diagnostics and inputs (at configure)."""
         s = self.system
         o = s.outputs
-        labels = {
-            "fd/state_estimate": state_labels(s),
-            "fd/residual": (*(f"r:{n}" for n in o), *(f"w:{n}" for n in o)),
-            "fd/threshold": (*(f"R:{n}" for n in o), *(f"rbar:{n}" for n in o)),
-            "fd/alarm": tuple(o),
-            "fd/guard_event": GUARD_LABELS,
-            "fd/threshold_override": tuple(o),
-            "fd/bias_estimate": bias_labels(s),
-        }
         # Each topic's message is serialised once (CDR, little endian); ``data`` is its last
         # field, so a sample's message is that prefix (layout, data length) followed by the
         # k and values as float64: published as serialised bytes, no message object per
-        # sample (the tests compare every published value with Monitor's).
+        # sample (the tests compare every published value with Monitor's). The values are
+        # the runtime's payloads by field name (the layouts, built once).
         self._out = []
-        for t, lab in labels.items():
-            n = len(lab) + 1
-            cdr = serialize_message(to_msg(lab, 0, [0.0] * len(lab)))
-            self._out.append((self.publisher(t), cdr[:-8 * n], struct.Struct(f"<{n}d")))
+        for t in self.outputs:
+            lay = t.layout(s)
+            n = len(lay.labels) + 1
+            cdr = serialize_message(to_msg(lay.labels, 0, [0.0] * len(lay.labels)))
+            self._out.append((self.publisher(t), cdr[:-8 * n], struct.Struct(f"<{n}d"),
+                              lay, t.next_sample))
+        #: per topic: publisher, prefix, packer, which payload holds each field, k or k + 1
+        #: (resolved at the first sample from the runtime's payloads)
+        self._plan: list[tuple[Any, bytes, struct.Struct, Any, bool]] | None = None
         self.sigma_hat = [0.0] * s.ny
         self._alarmed: set[str] = set()
         self._episode = 0
@@ -157,8 +165,8 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         s = self.system
         self.build_core(self.gain_file)
         self.start_inputs([
-            Input("u", "plant/u", s.inputs, plain_ok=True, hold=True),
-            Input("y", "plant/y", s.outputs, plain_ok=True),
+            Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
+            Input.of("y", PLANT_Y, s, plain_ok=True),
         ], gap_timeout=self.params.gap_timeout)
 
     def build_core(self, gains: Any) -> None:
@@ -182,22 +190,23 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         """(u_k, y_k) -> the chain's seven outputs and the diagnostics."""
         out = self.step_runtime(k, inputs)
         ob, det, ag, est = out.observer, out.detector, out.agei, out.estimator
-        kf, kn = float(k), float(k + 1)
-        alarm = det.alarm.tolist()
-        rows = (
-            (kf, float(ob.mode), *ob.x_hat.tolist(), *ob.y_tilde.tolist(),
-             1.0 if self.restarting else 0.0),
-            (kf, *det.residual.tolist(), *det.w.tolist()),
-            (kf, *det.threshold.tolist(), *det.nominal.tolist()),
-            (kf, *(1.0 if a else 0.0 for a in alarm)),
-            (kn, float(ag.trigger), float(ag.phase), float(ag.row),
-             1.0 if ag.mode_uncertain else 0.0),
-            (kn, *ag.override.tolist()),
-            (kn, *est.sigma_hat.tolist(), *(1.0 if i else 0.0 for i in est.isolated.tolist()),
-             1.0 if est.active else 0.0, float(est.k_detect)),
-        )
-        for (pub, prefix, cdr), data in zip(self._out, rows):
+        stamps = (k, k + 1)
+        pays = (ob.payload(), det.payload(), ag.payload(), est.payload(),
+                {"restart": self.restarting})
+        if self._plan is None:
+            self._plan = [(pub, prefix, cdr, lay.sources(pays), nxt)
+                          for pub, prefix, cdr, lay, nxt in self._out]
+        for pub, prefix, cdr, src, nxt in self._plan:
+            # [k, *values] as Python numbers (bools and ints pack exactly as float64)
+            data: list[Any] = [stamps[nxt]]
+            for i, name, scalar in src:
+                v = pays[i][name]
+                if scalar:
+                    data.append(v)
+                else:
+                    data.extend(v.tolist())
             pub.publish(prefix + cdr.pack(*data))
+        alarm = det.alarm.tolist()
         # Diagnostics: a full report when a status can change (alarms, mode, AGEI phase,
         # estimator, certified region) and at least every DIAG_REFRESH s; else the channels
         # are only marked fresh. /diagnostics goes out every diagnostics_period anyway.

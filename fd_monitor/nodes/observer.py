@@ -23,11 +23,18 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.envelope import CertifiedRegion, describe_excess
-from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver
+from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
 from fd_monitor.core.qb import QBObserver
 from fd_monitor.nodes.common import OK, WARN, NodeUsage, Param, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
-from fd_monitor.wire.topics import GUARD_LABELS, bias_labels, state_labels
+from fd_monitor.wire.topics import (
+    BIAS_ESTIMATE,
+    DIAGNOSTICS,
+    GUARD_EVENT,
+    PLANT_U,
+    PLANT_Y,
+    STATE_ESTIMATE,
+)
 
 __all__ = ["EstimateReport", "ObserverNode", "USAGE", "main"]
 
@@ -40,13 +47,13 @@ PARAMS = (
 USAGE = NodeUsage(
     "observer", "observer: the hybrid observer (or the QB observer for a qb gain file).",
     (*COMMON_PARAMS, *PARAMS),
-    subscribes=(("/plant/u", "u_k (stamped, or plain: stamped on arrival)"),
-                ("/plant/y", "y_k (stamped, or plain: stamped on arrival)"),
-                ("/fd/bias_estimate", "sigma^_k from bias_estimator (stamped k)"),
-                ("/fd/guard_event", "AGEI trigger for k (stamped k)")),
-    publishes=(("/fd/state_estimate", "mode, x^_k, y~_k, restart (1: first sample, or "
+    subscribes=((PLANT_U, "u_k (stamped, or plain: stamped on arrival)"),
+                (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)"),
+                (BIAS_ESTIMATE, "sigma^_k from bias_estimator (stamped k)"),
+                (GUARD_EVENT, "AGEI trigger for k (stamped k)")),
+    publishes=((STATE_ESTIMATE, "mode, x^_k, y~_k, restart (1: first sample, or "
                 "first after a hole) (stamp k)"),
-               ("/diagnostics", "input and estimate status (WARN 'outside certified "
+               (DIAGNOSTICS, "input and estimate status (WARN 'outside certified "
                 "region' when x^ or u leave the gain file's certified envelope)")))
 
 
@@ -94,7 +101,7 @@ class ObserverNode(EstimateReport, FdNode):
 
     runtimes: Mapping[str, str] = {"thresholds": "_start_hybrid", "qb": "_start_qb"}
 
-    outputs = ("fd/state_estimate",)
+    outputs = (STATE_ESTIMATE,)
 
     def __init__(self, observer: HybridObserver | None = None, system=None, gains=None,
                  qos=None, node_name: str = "observer", **kwargs: Any) -> None:
@@ -106,7 +113,8 @@ class ObserverNode(EstimateReport, FdNode):
         self.observer: Any = self._observer_arg
         self._outside: np.ndarray | None = None
         self._was_outside = False
-        self.pub = self.publisher("fd/state_estimate")
+        self.pub = self.publisher(STATE_ESTIMATE)
+        self._state = STATE_ESTIMATE.layout(self.system)
         self.diag.add("estimate", self.params.stale_timeout)
         self.start_runtime()
 
@@ -120,13 +128,16 @@ class ObserverNode(EstimateReport, FdNode):
         if self.observer is None:
             self.observer = HybridObserver(
                 s, region=CertifiedRegion.from_results(s, self.gain_file.results))
-        blab = bias_labels(s)
+        bias, guard = BIAS_ESTIMATE.layout(s), GUARD_EVENT.layout(s)
+        # fields of the feedback, resolved once: sigma^ and the guard trigger
+        self._i_sigma, self._i_trigger = bias.index["sigma_hat"], guard.index["trigger"]
+        no_trigger = np.zeros(len(guard.labels))
+        no_trigger[self._i_trigger] = float(NO_TRIGGER)
         self.start_inputs([
-            Input("u", "plant/u", s.inputs, plain_ok=True, hold=True),
-            Input("y", "plant/y", s.outputs, plain_ok=True),
-            Input("sigma", "fd/bias_estimate", blab, initial=np.zeros(len(blab))),
-            Input("guard", "fd/guard_event", GUARD_LABELS,
-                  initial=np.array([float(NO_TRIGGER), 0.0, 0.0, 0.0])),
+            Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
+            Input.of("y", PLANT_Y, s, plain_ok=True),
+            Input.of("sigma", BIAS_ESTIMATE, s, initial=np.zeros(len(bias.labels))),
+            Input.of("guard", GUARD_EVENT, s, initial=no_trigger),
         ], gap_timeout=self.params.gap_timeout)
         self._step = self._step_hybrid
 
@@ -137,8 +148,8 @@ class ObserverNode(EstimateReport, FdNode):
         self._qb_region = CertifiedRegion.from_results(s, self.gain_file.results)
         # A plant without inputs has no /plant/u (offline: u = () at every sample).
         self.start_inputs([
-            *([Input("u", "plant/u", s.inputs, plain_ok=True, hold=True)] if s.nu else []),
-            Input("y", "plant/y", s.outputs, plain_ok=True),
+            *([Input.of("u", PLANT_U, s, plain_ok=True, hold=True)] if s.nu else []),
+            Input.of("y", PLANT_Y, s, plain_ok=True),
         ], gap_timeout=self.params.gap_timeout)
         self._step = self._step_qb
 
@@ -151,32 +162,27 @@ class ObserverNode(EstimateReport, FdNode):
         else:
             self.observer.reset()                # Monitor.reset
 
-    def _step_hybrid(self, k: int, inputs: dict[str, Any]) -> tuple[int, np.ndarray,
-                                                                     np.ndarray]:
-        out = self.observer.step(k, inputs["u"], inputs["y"], inputs["sigma"][:self.system.ny],
-                                 int(inputs["guard"][0]))
+    def _step_hybrid(self, k: int, inputs: dict[str, Any]) -> ObserverOutput:
+        out = self.observer.step(k, inputs["u"], inputs["y"], inputs["sigma"][self._i_sigma],
+                                 int(inputs["guard"][self._i_trigger]))
         self._outside = out.outside
-        return int(out.mode), np.ravel(out.x_hat), np.ravel(out.y_tilde)
+        return out
 
-    def _step_qb(self, k: int, inputs: dict[str, Any]) -> tuple[int, np.ndarray, np.ndarray]:
+    def _step_qb(self, k: int, inputs: dict[str, Any]) -> ObserverOutput:
         u = inputs["u"] if self.system.nu else np.zeros(0)
         mode, x_hat = self.observer.step(k, u, inputs["y"])
         self._outside = (None if self._qb_region is None
                          else self._qb_region.excess(mode, x_hat, np.asarray(u, float)))
-        return mode, x_hat, np.asarray(inputs["y"], float)   # y~ = y (no accommodation)
+        # y~ = y (no accommodation)
+        return ObserverOutput(k, mode, x_hat, np.asarray(inputs["y"], float))
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
-        """Inputs of k -> (q^_k, x^_k, y~_k, restart) on /fd/state_estimate."""
-        mode, x_hat, y_t = self._step(k, inputs)
-        self.publish_array(self.pub, self.labels, k,
-                           np.concatenate([[float(mode)], x_hat, y_t,
-                                           [float(self.restarting)]]))
-        self.report_estimate(k, mode, x_hat, self._outside)
-
-    @property
-    def labels(self) -> tuple[str, ...]:
-        """Labels of ``/fd/state_estimate``."""
-        return state_labels(self.system)
+        """Inputs of k -> ObserverOutput.payload and ``restart`` on the state estimate."""
+        out = self._step(k, inputs)
+        lay = self._state
+        self.publish_array(self.pub, lay.labels, k,
+                           lay.encode(out.payload(), restart=self.restarting))
+        self.report_estimate(k, int(out.mode), np.ravel(out.x_hat), self._outside)
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -8,7 +8,7 @@ a batch of one run), stamped and labelled Float64MultiArray messages (see
 - ``/plant/y`` — the measurements y_k, sensor faults included (labels: the outputs);
 - ``/plant/truth`` — ``mode`` (index), ``x.<state>`` (true state), ``f.<fault>`` (fault
   signals), ``rho.<name>`` (scheduling parameters of an LPV scenario): for evaluation
-  (:func:`fd_monitor.core.simulator.truth_labels`);
+  (:data:`fd_monitor.wire.topics.PLANT_TRUTH`);
 - ``/plant/rho``, ``/plant/mode`` — the measured scheduling parameters, the exogenous mode,
   when the plant has them: the runtimes' side signals
   (:func:`fd_monitor.core.simulator.measured_layout`).
@@ -36,7 +36,6 @@ from fd_monitor.core.simulator import (
     Sample,
     measured_layout,
     measured_values,
-    truth_labels,
     truth_values,
 )
 from fd_monitor.model.errors import FdMonitorError
@@ -56,6 +55,15 @@ from fd_monitor.nodes.common import (
     wait_for_subscribers,
 )
 from fd_monitor.wire.conversions import to_msg
+from fd_monitor.wire.topics import (
+    DIAGNOSTICS,
+    PLANT_MODE,
+    PLANT_RHO,
+    PLANT_TRUTH,
+    PLANT_U,
+    PLANT_Y,
+    side_topic,
+)
 
 __all__ = ["PARAMS", "PlantSimNode", "USAGE", "main"]
 
@@ -91,12 +99,12 @@ _FLAT_OUT_TICK = 0.001  # s: timer period flat out (rate_factor 0.0), and the sh
 USAGE = NodeUsage(
     "plant_sim", "plant_sim: simulate a scenario's plant and publish it sample by sample.",
     PARAMS,
-    publishes=(("/plant/u", "inputs u_k (stamp k)"), ("/plant/y", "measurements y_k"),
-               ("/plant/rho", "measured scheduling parameters (LPV plants with measured "
-                              "ones)"),
-               ("/plant/mode", "mode index (plants whose switching no guard decides)"),
-               ("/plant/truth", "true mode, state, injected faults (evaluation only)"),
-               ("/diagnostics", "simulation status")))
+    publishes=((PLANT_U, "inputs u_k (stamp k)"), (PLANT_Y, "measurements y_k"),
+               (PLANT_RHO, "measured scheduling parameters (LPV plants with measured "
+                           "ones)"),
+               (PLANT_MODE, "mode index (plants whose switching no guard decides)"),
+               (PLANT_TRUTH, "true mode, state, injected faults (evaluation only)"),
+               (DIAGNOSTICS, "simulation status")))
 
 
 class PlantSimNode(Node):
@@ -129,22 +137,22 @@ class PlantSimNode(Node):
         self.sim = simulator
         sc = simulator.scenario
         sys_ = sc.system
-        self.labels_u, self.labels_y = sys_.inputs, sys_.outputs
-        self.labels_truth = truth_labels(sc)
+        self.labels_u, self.labels_y = PLANT_U.labels(sys_), PLANT_Y.labels(sys_)
+        self._truth = PLANT_TRUTH.layout(sc)
         duration = p.duration if p.duration > 0 else sc.duration
         #: samples of a run (k = 0 .. n_samples-1), unless keep_going.
         self.n_samples = max(1, round(duration / sys_.sample_time))
         self.dt = sys_.sample_time
         qos = qos if qos is not None else data_pub_qos(p.qos_depth)
-        self.pub_u = self.create_publisher(Float64MultiArray, "plant/u", qos, **pub_events())
-        self.pub_y = self.create_publisher(Float64MultiArray, "plant/y", qos, **pub_events())
-        self.pub_truth = (self.create_publisher(Float64MultiArray, "plant/truth", qos,
+        self.pub_u = self.create_publisher(Float64MultiArray, PLANT_U.name, qos, **pub_events())
+        self.pub_y = self.create_publisher(Float64MultiArray, PLANT_Y.name, qos, **pub_events())
+        self.pub_truth = (self.create_publisher(Float64MultiArray, PLANT_TRUTH.name, qos,
                                                 **pub_events())
                           if p.publish_truth else None)
         # What a monitor may measure besides u, y: plant/rho, plant/mode (side signals).
-        self.pub_side = [(self.create_publisher(Float64MultiArray, topic.lstrip("/"), qos,
+        self.pub_side = [(self.create_publisher(Float64MultiArray, side_topic(name).name, qos,
                                                 **pub_events()), labels, cols)
-                         for topic, (labels, cols) in measured_layout(sc).items()]
+                         for name, (labels, cols) in measured_layout(sc).items()]
         pubs = ([self.pub_u, self.pub_y, *(p for p, _, _ in self.pub_side)]
                 + ([self.pub_truth] if self.pub_truth else []))
         self._pacer = AckPacer(pubs, p.ack_window)
@@ -210,7 +218,7 @@ class PlantSimNode(Node):
         for pub, labels, cols in self.pub_side:
             pub.publish(to_msg(labels, k, measured_values(cols, s.mode[0], s.rho[0])))
         if self.pub_truth is not None:
-            self.pub_truth.publish(to_msg(self.labels_truth, k, truth_values(s)))
+            self.pub_truth.publish(to_msg(self._truth.labels, k, truth_values(s)))
         self.published += 1
         self.diag.touch("simulation")
         if not self._pacer.published():

@@ -32,15 +32,29 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.core.runtime import RUNTIMES, Runtime, runtime_for
+from fd_monitor.core.runtime import RUNTIMES, runtime_for
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage, Param
 from fd_monitor.nodes.detector import ResidualReport
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.nodes.observer import EstimateReport
+from fd_monitor.wire.topics import (
+    ALARM,
+    DIAGNOSTICS,
+    PLANT_MODE,
+    PLANT_RHO,
+    PLANT_U,
+    PLANT_Y,
+    RESIDUAL,
+    STATE_ESTIMATE,
+    THRESHOLD,
+    Layout,
+    runtime_estimate,
+    side_topic,
+)
 
-__all__ = ["RuntimeNode", "PARAMS", "USAGE", "estimate_labels", "gain_method"]
+__all__ = ["RuntimeNode", "PARAMS", "USAGE", "gain_method"]
 
 PARAMS = (
     Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
@@ -55,27 +69,17 @@ USAGE = NodeUsage(
     "monitor", "monitor with a qb, hinf_sc or hminus_switched gain file: one node, one "
     "runtime step per sample (the registry's runtime, as analyze runs it).",
     (*COMMON_PARAMS, *PARAMS),
-    subscribes=(("/plant/u", "u_k (plants with inputs; stamped, or plain)"),
-                ("/plant/y", "y_k (stamped, or plain: stamped on arrival)"),
-                ("/plant/rho", "measured scheduling parameters (LPV bank without a "
-                               "scheduling map; stamped k)"),
-                ("/plant/mode", "switching signal (no guard decides the mode; stamped k)")),
-    publishes=(("/fd/residual", "residual evaluation signal per channel (stamp k)"),
-               ("/fd/threshold", "threshold in force per channel, inf = none (stamp k)"),
-               ("/fd/alarm", "0/1 per channel (stamp k)"),
-               ("/fd/state_estimate", "mode, x^ (flattened per generator) (stamp k)"),
-               ("/diagnostics", "input, estimate (WARN outside certified region), residual "
+    subscribes=((PLANT_U, "u_k (plants with inputs; stamped, or plain)"),
+                (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)"),
+                (PLANT_RHO, "measured scheduling parameters (LPV bank without a "
+                            "scheduling map; stamped k)"),
+                (PLANT_MODE, "switching signal (no guard decides the mode; stamped k)")),
+    publishes=((RESIDUAL, "residual evaluation signal per channel (stamp k)"),
+               (THRESHOLD, "threshold in force per channel, inf = none (stamp k)"),
+               (ALARM, "0/1 per channel (stamp k)"),
+               (STATE_ESTIMATE, "mode, x^ (flattened per generator) (stamp k)"),
+               (DIAGNOSTICS, "input, estimate (WARN outside certified region), residual "
                                 "<channel>")))
-
-
-def estimate_labels(system: Any, runtime: Runtime, x_hat: np.ndarray) -> tuple[str, ...]:
-    """Labels of ``fd/state_estimate``: ``mode``, then ``x.<state>`` for one estimate (n,)
-    or ``<channel>.<state>`` for a bank (n_gen, n)."""
-    x = np.asarray(x_hat)
-    if x.ndim == 1:
-        return ("mode", *(f"x.{s}" for s in system.states[:x.size]))
-    return ("mode", *(f"{c}.{s}" for c in runtime.channels[:x.shape[0]]
-                      for s in system.states[:x.shape[1]]))
 
 
 class RuntimeNode(EstimateReport, ResidualReport, FdNode):
@@ -89,7 +93,7 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
     """
 
     runtimes: Mapping[str, str] = {m: "_start" for m in RUNTIMES}
-    outputs = ("fd/residual", "fd/threshold", "fd/alarm", "fd/state_estimate")
+    outputs = (RESIDUAL, THRESHOLD, ALARM, STATE_ESTIMATE)
 
     def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
                  **kwargs: Any) -> None:
@@ -108,9 +112,10 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
         for ch in self.channels:
             self.diag.add(ch, self.params.stale_timeout)
         self.start_inputs([
-            *([Input("u", "plant/u", s.inputs, plain_ok=True, hold=True)] if s.nu else []),
-            Input("y", "plant/y", s.outputs, plain_ok=True),
-            *(Input(n, f"plant/{n}", rt.side_labels[n]) for n in rt.side_inputs),
+            *([Input.of("u", PLANT_U, s, plain_ok=True, hold=True)] if s.nu else []),
+            Input.of("y", PLANT_Y, s, plain_ok=True),
+            *(Input.laid_out(n, side_topic(n), side_topic(n).with_labels({n: rt.side_labels[n]}))
+              for n in rt.side_inputs),
         ], gap_timeout=self.params.gap_timeout)
 
     def build_core(self, gains: GainFile) -> None:
@@ -127,7 +132,10 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
         self.runtime = rt
         #: /diagnostics status (and alarm log) name of each of the runtime's channels.
         self.channels = tuple(f"residual {c}" for c in rt.channels)
-        self._labels: tuple[str, ...] | None = None
+        #: residual, threshold, alarm: one value per channel of the runtime
+        self._layouts = [(t, t.channels(rt.channels)) for t in (RESIDUAL, THRESHOLD, ALARM)]
+        #: fd/state_estimate: mode and x^ (its labels known at the first estimate's shape)
+        self._state: Layout | None = None
         self._alarmed: set[str] = set()
         self._episode = 0
         self._was_outside = False
@@ -146,15 +154,14 @@ class RuntimeNode(EstimateReport, ResidualReport, FdNode):
         except MessageError as exc:
             # refused by the runtime: reported like a bad message, and a hole at k
             raise ImplausibleError(str(exc)) from None
-        ch = rt.channels
-        self.publish_array(self.pubs["fd/residual"], ch, k, out.residual)
-        self.publish_array(self.pubs["fd/threshold"], ch, k, out.threshold)
-        self.publish_array(self.pubs["fd/alarm"], ch, k, np.asarray(out.alarm, float))
+        pay = {"residual": out.residual, "threshold": out.threshold, "alarm": out.alarm}
+        for t, lay in self._layouts:
+            self.publish_array(self.pubs[t], lay.labels, k, lay.encode(pay))
         x_hat = np.asarray(out.estimates.get("x_hat", np.zeros(0)), float)
-        if self._labels is None:
-            self._labels = estimate_labels(self.system, rt, x_hat)
-        self.publish_array(self.pubs["fd/state_estimate"], self._labels, k,
-                           np.concatenate([[float(out.mode)], np.ravel(x_hat)]))
+        if self._state is None:
+            self._state = runtime_estimate(self.system, rt.channels, x_hat)
+        self.publish_array(self.pubs[STATE_ESTIMATE], self._state.labels, k,
+                           self._state.encode({"mode": out.mode, "x_hat": x_hat}))
         self._report_sample(k, out, x_hat)
 
     def _report_sample(self, k: int, out: Any, x_hat: np.ndarray) -> None:

@@ -58,11 +58,10 @@ from mcap.records import (
 
 from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError, WrongLengthError
 from fd_monitor.wire.conversions import ArrivalStamper, decode, encode_data, join_labels
+from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY
 
 __all__ = [
     "CHUNK_BYTES",
-    "DIAGNOSTIC_ARRAY",
-    "FLOAT64_MULTI_ARRAY",
     "FLUSH_SECONDS",
     "BagDamage",
     "BagDamageWarning",
@@ -83,8 +82,6 @@ __all__ = [
     "write_messages",
 ]
 
-FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
-DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: Uncompressed bytes per chunk: a damaged chunk loses at most this much (~600 samples of a

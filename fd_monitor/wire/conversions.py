@@ -39,7 +39,6 @@ __all__ = [
     "readable_stamp",
     "split_labels",
     "to_msg",
-    "truth_labels",
 ]
 
 #: ``layout.data_offset`` of a stamped message: one padding element, the stamp.
@@ -59,17 +58,6 @@ def join_labels(labels: Sequence[str]) -> str:
 def split_labels(text: str) -> tuple[str, ...]:
     """``"h1,h2"`` -> ``("h1", "h2")``; ``""`` -> ``()``."""
     return tuple(s.strip() for s in text.split(",")) if text.strip() else ()
-
-
-def truth_labels(system: Any) -> tuple[str, ...]:
-    """Channel names of ``/plant/truth``: ``mode``, ``x.<state>``..., ``f.<fault>``...
-
-    Parameters
-    ----------
-    system : fd_monitor.model.system.System
-    """
-    return ("mode", *(f"x.{s}" for s in system.states),
-            *(f"f.{f.name}" for f in system.faults))
 
 
 def encode_data(stamp: int, values: Any) -> list[float]:
