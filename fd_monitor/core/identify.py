@@ -251,6 +251,9 @@ def fit_modes(X: np.ndarray, U: np.ndarray, Xn: np.ndarray, q: np.ndarray, n_mod
             A_s = clip_radius(Xi[:n].T, max_radius)
             Xi[:n] = A_s.T
             Xi[n:] = solve(Th[:, n:], Xn[rows] - X[rows] @ A_s.T, None if Z is None else Z[:, n:])
+            if kind == "sparse":   # clipping fills the dropped couplings of A back in
+                free = int(np.count_nonzero(A_s - np.eye(n))
+                           + np.count_nonzero(Xi[n:n + inputs.size]))
         A = Xi[:n].T.copy()
         B = np.zeros((n, nu))
         B[:, inputs] = Xi[n:n + inputs.size].T
