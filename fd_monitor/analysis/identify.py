@@ -382,8 +382,20 @@ class Identified:
     summary : dict
         Method, modes, sample counts, errors and bounds (the ``--json`` document).
     validation : dict
-        Held-out one-step predictions for plots: ``k``, ``measured``, ``predicted``,
-        ``bound`` (N, ny) and ``dataset`` (N,) of the first held-out record.
+        Held-out one-step predictions of the first held-out record, for the plot: ``record``,
+        ``k`` (N,), ``measured``, ``predicted``, ``bound`` (N, ny), ``outputs``.
+    models : tuple of AffineModel
+        One per mode, in the order of ``system.modes``.
+    conditions : tuple of GuardCondition
+        The stated guard conditions (mode labelling).
+    mode_keys : tuple of int
+        Combination key (bit j: condition j holds) or mode-channel value of each mode.
+    use_mode : bool
+        Modes come from a mode channel.
+    noise : numpy.ndarray
+        (ny,) ``v_bar``, output units.
+    uncertainty : numpy.ndarray
+        (modes, ny) ``eta_bar`` per mode, state units per sample.
     """
 
     doc: dict[str, Any]
