@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 from fd_monitor.commands._common import emit, save_design
-from fd_monitor.core.agei import DEFAULT_DELTA
+from fd_monitor.core.thresholds import DEFAULT_DELTA
 from fd_monitor.design.thresholds import design_thresholds
 from fd_monitor.model.system import load_system
 
