@@ -37,12 +37,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="random seed (default: the scenario's)")
     parser.add_argument("--duration", type=float, default=None,
                         help="s of plant time (default: the scenario's)")
+    parser.add_argument("--adapter", metavar="MAP", default=None,
+                        help="write u and y as the robot's messages on the topics of this "
+                             "adapter file (config/adapters/) instead of /plant/u, /plant/y")
     add_json_flag(parser)
 
 
 def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None = None,
-                    duration: float | None = None) -> dict:
-    """Simulate and write the bag; return a summary mapping."""
+                    duration: float | None = None, adapter: str | None = None) -> dict:
+    """Simulate and write the bag; return a summary mapping.
+
+    With ``adapter`` (an adapter file, :mod:`fd_monitor.wire.adapters`) u and y are written
+    as the robot's messages on its topics (header stamps t_k) instead of ``/plant/u`` and
+    ``/plant/y``; the truth and side signals stay.
+    """
     from fd_monitor.core.simulator import (
         measured_signals,
         simulate,
@@ -68,15 +76,28 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     sys_ = sc.system
     ns = np.rint(traj.k * dt * 1e9).astype(np.int64)
     side = measured_signals(traj)
-    path = write_bag(output, [
-        arrays_from("/plant/u", sys_.inputs, traj.k, traj.u[0], ns),
-        arrays_from("/plant/y", sys_.outputs, traj.k, traj.y[0], ns),
-        *(arrays_from(t, labels, traj.k, v, ns) for t, (labels, v) in side.items()),
-        arrays_from("/plant/truth", truth_labels(sc), traj.k, truth_values(traj), ns),
-    ])
+    extra = [*(arrays_from(t, labels, traj.k, v, ns) for t, (labels, v) in side.items()),
+             arrays_from("/plant/truth", truth_labels(sc), traj.k, truth_values(traj), ns)]
+    if adapter is None:
+        io_topics = ["/plant/u", "/plant/y"]
+        path = write_bag(output, [
+            arrays_from("/plant/u", sys_.inputs, traj.k, traj.u[0], ns),
+            arrays_from("/plant/y", sys_.outputs, traj.k, traj.y[0], ns), *extra])
+    else:
+        from fd_monitor.wire.adapters import load_adapter, write_adapted
+        from fd_monitor.wire.bags import BagWriter
+
+        ad = load_adapter(adapter).for_system(sys_)
+        io_topics = list(ad.topics)
+        with BagWriter(output) as w:
+            write_adapted(w, ad, traj.k, traj.u[0], traj.y[0], ns)
+            for a in extra:
+                for kk, v, t in zip(a.stamps, a.values, a.receive_ns):
+                    w.write_array(a.topic, int(kk), a.labels, v, int(t))
+        path = Path(output)
     return {"bag": str(path), "scenario": sc.name, "system": sys_.name,
             "seed": traj.seeds[0], "samples": K, "sample_time": dt, "duration": K * dt,
-            "topics": ["/plant/u", "/plant/y", *side, "/plant/truth"],
+            "topics": [*io_topics, *side, "/plant/truth"],
             "faults": [{"channel": sys_.faults[f.channel].name, "time": f.time,
                         "magnitude": f.magnitude, "profile": f.profile}
                        for f in sc.faults]}
@@ -88,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         return _simulate_library(args.library, args.only, args.json)
     if args.scenario is None or args.output is None:
         raise ScenarioError("give SCENARIO and -o BAGDIR (or --library LIBRARY)")
-    summary = simulate_to_bag(args.scenario, args.output, args.seed, args.duration)
+    summary = simulate_to_bag(args.scenario, args.output, args.seed, args.duration,
+                              args.adapter)
     if args.json:
         emit(summary, True)
     else:
