@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from fd_monitor.commands._common import emit
-from fd_monitor.core.agei import DEFAULT_DELTA
+from fd_monitor.core.thresholds import DEFAULT_DELTA
 from fd_monitor.design.thresholds import design_thresholds
 from fd_monitor.model.gains import save_gains
 from fd_monitor.model.paths import default_gain_path
