@@ -187,7 +187,7 @@ def test_bag_through_the_adapter_equals_the_simulation(tmp_path):
     bag = tmp_path / "motor"
     info = simulate_to_bag("dc_motor_bias_velocity", bag, seed=3, duration=3.0,
                            adapter="dc_motor")
-    assert info["topics"] == ["/joint_states", "/effort_controller/commands", "/plant/truth"]
+    assert info["topics"] == ["/effort_controller/commands", "/joint_states", "/plant/truth"]
     topics = bag_topics(bag)
     assert topics["/joint_states"] == (JS, 300) and "/plant/y" not in topics
     tr = simulate(load_scenario("dc_motor_bias_velocity"), 3, 300)

@@ -6,9 +6,11 @@ after an actuator fault; messages it cannot read (unknown joint, NaN) are one li
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
-from ros_util import Collector, Proc, ros_context, spin_until
+from ros_util import Collector, Proc, ros_context, run_cli, spin_until
 
 pytestmark = pytest.mark.ros
 
@@ -25,7 +27,7 @@ def _joint_state(name, velocity):
     return m
 
 
-def test_monitor_reads_joint_states_and_detects_the_actuator_fault():
+def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
@@ -52,15 +54,19 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault():
 
         assert spin_until(ex, lambda: warned("no joint 'motor' (joints: wrist)")
                           and warned("value is nan"), 20.0, [monitor]), monitor.output()
+        # the robot's own bag of the run, recorded beside the monitor
+        rec = Proc(["record", "--adapter", "dc_motor", "-o", str(tmp_path / "rec"), "--until",
+                    "/joint_states=3200", "--until", "/effort_controller/commands=3200"])
         # the simulated motor: 32 s, 0.2 N m of effort lost at 30 s (sample 3000)
-        with Proc(["run", "plant_sim", "--ros-args", "-p", "scenario:=dc_motor_actuator", "-p",
-                   "adapter:=dc_motor", "-p", "rate_factor:=0.0", "-p", "duration:=32.0",
-                   "-p", "min_subscribers_y:=1", "-p", "min_subscribers_u:=1", "-p",
-                   "publish_truth:=false"]) as sim:
+        with rec, Proc(["run", "plant_sim", "--ros-args", "-p", "scenario:=dc_motor_actuator",
+                        "-p", "adapter:=dc_motor", "-p", "rate_factor:=0.0", "-p",
+                        "duration:=32.0", "-p", "min_subscribers_y:=2", "-p",
+                        "min_subscribers_u:=2", "-p", "publish_truth:=false"]) as sim:
             assert spin_until(ex, lambda: len(col.msgs["/fd/alarm"]) >= 3200, 240.0,
                               [monitor, sim]), (len(col.msgs["/fd/alarm"]), sim.output(),
                                                 monitor.output())
             assert sim.wait(30) == 0, sim.output()
+            assert rec.wait(30) == 0, rec.output()
         alarms = col.decoded("/fd/alarm")
         k = np.array([a.stamp for a in alarms])
         flag = np.array([a.values[0] for a in alarms]) > 0.5
@@ -69,3 +75,10 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault():
         first = int(k[flag][0])
         assert 3000 <= first <= 3100, first
         assert "alarm episode 1" in monitor.output()
+        # the recorded robot bag, offline through the same adapter: the same detection
+        r = run_cli(["analyze", str(tmp_path / "rec"), "--gains", GAINS, "--system", PLANT,
+                     "--adapter", "dc_motor", "--json"])
+        assert r.returncode == 0, r.stderr
+        doc = json.loads(r.stdout)
+        assert doc["samples"] == 3200 and doc["input_errors"] == []
+        assert doc["detection"]["sample"] == first

@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.nodes.bag_nodes import message_class
 from fd_monitor.nodes.common import DataInput, Param, pub_events
 from fd_monitor.wire.adapters import Adapter, AdapterJoin, encode, load_adapter
 
-__all__ = ["ADAPTER_PARAM", "AdapterInput", "RobotPublishers", "message_class"]
+__all__ = ["ADAPTER_PARAM", "AdapterInput", "RobotPublishers"]
 
 ADAPTER_PARAM = Param(
     "adapter", "", "adapter file (path, or a name in config/adapters/): read u and y from "
@@ -38,20 +38,12 @@ ADAPTER_PARAM = Param(
 GRAPH_CHECK = 2.0
 
 
-def message_class(msgtype: str) -> Any:
-    """The rclpy message class of ``pkg/msg/Type``."""
-    pkg, _, name = msgtype.split("/")
-    try:
-        return getattr(importlib.import_module(f"{pkg}.msg"), name)
-    except (ImportError, AttributeError):
-        raise FdMonitorError(f"message type {msgtype}: not installed (pip install "
-                             f"ros-jazzy-{pkg.replace('_', '-')})") from None
-
-
 def _make(msgtype: str, **fields: Any) -> Any:
-    """:func:`~fd_monitor.wire.adapters.encode`'s ``make`` for rclpy messages."""
+    """:func:`~fd_monitor.wire.adapters.encode`'s ``make`` for rclpy messages (nested types
+    too: Header, Time, MultiArrayLayout, Vector3, ...)."""
+    pkg, _, name = msgtype.split("/")
     out = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in fields.items()}
-    return message_class(msgtype)(**out)
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)(**out)
 
 
 class AdapterInput:

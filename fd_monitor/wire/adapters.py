@@ -166,10 +166,15 @@ class Adapter:
 
     @property
     def topics(self) -> dict[str, str]:
-        """topic -> message type, every mapped topic (clock first)."""
+        """topic -> message type, every mapped topic: the inputs' first, the sample clock
+        last. Subscriptions are made in this order, so an executor that finds a command and
+        the measurement after it both waiting takes the command first, as they were sent."""
         out: dict[str, str] = {}
-        for c in (*self.outputs, *self.inputs):
-            out.setdefault(c.topic, c.msgtype)
+        for c in (*self.inputs, *self.outputs):
+            if c.topic != self.clock_topic:
+                out.setdefault(c.topic, c.msgtype)
+        out[self.clock_topic] = next(c.msgtype for c in self.outputs
+                                     if c.topic == self.clock_topic)
         return out
 
     def header_topic(self, topic: str) -> bool:
