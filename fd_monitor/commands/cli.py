@@ -35,6 +35,7 @@ SUBCOMMANDS: dict[str, str] = {
     "analyze": "run the monitor over a bag offline and print alarms and estimates",
     "report": "figures and a summary of a bag or a campaign",
     "evaluate": "Monte Carlo campaigns: false-alarm rate, detection rate and delay",
+    "identify": "fit a plant file (modes, noise and uncertainty bounds) from fault-free bags",
     "bag": "check a bag's integrity, or recover a bag whose recorder died",
 }
 

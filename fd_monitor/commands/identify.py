@@ -1,0 +1,142 @@
+"""``python -m fd_monitor identify BAG [BAG ...] -o PLANT.yaml``: a plant file from bags.
+
+Fits a discrete-time plant file (linear, affine or sparse affine modes; hybrid structure from
+stated guards or a mode channel; noise and uncertainty bounds from held-out data; the operating
+envelope the data covered) that ``validate``, ``design thresholds ... --envelope declared``,
+``simulate`` and ``analyze`` accept. See :mod:`fd_monitor.analysis.identify`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from fd_monitor.analysis.identify import (
+    ESTIMATORS,
+    MODELS,
+    PER_MODE,
+    identify_bags,
+    plot_validation,
+    write_plant,
+)
+from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.core.identify import IdentificationError
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``identify``."""
+    parser.add_argument("bags", nargs="+", metavar="BAG",
+                        help="fault-free rosbag2 folders with the inputs and outputs")
+    parser.add_argument("-o", "--output", required=True, metavar="PLANT",
+                        help="plant file to write (YAML)")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing file")
+    parser.add_argument("--holdout", nargs="+", default=[], metavar="BAG",
+                        help="held-out bags for validation and the bounds (default: the last "
+                             "--split of each fit bag)")
+    parser.add_argument("--split", type=float, default=0.3,
+                        help="held-out fraction of each fit bag without --holdout (default 0.3)")
+    parser.add_argument("--model", choices=MODELS, default="auto",
+                        help="mode dynamics: linear (x+ = A x + B u), affine (+ offset), "
+                             "sparse (STLSQ of the affine library), auto (lowest held-out "
+                             "one-step RMS; default)")
+    parser.add_argument("--modes", choices=PER_MODE, default="offset",
+                        help="offset: the modes share A, B and differ by their offset (one "
+                             "joint fit; default); full: each mode its own A, B, offset")
+    parser.add_argument("--guard", action="append", default=[], metavar="COND",
+                        help="a switching condition 'CHANNEL OP VALUE' (e.g. 'h3 > 0.35'; on "
+                             "an output: autonomous, on an input: controlled); repeatable: one "
+                             "mode per combination the data visit")
+    parser.add_argument("--mode-topic", default=None, metavar="TOPIC[:CHANNEL]",
+                        help="a Float64MultiArray topic whose channel holds the mode (integer)")
+    parser.add_argument("--u-topic", default="/plant/u", help="inputs topic (default /plant/u)")
+    parser.add_argument("--y-topic", default="/plant/y",
+                        help="outputs topic (default /plant/y)")
+    parser.add_argument("--adapter", default=None, metavar="MAP",
+                        help="message mapping for a robot's own message types (see README "
+                             "'Monitor your own robot'); replaces --u-topic/--y-topic")
+    parser.add_argument("--name", default=None,
+                        help="plant name (default: the output file's stem)")
+    parser.add_argument("--sample-time", type=float, default=None,
+                        help="s (default: from the bags' timestamps)")
+    parser.add_argument("--margin", type=float, default=1.2,
+                        help="factor on every bound, >= 1 (default 1.2)")
+    parser.add_argument("--max-window", type=float, default=2.0,
+                        help="longest moving-average window the uncertainty bound covers, s "
+                             "(default 2.0, the thresholds designer's default --max-window)")
+    parser.add_argument("--estimator", choices=ESTIMATORS, default="iv",
+                        help="iv: lagged measurements as instruments (unbiased on noisy, "
+                             "closed-loop data; default); ls: plain least squares")
+    parser.add_argument("--sparsity", type=float, default=0.01,
+                        help="sparse: drop a term contributing less than this fraction of the "
+                             "increment's spread (default 0.01)")
+    parser.add_argument("--max-radius", type=float, default=None,
+                        help="clip the eigenvalue magnitudes of each mode's A to this (e.g. "
+                             "0.9999) and refit B and the offsets: a stable model for a plant "
+                             "known to be stable (default: no clipping)")
+    parser.add_argument("--exclude-input", action="append", default=[], metavar="INPUT",
+                        help="leave an input out of the fit (repeatable)")
+    parser.add_argument("--plot", default=None, metavar="PNG",
+                        help="figure: held-out one-step prediction vs measurement and the "
+                             "error within its stated bound")
+    add_json_flag(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Identify, write the plant file (and plot), print the summary."""
+    from pathlib import Path
+
+    adapter: Any = None
+    if args.adapter is not None:
+        from fd_monitor.wire.adapters import load_adapter  # optional part (issue 14 item 2)
+
+        adapter = load_adapter(args.adapter)
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise IdentificationError(f"{out}: exists (would overwrite; use --force)")
+    name = args.name or out.stem.replace("-", "_").replace(".", "_")
+    res = identify_bags(args.bags, holdout=args.holdout, u_topic=args.u_topic,
+                        y_topic=args.y_topic, mode_topic=args.mode_topic, adapter=adapter,
+                        name=name, model=args.model, modes=args.modes, guards=args.guard,
+                        margin=args.margin, split=args.split, max_window=args.max_window,
+                        estimator=args.estimator, sparsity=args.sparsity,
+                        sample_time=args.sample_time, exclude_inputs=args.exclude_input,
+                        max_radius=args.max_radius)
+    write_plant(res, out, force=args.force)
+    if args.plot:
+        plot_validation(res, args.plot)
+    s = res.summary
+    if args.json:
+        print_json({"plant_file": str(out), "plot": args.plot, **s})
+        return 0
+    print(f"identified {s['plant']} -> {out}: {s['model']} modes ({s['modes_structure']}), "
+          f"estimator {s['estimator']}, Ts = {s['sample_time']:g} s")
+    print(f"one-step samples: {s['fit_samples']} fit, {s['validation_samples']} held out "
+          f"({s['holdout']})")
+    print_table([(c["model"], c["parameters"], c["validation_rms"]) for c in s["candidates"]],
+                header=("candidate", "parameters", "held-out RMS"))
+    outs = s["outputs"]
+    rows = [("fit RMS", *s["fit_rms"]), ("held-out RMS", *s["validation_rms"]),
+            ("held-out max |e|", *s["validation_max_abs"]),
+            (f"noise bound ({s['measurement_noise']['samples']} samples)",
+             *s["measurement_noise"]["bound"])]
+    for m in s["modes"]:
+        rows.append((f"uncertainty {m['name']} ({m['uncertainty_samples']})",
+                     *m["uncertainty"]))
+        rows.append((f"one-step bound {m['name']}", *m["one_step_bound"]))
+    print_table(rows, header=("per output", *outs))
+    env = s["envelope"]
+    print_table([(ch, lo, hi) for ch, (lo, hi) in [*env["states"].items(),
+                                                   *env["inputs"].items()]],
+                header=("envelope", "min", "max"))
+    for m in s["modes"]:
+        if m["spectral_radius"] >= 1.0:
+            print(f"warning: mode {m['name']}: spectral radius {m['spectral_radius']:.6g} >= 1 "
+                  f"(an unstable model; the thresholds designer's estimator needs a stable one: "
+                  f"--max-radius clips it)")
+    for m in s["not_covered"]:
+        print(f"not covered: {m['mode']} ({m['fit_samples']} fit samples): no mode")
+    if args.plot:
+        print(f"plot: {args.plot}")
+    return 0
