@@ -82,3 +82,55 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
         doc = json.loads(r.stdout)
         assert doc["samples"] == 3200 and doc["input_errors"] == []
         assert doc["detection"]["sample"] == first
+
+
+def test_best_effort_driver_and_a_topic_of_another_type():
+    """A best-effort JointState driver (sensor-data QoS) is met; a mapped topic published
+    with another type is reported on `ros graph`; the samples go through, one per
+    JointState, each with the command received before it."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray, String
+
+    from fd_monitor.nodes.common import data_pub_qos
+    from fd_monitor.nodes.monitor import make_nodes
+
+    with ros_context() as ctx, ros_context() as ctx2:
+        (node,) = make_nodes(context=ctx, parameter_overrides=[
+            Parameter("system", value=PLANT), Parameter("gains", value=GAINS),
+            Parameter("adapter", value="dc_motor"),
+            Parameter("diagnostics_period", value=0.2)])
+        col = Collector(ctx, ["/fd/state_estimate"], diagnostics=True)
+        drv = Node("driver", context=ctx)
+        js = drv.create_publisher(JointState, "/joint_states", qos_profile_sensor_data)
+        cmd = drv.create_publisher(Float64MultiArray, "/effort_controller/commands",
+                                   data_pub_qos())
+        # another process (a DDS participant of its own) with /joint_states of another type
+        typo = Node("typo", context=ctx2)
+        typo.create_publisher(String, "/joint_states", 10)
+        ex = SingleThreadedExecutor(context=ctx)
+        for nd in (node, col.node, drv):
+            ex.add_node(nd)
+
+        def graph(text):
+            return any(text in s.message for s in col.statuses("monitor: ros graph"))
+
+        assert spin_until(ex, lambda: graph("switching to best effort") and graph(
+            "/joint_states: published as std_msgs/msg/String") and js.get_subscription_count()
+            >= 1 and cmd.get_subscription_count() >= 1, 20.0)
+        for k in range(20):
+            c = Float64MultiArray()
+            c.data = [0.3]
+            cmd.publish(c)
+            m = JointState()
+            m.header.stamp.sec, m.header.stamp.nanosec = 100, k * 10_000_000
+            m.name, m.velocity = ["motor"], [2.0 + 0.01 * k]
+            spin_until(ex, lambda: False, 0.005)     # a 100 Hz driver: command, then sample
+            js.publish(m)
+        assert spin_until(ex, lambda: len(col.msgs["/fd/state_estimate"]) >= 20, 20.0), \
+            len(col.msgs["/fd/state_estimate"])
+        est = col.decoded("/fd/state_estimate")
+        assert [e.stamp for e in est] == list(range(20))
