@@ -462,7 +462,7 @@ def _excited(rows: _Rows, names: Sequence[str], exclude: Sequence[int]) -> np.nd
 
 def identify(fit: Sequence[Dataset], holdout: Sequence[Dataset] = (), *, name: str,
              model: str = "auto", modes: str = "offset", guards: Sequence[str] = (),
-             margin: float = 1.2, split: float = 0.3, max_window: float = 2.0,
+             margin: float = 1.2, split: float = 0.3, max_window: float = 10.0,
              estimator: str = "iv", sparsity: float = 0.01,
              sample_time: float | None = None, exclude_inputs: Sequence[str] = (),
              sources: Sequence[str] | None = None,
@@ -488,7 +488,9 @@ def identify(fit: Sequence[Dataset], holdout: Sequence[Dataset] = (), *, name: s
     split : float
         Held-out fraction of each fit record when ``holdout`` is empty, in (0, 1).
     max_window : float
-        Longest moving-average window the uncertainty bound covers, s.
+        Longest moving-average window the uncertainty bound looks through, s: a modelling
+        error smaller than the noise shows only in averages (the ``thresholds`` designer's
+        filters are at most 2 s long by default).
     estimator : str
         ``iv`` (lagged instruments) or ``ls``.
     sparsity : float

@@ -62,9 +62,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="s (default: from the bags' timestamps)")
     parser.add_argument("--margin", type=float, default=1.2,
                         help="factor on every bound, >= 1 (default 1.2)")
-    parser.add_argument("--max-window", type=float, default=2.0,
-                        help="longest moving-average window the uncertainty bound covers, s "
-                             "(default 2.0, the thresholds designer's default --max-window)")
+    parser.add_argument("--max-window", type=float, default=10.0,
+                        help="longest moving-average window the uncertainty bound looks "
+                             "through, s (default 10: a modelling error below the noise shows "
+                             "only in averages)")
     parser.add_argument("--estimator", choices=ESTIMATORS, default="iv",
                         help="iv: lagged measurements as instruments (unbiased on noisy, "
                              "closed-loop data; default); ls: plain least squares")
