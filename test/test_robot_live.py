@@ -134,3 +134,15 @@ def test_best_effort_driver_and_a_topic_of_another_type():
             len(col.msgs["/fd/state_estimate"])
         est = col.decoded("/fd/state_estimate")
         assert [e.stamp for e in est] == list(range(20))
+
+
+def test_bad_adapter_file_stops_the_node_with_one_line(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("outputs:\n  - {channel: velocity, topic: /joint_states, "
+                   "type: sensor_msgs/JointState, field: velocity}\n")
+    r = run_cli(["run", "monitor", "--ros-args", "-p", f"system:={PLANT}", "-p",
+                 f"gains:={GAINS}", "-p", f"adapter:={bad}"], timeout=60)
+    assert r.returncode == 2, r.stdout + r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if "error" in ln]
+    assert lines == [f"monitor: error: {bad}: outputs[0].joint: expected the joint's name "
+                     f"(in name[]), got None"], r.stderr
