@@ -93,6 +93,9 @@ ADAPTER_TYPES: dict[str, tuple[bool, tuple[str, ...] | None]] = {
     "std_msgs/msg/Float64MultiArray": (False, None),
 }
 
+#: Messages kept per held topic while no sample uses them.
+MAX_HELD = 10_000
+
 #: Short forms of ``field`` (Odometry, TwistStamped) -> the full path.
 _SHORT = {
     "nav_msgs/msg/Odometry": {**{f"position.{a}": f"pose.pose.position.{a}" for a in _VEC},
@@ -526,6 +529,8 @@ class AdapterJoin:
             hist = self._held[r.topic]
             self._seq += 1
             bisect.insort(hist, (key, self._seq, r.values))
+            if len(hist) > MAX_HELD:     # no sample for a long time: keep the latest only
+                del hist[:len(hist) - MAX_HELD]
             self._last[r.topic] = max(self._last.get(r.topic, key), key)
 
     def _key(self, topic: str, r: Reading) -> int:
