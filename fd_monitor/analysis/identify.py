@@ -30,6 +30,7 @@ import hashlib
 import itertools
 import math
 import re
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,7 +50,7 @@ from fd_monitor.core.identify import (
     spectral_radius,
     uncertainty_bound,
 )
-from fd_monitor.model.errors import BagError
+from fd_monitor.model.errors import BagError, FdMonitorWarning
 from fd_monitor.model.system import System, parse_system
 from fd_monitor.wire.bags import read_bag
 
@@ -160,7 +161,8 @@ def _joined(u_arr: Any, y_arr: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 
 
 def load_dataset(bag: str | Path, *, u_topic: str = "/plant/u", y_topic: str = "/plant/y",
-                 mode_topic: str | None = None, adapter: Any = None) -> Dataset:
+                 mode_topic: str | None = None, adapter: Any = None,
+                 sample_time: float | None = None) -> Dataset:
     """Read a bag's inputs and outputs (and mode channel) into a :class:`Dataset`.
 
     Parameters
@@ -174,7 +176,10 @@ def load_dataset(bag: str | Path, *, u_topic: str = "/plant/u", y_topic: str = "
         holds the mode as an integer.
     adapter : object, optional
         A message mapping of :mod:`fd_monitor.wire.adapters` (robots' own message types):
-        the bag is read through it instead of ``u_topic``/``y_topic``.
+        the bag is read through it instead of ``u_topic``/``y_topic`` (messages it cannot
+        use are skipped with one warning naming the first).
+    sample_time : float, optional
+        s, for an adapter's sample numbering (default: the output stamps' median spacing).
 
     Raises
     ------
@@ -189,7 +194,10 @@ def load_dataset(bag: str | Path, *, u_topic: str = "/plant/u", y_topic: str = "
     if adapter is not None:
         from fd_monitor.wire.adapters import read_adapted  # J's module (issue 14 item 2)
 
-        s = read_adapted(path, adapter)
+        s = read_adapted(path, adapter, sample_time=sample_time)
+        if s.errors:
+            warnings.warn(f"{bag}: {len(s.errors)} message(s) skipped; the first: "
+                          f"{s.errors[0][1]}", FdMonitorWarning, stacklevel=2)
         ds = Dataset(str(bag), tuple(s.inputs), tuple(s.outputs), np.asarray(s.k),
                      np.asarray(s.u, dtype=float), np.asarray(s.y, dtype=float),
                      float(s.sample_time), None, _bag_sha256(path), ("inputs", "outputs"))
@@ -374,8 +382,20 @@ class Identified:
     summary : dict
         Method, modes, sample counts, errors and bounds (the ``--json`` document).
     validation : dict
-        Held-out one-step predictions for plots: ``k``, ``measured``, ``predicted``,
-        ``bound`` (N, ny) and ``dataset`` (N,) of the first held-out record.
+        Held-out one-step predictions of the first held-out record, for the plot: ``record``,
+        ``k`` (N,), ``measured``, ``predicted``, ``bound`` (N, ny), ``outputs``.
+    models : tuple of AffineModel
+        One per mode, in the order of ``system.modes``.
+    conditions : tuple of GuardCondition
+        The stated guard conditions (mode labelling).
+    mode_keys : tuple of int
+        Combination key (bit j: condition j holds) or mode-channel value of each mode.
+    use_mode : bool
+        Modes come from a mode channel.
+    noise : numpy.ndarray
+        (ny,) ``v_bar``, output units.
+    uncertainty : numpy.ndarray
+        (modes, ny) ``eta_bar`` per mode, state units per sample.
     """
 
     doc: dict[str, Any]
@@ -860,7 +880,8 @@ def identify_bags(bags: Sequence[str | Path], *, holdout: Sequence[str | Path] =
     """:func:`identify` on bags (read with :func:`load_dataset`); ``options`` as there."""
     if not bags:
         raise IdentificationError("no bag to identify from")
-    read = dict(u_topic=u_topic, y_topic=y_topic, mode_topic=mode_topic, adapter=adapter)
+    read = dict(u_topic=u_topic, y_topic=y_topic, mode_topic=mode_topic, adapter=adapter,
+                sample_time=options.get("sample_time"))
     fit = [load_dataset(b, **read) for b in bags]
     held = [load_dataset(b, **read) for b in holdout]
     return identify(fit, held, sources=[str(b) for b in [*bags, *holdout]], **options)

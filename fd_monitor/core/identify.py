@@ -27,9 +27,14 @@ Bounds (``y = x + v``, ``|v_i| <= v_bar_i``, ``|eta_i| <= eta_bar_i``), from hel
   || delta_il h_W - A_il h_W,p ||_1`` (:func:`fd_monitor.core.thresholds.noise_l1_bound`,
   ``h_W`` the moving average), so whatever a window mean exceeds it by is modelling error:
   ``eta_bar = margin x max_W max_k (|mean_W(e)_k| - noise_l1(W))+`` over windows of
-  1 .. ``max_window`` samples. These windows are the moving averages the ``thresholds``
-  design filters residuals with, so the design's inequality ``|H[e]| <= noise_l1 + eta_bar``
-  holds on the data the bounds were taken from (with the margin to spare).
+  1 .. ``max_window`` samples. They include the moving averages the ``thresholds`` design
+  filters residuals with, so the design's inequality ``|H[e]| <= noise_l1 + eta_bar`` holds
+  on the data the bounds were taken from (with the margin to spare); the longer ones see a
+  modelling error smaller than the noise, which a single sample cannot.
+
+A stable plant identified from closed-loop data may get a slowest eigenvalue a hair above 1
+(its slow mode is never excited): :func:`clip_radius` scales such eigenvalues down and
+:func:`fit_modes` refits B and the offsets with the clipped A.
 
 Every bound is empirical: it covers the held-out data it was computed from, times the margin;
 its sample count is returned with it.
@@ -251,6 +256,9 @@ def fit_modes(X: np.ndarray, U: np.ndarray, Xn: np.ndarray, q: np.ndarray, n_mod
             A_s = clip_radius(Xi[:n].T, max_radius)
             Xi[:n] = A_s.T
             Xi[n:] = solve(Th[:, n:], Xn[rows] - X[rows] @ A_s.T, None if Z is None else Z[:, n:])
+            if kind == "sparse":   # clipping fills the dropped couplings of A back in
+                free = int(np.count_nonzero(A_s - np.eye(n))
+                           + np.count_nonzero(Xi[n:n + inputs.size]))
         A = Xi[:n].T.copy()
         B = np.zeros((n, nu))
         B[:, inputs] = Xi[n:n + inputs.size].T
