@@ -154,11 +154,13 @@ def test_join_holds_inputs_and_clocks_samples_by_the_output_stamps():
     _put(j, ad, 20 * ms, u=0.75)           # same time as the sample: its input (bag order)
     _put(j, ad, 24 * ms, y=9.0)            # within Ts/2 of 20 ms: a duplicate
     _put(j, ad, 50 * ms, y=4.0)            # 30, 40 ms missing: a hole in k
+    _put(j, ad, 15 * ms, y=5.0, recv=60 * ms)   # the stamps went back: a new stream after
+    _put(j, ad, 25 * ms, y=6.0, recv=70 * ms)   # a one-sample hole
     out = j.ready()
     assert [(s.k, float(s.u[0]), float(s.y[0])) for s in out] == [
-        (0, 0.5, 2.0), (1, 0.75, 3.0), (4, 0.75, 4.0)]
+        (0, 0.5, 2.0), (1, 0.75, 3.0), (4, 0.75, 4.0), (6, 0.75, 5.0), (7, 0.75, 6.0)]
     kinds = [k for k, _ in j.take_errors()]
-    assert kinds == ["missing", "duplicate"]
+    assert kinds == ["missing", "duplicate", "out_of_order"]
 
 
 def test_live_join_waits_for_a_later_input_or_hold_wait():

@@ -578,10 +578,12 @@ class AdapterJoin:
             return None
         if self.k_last is not None and k < self.k_last:
             # the clock went back (a restarted driver, a bag played again): a new stream,
-            # numbered from 0 again (the node's join makes it a new run)
+            # numbered on after a one-sample hole, so the monitor restarts there (fresh state)
+            # and offline the samples keep increasing indices
+            k = self.k_last + 2
+            self.t0 = r.stamp_ns - round(k * self.ts_ns)
             self.errors.append(("out_of_order", f"{where}: before the previous sample (the "
-                                                f"clock went back): a new stream from k = 0"))
-            self.t0, k = r.stamp_ns, 0
+                                                f"clock went back): a new stream from k = {k}"))
         self.k_last = k
         a = self.adapter
         return AdaptedSample(k, r.stamp_ns, np.array([values[c.name] for c in a.inputs]),
