@@ -57,9 +57,12 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
         # the robot's own bag of the run, recorded beside the monitor
         rec = Proc(["record", "--adapter", "dc_motor", "-o", str(tmp_path / "rec"), "--until",
                     "/joint_states=3200", "--until", "/effort_controller/commands=3200"])
-        # the simulated motor: 32 s, 0.2 N m of effort lost at 30 s (sample 3000)
+        # the simulated motor: 32 s, 0.2 N m of effort lost at 30 s (sample 3000), paced at
+        # 4 x real time (a 400 Hz driver). Not flat out: a header-less command and the
+        # measurement after it are paired by arrival, and a flat-out burst on two topics can
+        # reach a subscriber out of order (a repaired message comes late)
         with rec, Proc(["run", "plant_sim", "--ros-args", "-p", "scenario:=dc_motor_actuator",
-                        "-p", "adapter:=dc_motor", "-p", "rate_factor:=0.0", "-p",
+                        "-p", "adapter:=dc_motor", "-p", "rate_factor:=4.0", "-p",
                         "duration:=32.0", "-p", "min_subscribers_y:=2", "-p",
                         "min_subscribers_u:=2", "-p", "publish_truth:=false"]) as sim:
             assert spin_until(ex, lambda: len(col.msgs["/fd/alarm"]) >= 3200, 240.0,
