@@ -97,3 +97,20 @@ def test_the_checker_sees_a_violation() -> None:
     assert layer_of("fd_monitor.nodes.monitor") > layer_of("fd_monitor.core.monitor")
     assert resolve("fd_monitor.core.runtime.RUNTIMES") == "fd_monitor.core.runtime"
     assert "fd_monitor.model.errors" in imports()["fd_monitor.core.runtime"]
+
+
+def test_every_module_imports() -> None:
+    """Every module of the package imports (an import of a name that moved fails here, not in
+    a user's first ``design`` or node start). In a child process: a clean interpreter."""
+    import subprocess
+    import sys
+
+    mods = sorted(m for m in imports() if not m.endswith("__main__"))  # __main__ runs
+    code = ("import importlib, sys\nbad = []\n"
+            f"for m in {mods!r}:\n"
+            "    try:\n        importlib.import_module(m)\n"
+            "    except Exception as e:\n        bad.append(f'{m}: {type(e).__name__}: {e}')\n"
+            "print('\\n'.join(bad)); sys.exit(1 if bad else 0)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr

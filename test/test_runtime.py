@@ -56,7 +56,9 @@ def _stream(system, gf, n_samples=K, seed=0):
     rng = np.random.default_rng(seed)
     side: dict[str, np.ndarray] = {}
     if gf.method in ("thresholds", "qb") or system.name == "three_tank_lpv":
-        sc = {"thresholds": "three_tank_nominal", "qb": "pwa_cascade_nominal"}.get(
+        # the identified motor runs on data of the true one it was identified from
+        sc = {"dc_motor_identified": "dc_motor_nominal"}.get(system.name) or {
+            "thresholds": "three_tank_nominal", "qb": "pwa_cascade_nominal"}.get(
             gf.method, "three_tank_lpv_nominal")
         tr = simulate(load_scenario(sc), seed, n_samples)
         return tr.u[0], tr.y[0], side

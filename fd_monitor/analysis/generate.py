@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.analysis.library import BagSpec, Corruption, Library, LibraryError
-from fd_monitor.wire.bags import write_messages
+from fd_monitor.wire.bags import BagWriter, write_messages
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
 __all__ = ["bag_messages", "generate_bag", "generate_library", "simulate_bag",
@@ -125,10 +125,14 @@ def _write(path: str | Path, msgs: Sequence[_Msg]) -> Path:
                                  for m in msgs))
 
 
-def simulate_bag(path: str | Path, scenario: Any, seed: int | None,
-                 n_samples: int) -> tuple[Path, tuple[str, ...]]:
+def simulate_bag(path: str | Path, scenario: Any, seed: int | None, n_samples: int,
+                 adapter: Any = None) -> tuple[Path, tuple[str, ...]]:
     """Write the bag of :func:`simulated_messages` (``python -m fd_monitor simulate``); the
     bag of a library spec without corruptions, byte for byte.
+
+    With ``adapter`` (a :class:`~fd_monitor.wire.adapters.Adapter` bound to the plant) u and
+    y go into the bag as the robot's messages on the adapter's topics (header stamps t_k),
+    written first; the side signals and the truth follow as simulated.
 
     Returns
     -------
@@ -136,7 +140,20 @@ def simulate_bag(path: str | Path, scenario: Any, seed: int | None,
         The bag folder and its topics, in recording order.
     """
     msgs = simulated_messages(scenario, seed, n_samples)
-    return _write(path, msgs), tuple(dict.fromkeys(m.topic for m in msgs))
+    if adapter is None:
+        return _write(path, msgs), tuple(dict.fromkeys(m.topic for m in msgs))
+    from fd_monitor.wire.adapters import write_adapted
+
+    t_u, t_y = PLANT_U.absolute, PLANT_Y.absolute
+    ys = [m for m in msgs if m.topic == t_y]
+    u = np.array([m.values for m in msgs if m.topic == t_u])
+    rest = [m for m in msgs if m.topic not in (t_u, t_y)]
+    with BagWriter(path) as w:
+        write_adapted(w, adapter, [m.stamp for m in ys], u, np.array([m.values for m in ys]),
+                      [m.t_ns for m in ys])
+        for m in rest:
+            w.write_array(m.topic, m.stamp, m.labels, m.values, m.t_ns)
+    return Path(path), (*adapter.topics, *dict.fromkeys(m.topic for m in rest))
 
 
 def generate_bag(spec: BagSpec, folder: str | Path | None = None) -> Path:

@@ -53,6 +53,7 @@ from fd_monitor.core.identify import (
 from fd_monitor.model.errors import BagError, FdMonitorWarning
 from fd_monitor.model.system import System, parse_system
 from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
 __all__ = [
     "Dataset",
@@ -114,7 +115,7 @@ class Dataset:
     sample_time: float | None = None
     mode: np.ndarray | None = None
     sha256: str = ""
-    topics: tuple[str, ...] = ("/plant/u", "/plant/y")
+    topics: tuple[str, ...] = (PLANT_U.absolute, PLANT_Y.absolute)
 
     def check(self) -> None:
         """Refuse NaN/Inf (naming topic, channel and sample) and inconsistent shapes."""
@@ -160,7 +161,8 @@ def _joined(u_arr: Any, y_arr: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     return k, vu[iu], vy[iy], ty[iy]
 
 
-def load_dataset(bag: str | Path, *, u_topic: str = "/plant/u", y_topic: str = "/plant/y",
+def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
+                 y_topic: str = PLANT_Y.absolute,
                  mode_topic: str | None = None, adapter: Any = None,
                  sample_time: float | None = None) -> Dataset:
     """Read a bag's inputs and outputs (and mode channel) into a :class:`Dataset`.
@@ -874,7 +876,7 @@ def _validation(Ms: Sequence[AffineModel], R: _Rows, q: np.ndarray, v_bar: np.nd
 
 
 def identify_bags(bags: Sequence[str | Path], *, holdout: Sequence[str | Path] = (),
-                  u_topic: str = "/plant/u", y_topic: str = "/plant/y",
+                  u_topic: str = PLANT_U.absolute, y_topic: str = PLANT_Y.absolute,
                   mode_topic: str | None = None, adapter: Any = None,
                   **options: Any) -> Identified:
     """:func:`identify` on bags (read with :func:`load_dataset`); ``options`` as there."""

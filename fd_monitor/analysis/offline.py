@@ -431,7 +431,7 @@ def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, An
 
 def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
             system: Any = None, agei: bool = True, scan: BagScan | None = None,
-            **options: Any) -> BagRun:
+            adapter: Any = None, **options: Any) -> BagRun:
     """Run the runtime of a gain file over a bag's ``/plant/u`` and ``/plant/y``.
 
     The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so
@@ -453,6 +453,9 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
         ``thresholds`` only: run with the AGEI module (False: the ablation).
     scan : BagScan, optional
         The bag already read once (:func:`scan_bag`); default: read it here, once.
+    adapter : Adapter or str, optional
+        Read u and y from the robot's topics through this adapter
+        (:func:`fd_monitor.wire.adapters.read_adapted`) instead of ``/plant/u``, ``/plant/y``.
     **options
         Further runtime options (:func:`~fd_monitor.core.runtime.runtime_for`).
 
@@ -482,8 +485,11 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     rt = runtime_for(system, gf, **options)
     if scan is None:
         scan = scan_bag(bag)
-    us, ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
-                                                    for n in rt.side_inputs}, scan)
+    if adapter is not None:
+        us, ys, sides, rep = _adapted_streams(bag, adapter, system)
+    else:
+        us, ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
+                                                        for n in rt.side_inputs}, scan)
     truth = scan.truth()
     ks = sorted(set(us).intersection(ys, *sides.values()))
     if not ks:
@@ -492,6 +498,23 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     out = run_runtime(rt, ks, us, ys, rep, sides, truth)
     return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
                   transient=float(transient), **out)
+
+
+def _adapted_streams(bag: str | Path, adapter: Any, system: Any
+                     ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray],
+                                dict[str, dict[int, np.ndarray]], InputReport]:
+    """:func:`read_streams` of a robot's bag through an adapter (its errors and holes in the
+    report as the /plant/* ones are)."""
+    from fd_monitor.wire.adapters import read_adapted
+
+    s = read_adapted(bag, adapter, system=system)
+    ks = s.k.tolist()
+    rep = InputReport([{"kind": kind, "topic": line.split(" ", 1)[0], "sample": None,
+                        "message": line} for kind, line in s.errors])
+    for a, b in _gaps(ks, []):
+        rep.errors.append({"kind": "missing", "topic": s.clock_topic, "sample": [a, b],
+                           "message": f"no sample for {a}..{b} ({b - a + 1} samples)"})
+    return dict(zip(ks, s.u)), dict(zip(ks, s.y)), {}, rep
 
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,

@@ -51,6 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="gain file of any method (path or name in config/gains/)")
     parser.add_argument("--system", default=None, metavar="SYSTEM",
                         help="plant file (default: the plant named in the gain file)")
+    parser.add_argument("--adapter", default=None, metavar="MAP",
+                        help="read u and y from a robot's own topics (JointState, Odometry, "
+                             "Twist, Float64, ...) through this adapter file "
+                             "(config/adapters/) instead of /plant/u and /plant/y")
     parser.add_argument("--no-agei", action="store_true",
                         help="ablation: run without the AGEI module")
     add_json_flag(parser)
@@ -108,7 +112,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
 
 
 def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
-                agei: bool = True) -> dict[str, Any]:
+                agei: bool = True, adapter: str | None = None) -> dict[str, Any]:
     """Run the gain file's monitor over a bag (:func:`fd_monitor.analysis.offline.run_bag`) and
     summarise (:func:`fd_monitor.analysis.summary.analyze_run`).
 
@@ -131,6 +135,11 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     scan = scan_bag(bag)                        # the one read of the bag
+    if adapter is not None:                     # the robot's topics (wire/adapters.py)
+        run = run_bag(bag, gains, system=system, agei=agei, scan=scan, adapter=adapter)
+        return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
+                "method": gains.method, "agei": agei, "adapter": str(adapter),
+                **analyze_run(run)}
     present = scan.present
     needed = [PLANT_Y.absolute] + ([PLANT_U.absolute] if system.nu else [])
     for t in needed:
@@ -158,7 +167,8 @@ def _region_cell(a: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Analyse and print."""
-    doc = analyze_bag(args.bag, args.gains, args.system, agei=not args.no_agei)
+    doc = analyze_bag(args.bag, args.gains, args.system, agei=not args.no_agei,
+                      adapter=args.adapter)
     if args.json:
         print_json(doc)
         return 0

@@ -21,6 +21,7 @@ from fd_monitor.analysis.identify import (
 )
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.core.identify import IdentificationError
+from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
 __all__ = ["add_arguments", "run"]
 
@@ -50,9 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "mode per combination the data visit")
     parser.add_argument("--mode-topic", default=None, metavar="TOPIC[:CHANNEL]",
                         help="a Float64MultiArray topic whose channel holds the mode (integer)")
-    parser.add_argument("--u-topic", default="/plant/u", help="inputs topic (default /plant/u)")
-    parser.add_argument("--y-topic", default="/plant/y",
-                        help="outputs topic (default /plant/y)")
+    parser.add_argument("--u-topic", default=PLANT_U.absolute,
+                        help=f"inputs topic (default {PLANT_U.absolute})")
+    parser.add_argument("--y-topic", default=PLANT_Y.absolute,
+                        help=f"outputs topic (default {PLANT_Y.absolute})")
     parser.add_argument("--adapter", default=None, metavar="MAP",
                         help="message mapping for a robot's own message types (see README "
                              "'Monitor your own robot'); replaces --u-topic/--y-topic")

@@ -34,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stop after N messages in total")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds")
+    parser.add_argument("--adapter", default=None, metavar="MAP",
+                        help="also record the robot topics of this adapter file "
+                             "(config/adapters/), with their types")
     parser.add_argument("--type", action="append", default=[], metavar="TOPIC=TYPE",
                         help="message type of a topic that is not an fd_monitor topic "
                              "(std_msgs/msg/Float64MultiArray or "
@@ -59,7 +62,13 @@ def run(args: argparse.Namespace) -> int:
 
     types = dict(KNOWN_TYPES)
     types.update(_pairs(args.type, "--type"))
-    topics = args.topics or list(KNOWN_TYPES)
+    topics = args.topics or ([] if args.adapter else list(KNOWN_TYPES))
+    if args.adapter:
+        from fd_monitor.wire.adapters import load_adapter
+
+        robot = load_adapter(args.adapter).topics
+        types.update(robot)
+        topics += [t for t in robot if t not in topics]
     unknown = [t for t in topics if t not in types]
     if unknown:
         raise FdMonitorError(f"record: unknown type of {', '.join(unknown)} (give --type "

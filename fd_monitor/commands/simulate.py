@@ -35,12 +35,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="random seed (default: the scenario's)")
     parser.add_argument("--duration", type=float, default=None,
                         help="s of plant time (default: the scenario's)")
+    parser.add_argument("--adapter", metavar="MAP", default=None,
+                        help="write u and y as the robot's messages on the topics of this "
+                             "adapter file (config/adapters/) instead of /plant/u, /plant/y")
     add_json_flag(parser)
 
 
 def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None = None,
-                    duration: float | None = None) -> dict:
-    """Simulate and write the bag; return a summary mapping."""
+                    duration: float | None = None, adapter: str | None = None) -> dict:
+    """Simulate and write the bag; return a summary mapping.
+
+    With ``adapter`` (an adapter file, :mod:`fd_monitor.wire.adapters`) u and y are written
+    as the robot's messages on its topics (header stamps t_k) instead of ``/plant/u`` and
+    ``/plant/y``; the truth and side signals stay.
+    """
     from fd_monitor.analysis.generate import simulate_bag
     from fd_monitor.model.scenario import check_horizon, load_scenario
 
@@ -57,7 +65,13 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     dt = sc.system.sample_time
     K = sc.n_samples if duration is None else max(1, round(duration / dt))
     sys_ = sc.system
-    path, topics = simulate_bag(output, sc, seed, K)
+    if adapter is None:
+        path, topics = simulate_bag(output, sc, seed, K)
+    else:
+        from fd_monitor.wire.adapters import load_adapter
+
+        path, topics = simulate_bag(output, sc, seed, K,
+                                    load_adapter(adapter).for_system(sys_))
     return {"bag": str(path), "scenario": sc.name, "system": sys_.name,
             "seed": sc.seed if seed is None else seed, "samples": K, "sample_time": dt,
             "duration": K * dt, "topics": list(topics),
@@ -72,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
         return _simulate_library(args.library, args.only, args.json)
     if args.scenario is None or args.output is None:
         raise ScenarioError("give SCENARIO and -o BAGDIR (or --library LIBRARY)")
-    summary = simulate_to_bag(args.scenario, args.output, args.seed, args.duration)
+    summary = simulate_to_bag(args.scenario, args.output, args.seed, args.duration,
+                              args.adapter)
     if args.json:
         emit(summary, True)
     else:

@@ -308,7 +308,9 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
     # ---- filter
     if filter_kind == "fir":
         if length is None:
-            L_noise = math.floor(kappa * 2.0 * v_bar.min() / b.max())
+            # no model error at all (an exact linear model): only the window limits L
+            L_noise = (math.floor(kappa * 2.0 * v_bar.min() / b.max()) if b.max() > 0
+                       else 2**31)
             L_time = round(max_window / system.sample_time)
             length = max(1, min(L_noise, L_time))
         spec = moving_average(int(length))

@@ -242,3 +242,38 @@ def _three_tank_sqrt(y: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
 SCHEDULING_MAPS: dict[str, Callable[[np.ndarray, Mapping[str, Any]], np.ndarray]] = {
     "three_tank_sqrt": _three_tank_sqrt,
 }
+
+
+# --------------------------------------------------------------------------------------
+# dc_motor: a motor (or a robot joint's drive) with viscous and Coulomb friction, effort
+# (torque) commanded; the worked example of README "Monitor your own robot".
+
+
+def _dc_motor_rhs(x: np.ndarray, u: np.ndarray, p: Params) -> np.ndarray:
+    w = x[..., 0]
+    # Coulomb friction Fc sign(w), smoothed over coulomb_width (rad/s) so RK4 stays accurate
+    friction = p["viscous"] * w + p["coulomb"] * np.tanh(w / p["coulomb_width"])
+    return ((u[..., 0] - friction) / p["inertia"])[..., None]
+
+
+def _dc_motor_step(x: np.ndarray, u: np.ndarray, p: Params, dt: float) -> np.ndarray:
+    return rk4(_dc_motor_rhs, x, u, p, dt, int(p["substeps"]))
+
+
+register_model(NonlinearModel(
+    name="dc_motor",
+    n_states=1,
+    n_inputs=1,
+    param_names=("inertia", "viscous", "coulomb", "coulomb_width", "substeps"),
+    step=_dc_motor_step,
+    rhs=_dc_motor_rhs,
+    defaults={"coulomb_width": 0.01, "substeps": 4.0},
+    description=(
+        "Angular velocity w (rad/s) of a motor shaft of inertia J (kg m^2) driven by the "
+        "effort tau (N m) against viscous (b w) and Coulomb (Fc sign w, smoothed as "
+        "Fc tanh(w / coulomb_width)) friction: J dw/dt = tau - b w - Fc tanh(w / width); "
+        "the discrete map is classical RK4 over one sample in 'substeps' steps."),
+    ranges={"inertia": (0.0, 1.0e6, True), "viscous": (0.0, 1.0e6, False),
+            "coulomb": (0.0, 1.0e6, False), "coulomb_width": (0.0, 1.0e6, True),
+            "substeps": (1.0, 1.0e3, False)},
+))

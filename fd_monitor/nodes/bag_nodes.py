@@ -6,6 +6,7 @@ recorded or replayed message is bit-identical to the published one.
 
 from __future__ import annotations
 
+import importlib
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -25,6 +26,7 @@ from fd_monitor.nodes.common import (
     pub_events,
     sub_events,
 )
+from fd_monitor.wire.adapters import ADAPTER_TYPES
 from fd_monitor.wire.bags import BagWriter, read_raw
 from fd_monitor.wire.topics import CHAIN_DATA, DIAGNOSTIC_ARRAY, DIAGNOSTICS, FLOAT64_MULTI_ARRAY
 
@@ -35,15 +37,14 @@ KNOWN_TYPES: dict[str, str] = {t.absolute: t.msg_type for t in (*CHAIN_DATA, DIA
 
 
 def message_class(msgtype: str) -> Any:
-    """The rclpy message class of ``pkg/msg/Name`` (std_msgs and diagnostic_msgs)."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from std_msgs.msg import Float64MultiArray
-
-    classes = {FLOAT64_MULTI_ARRAY: Float64MultiArray, DIAGNOSTIC_ARRAY: DiagnosticArray}
-    if msgtype not in classes:
+    """The rclpy message class of ``pkg/msg/Name``: fd_monitor's types and the robot types
+    the adapters read (:data:`fd_monitor.wire.adapters.ADAPTER_TYPES`)."""
+    supported = (FLOAT64_MULTI_ARRAY, DIAGNOSTIC_ARRAY, *ADAPTER_TYPES)
+    if msgtype not in supported:
         raise BagError(f"message type {msgtype}: not supported (supported: "
-                       f"{', '.join(classes)})")
-    return classes[msgtype]
+                       f"{', '.join(supported)})")
+    pkg, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
 def _sub_qos(msgtype: str) -> QoSProfile:

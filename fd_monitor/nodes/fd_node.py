@@ -334,11 +334,20 @@ class FdNode(LifecycleNode):
         raise NotImplementedError
 
     def _topic_names(self, inputs: bool) -> list[str]:
-        topics = [i.topic for i in self.inputs] if inputs else [t.name for t in self.outputs]
-        return [self.resolve_topic_name(t) for t in topics]
+        topics = [i.topic for i in self._subscribed()] if inputs else [t.name for t in self.outputs]
+        extra = getattr(self, "adapter_input", None)
+        return [self.resolve_topic_name(t) for t in topics] + (
+            extra.topics if inputs and extra is not None else [])
+
+    def _subscribed(self) -> list[Input]:
+        """The inputs subscribed as fd_monitor topics (not those an adapter replaces)."""
+        adapted = getattr(self, "adapter_input", None) is not None
+        return [i for i in self.inputs if not (adapted and i.name in ("u", "y"))]
 
     def _waits_for(self) -> list[str]:
-        return [self.resolve_topic_name(i.topic) for i in self.inputs if i.initial is None]
+        extra = getattr(self, "adapter_input", None)
+        return [self.resolve_topic_name(i.topic) for i in self._subscribed()
+                if i.initial is None] + (extra.topics if extra is not None else [])
 
     # -- services and parameters --------------------------------------------------------------
 
@@ -347,6 +356,8 @@ class FdNode(LifecycleNode):
             response.success, response.message = False, "not configured"
             return response
         self.join.reset()
+        if self.adapter_input is not None:
+            self.adapter_input.reset()
         self._waiting.clear()
         for hist in self._held.values():
             hist.clear()
@@ -444,6 +455,13 @@ class FdNode(LifecycleNode):
         info = self.message_info
         self.events_executor = not info
         self._data_inputs = {}
+        # an adapter file (nodes whose parameters have one): the robot's topics give u and y
+        self.adapter_input = None
+        if getattr(self.params, "adapter", ""):
+            from fd_monitor.nodes.adapter_input import AdapterInput
+
+            self.adapter_input = AdapterInput(self, self.params.adapter, HOLD_WAIT)
+            inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
             cb = self._callback(inp)
             self._data_inputs[inp.name] = self.subscribe(

@@ -36,6 +36,7 @@ from rclpy.serialization import serialize_message
 from fd_monitor.core.monitor import Monitor, MonitorOutput
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes import agei, bias_estimator, detector, observer, runtime_node
+from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
 from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
@@ -76,6 +77,7 @@ PARAMS = (
           read_only=False, low=0.0, high=1.0),
     Param("enabled", True, "AGEI on; false: the ablation without AGEI (never triggers, no "
           "override)"),
+    ADAPTER_PARAM,
 )
 
 USAGE = NodeUsage(

@@ -40,6 +40,7 @@ from fd_monitor.core.simulator import (
 )
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.scenario import load_scenario
+from fd_monitor.nodes.adapter_input import RobotPublishers
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
     ERROR,
@@ -91,6 +92,9 @@ PARAMS = (
           low=1, high=1000000),
     Param("diagnostics_period", 1.0, "s between /diagnostics publications", low=0.01,
           high=3600.0),
+    Param("adapter", "", "adapter file (path, or a name in config/adapters/): also publish "
+          "u and y as the robot's messages on its topics (header stamps on the plant's "
+          "clock); min_subscribers_u/y then count the subscriptions of those topics"),
 )
 
 _FLAT_OUT_TICK = 0.001  # s: timer period flat out (rate_factor 0.0), and the shortest one
@@ -155,8 +159,13 @@ class PlantSimNode(Node):
                          for name, (labels, cols) in measured_layout(sc).items()]
         pubs = ([self.pub_u, self.pub_y, *(p for p, _, _ in self.pub_side)]
                 + ([self.pub_truth] if self.pub_truth else []))
+        self.robot = RobotPublishers(self, p.adapter, sys_, qos) if p.adapter else None
+        if self.robot is not None:
+            pubs += list(self.robot.pubs.values())
         self._pacer = AckPacer(pubs, p.ack_window)
-        self._wanted = [(self.pub_u, p.min_subscribers_u), (self.pub_y, p.min_subscribers_y)]
+        self._wanted = ([(self.pub_u, p.min_subscribers_u), (self.pub_y, p.min_subscribers_y)]
+                        if self.robot is None else
+                        self.robot.wanted(p.min_subscribers_u, p.min_subscribers_y))
         if self.pub_truth is not None:
             self._wanted.append((self.pub_truth, p.min_subscribers_truth))
         self.done = Future()
@@ -215,6 +224,8 @@ class PlantSimNode(Node):
         k = s.k
         self.pub_u.publish(to_msg(self.labels_u, k, s.u[0]))
         self.pub_y.publish(to_msg(self.labels_y, k, s.y[0]))
+        if self.robot is not None:
+            self.robot.publish(k, s.u[0], s.y[0])
         for pub, labels, cols in self.pub_side:
             pub.publish(to_msg(labels, k, measured_values(cols, s.mode[0], s.rho[0])))
         if self.pub_truth is not None:

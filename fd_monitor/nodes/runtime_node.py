@@ -35,6 +35,7 @@ import numpy as np
 from fd_monitor.core.runtime import RUNTIMES, runtime_for
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile
+from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage, Param
 from fd_monitor.nodes.detector import ResidualReport
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
@@ -62,6 +63,7 @@ PARAMS = (
           "out-of-order publication", low=0.001, high=3600.0),
     Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
           read_only=False, low=0.0, high=1.0),
+    ADAPTER_PARAM,
 )
 
 
