@@ -36,7 +36,7 @@ from fd_monitor.nodes.common import (
     Param,
     run_node,
 )
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, WARN_SHARE, FdNode, Input
 from fd_monitor.wire.conversions import decode
 from fd_monitor.wire.topics import (
     ALARM,
@@ -51,8 +51,7 @@ from fd_monitor.wire.topics import (
 __all__ = ["DetectorNode", "ResidualReport", "USAGE", "main"]
 
 PARAMS = (
-    Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
-          read_only=False, low=0.0, high=1.0),
+    WARN_SHARE,
     Param("layout", "standalone", "standalone: the detector executable also runs observer, "
           "agei and bias_estimator in its process (fed plant/u and plant/y it detects on its "
           "own); chain: the detector alone, fed fd/state_estimate by an observer process"),

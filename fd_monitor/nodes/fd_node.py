@@ -66,6 +66,14 @@ __all__ = ["COMMON_PARAMS", "RUNTIME_PARAMS", "FdNode", "Input", "load_plant_and
 #: ``runtimes`` (method -> name of the method that builds that runtime).
 RUNTIMES = ("thresholds", "qb")
 
+#: The join's hole timeout, of every node that joins plant/u and plant/y.
+GAP_TIMEOUT = Param("gap_timeout", 1.0, "s a later sample must have been complete before a "
+                    "missing one is declared lost (a hole: restart at the next valid sample); "
+                    "absorbs out-of-order publication", low=0.001, high=3600.0)
+#: The per-channel WARN level of every node that detects.
+WARN_SHARE = Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its "
+                   "threshold", read_only=False, low=0.0, high=1.0)
+
 COMMON_PARAMS = (
     Param("system", "three_tank", "plant file, or the name of a shipped plant"),
     Param("gains", "three_tank_thresholds", "gain file (path or name in config/gains/); "

@@ -41,7 +41,13 @@ from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
 from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
 from fd_monitor.nodes.detector import DetectorNode, ResidualReport
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.fd_node import (
+    COMMON_PARAMS,
+    GAP_TIMEOUT,
+    WARN_SHARE,
+    FdNode,
+    Input,
+)
 from fd_monitor.nodes.observer import EstimateReport, ObserverNode
 from fd_monitor.nodes.runtime_node import RuntimeNode, gain_method
 from fd_monitor.wire.conversions import to_msg
@@ -70,11 +76,8 @@ PARAMS = (
     Param("layout", "fused", "fused: the chain as one node (one join, one Monitor.step per "
           "sample); chain: the four nodes observer, detector, agei, bias_estimator on one "
           "executor (their own names, parameters and diagnostics)"),
-    Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
-          "one is declared lost (a hole: restart at the next valid sample); absorbs "
-          "out-of-order publication", low=0.001, high=3600.0),
-    Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
-          read_only=False, low=0.0, high=1.0),
+    GAP_TIMEOUT,
+    WARN_SHARE,
     Param("enabled", True, "AGEI on; false: the ablation without AGEI (never triggers, no "
           "override)"),
     ADAPTER_PARAM,

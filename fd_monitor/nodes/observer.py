@@ -25,8 +25,8 @@ import numpy as np
 from fd_monitor.core.envelope import CertifiedRegion, describe_excess
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
 from fd_monitor.core.qb import QBObserver
-from fd_monitor.nodes.common import OK, WARN, NodeUsage, Param, run_node
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.common import OK, WARN, NodeUsage, run_node
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, GAP_TIMEOUT, FdNode, Input
 from fd_monitor.wire.topics import (
     BIAS_ESTIMATE,
     DIAGNOSTICS,
@@ -39,9 +39,7 @@ from fd_monitor.wire.topics import (
 __all__ = ["EstimateReport", "ObserverNode", "USAGE", "main"]
 
 PARAMS = (
-    Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
-          "one is declared lost (a hole: restart at the next valid sample); absorbs "
-          "out-of-order publication", low=0.001, high=3600.0),
+    GAP_TIMEOUT,
 )
 
 USAGE = NodeUsage(

@@ -36,9 +36,9 @@ from fd_monitor.core.runtime import RUNTIMES, runtime_for
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
-from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage, Param
+from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage
 from fd_monitor.nodes.detector import ResidualReport
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, GAP_TIMEOUT, WARN_SHARE, FdNode, Input
 from fd_monitor.nodes.observer import EstimateReport
 from fd_monitor.wire.topics import (
     ALARM,
@@ -58,11 +58,8 @@ from fd_monitor.wire.topics import (
 __all__ = ["RuntimeNode", "PARAMS", "USAGE", "gain_method"]
 
 PARAMS = (
-    Param("gap_timeout", 1.0, "s a later sample must have been complete before a missing "
-          "one is declared lost (a hole: restart at the next valid sample); absorbs "
-          "out-of-order publication", low=0.001, high=3600.0),
-    Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its threshold",
-          read_only=False, low=0.0, high=1.0),
+    GAP_TIMEOUT,
+    WARN_SHARE,
     ADAPTER_PARAM,
 )
 
