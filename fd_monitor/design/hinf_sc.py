@@ -64,15 +64,10 @@ from typing import Any
 import cvxpy as cp
 import numpy as np
 
-from fd_monitor.core.residual_bank import (
-    AffineModel,
-    Generator,
-    ResidualBank,
-    bound_thresholds,
-    check_generator,
-    monte_carlo_thresholds,
-    vertices,
-)
+from fd_monitor.core.hinf_certificate import check_generator
+from fd_monitor.core.hinf_model import AffineModel, Generator, generator_ss, vertices
+from fd_monitor.core.residual_bank import ResidualBank
+from fd_monitor.design.hinf_thresholds import bound_thresholds, monte_carlo_thresholds
 from fd_monitor.model.errors import DesignError, GainFileError
 from fd_monitor.model.system import System
 
@@ -697,8 +692,6 @@ def _gen_to_plain(g: Generator) -> dict[str, Any]:
 def dc_gains(model: AffineModel, gen: Generator, faults: Sequence[FaultDir],
              rho: np.ndarray | None = None) -> dict[str, float]:
     """Zero-frequency gains ``S_{f_j r_i}(0) = ||G(0)||^2`` (4.76) for every fault j."""
-    from fd_monitor.core.residual_bank import generator_ss
-
     out = {}
     for f in faults:
         if f.kind == "sensor_bias":
