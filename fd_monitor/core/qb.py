@@ -37,6 +37,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from fd_monitor.core.batch import BatchResult
+from fd_monitor.core.kalman import kalman_gains
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.core.qb_certificate import gains_matrices, gains_model
@@ -310,8 +311,6 @@ def run_batch(system: System, gains: Any, traj: Any, *, rho: float = 1.0,
         L = gains_matrices(system, gains.results)[1]
         Phi, Gam = observer_matrices(model, L, system.sample_time)
     elif estimator == "kalman":
-        from fd_monitor.core.kalman import kalman_gains
-
         Phi, Gam = kalman_gains(system, **dict(kalman or {})).matrices
     else:
         raise ValueError(f"estimator: expected 'qb' or 'kalman', got {estimator!r}")

@@ -67,8 +67,10 @@ import numpy as np
 from fd_monitor.core.hinf_certificate import check_generator
 from fd_monitor.core.hinf_model import AffineModel, Generator, generator_ss, vertices
 from fd_monitor.core.residual_bank import ResidualBank
+from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.design.hinf_thresholds import bound_thresholds, monte_carlo_thresholds
-from fd_monitor.model.errors import DesignError, GainFileError
+from fd_monitor.model.errors import DesignError, GainFileError, ScenarioError
+from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import System
 
 from ._lmi_common import (
@@ -806,10 +808,6 @@ def _thresholds(system: System, spec: BankSpec, results: dict[str, Any]
         levels = {k: ctx.number(f"levels.{k}", v, nonneg=True) for k, v in lv.items()}
         J = bound_thresholds(results, levels, margin)
         return J.tolist(), {"method": "bound", "levels": levels, "margin": margin}
-    from fd_monitor.core.simulator import simulate_batch
-    from fd_monitor.model.errors import ScenarioError
-    from fd_monitor.model.scenario import load_scenario
-
     sc_name = th.get("scenario")
     if not isinstance(sc_name, str):
         ctx.fail("scenario", "a fault-free scenario name or path", sc_name)
