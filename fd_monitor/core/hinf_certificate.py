@@ -151,17 +151,8 @@ def check_generator(model: AffineModel, gen: Generator) -> dict[str, Any]:
         cl, res = _closed_loop_at(name, gen, v, A_obs, L, model.C)
         cl_max.append(cl)
         eig_res = max(eig_res, res)
-        for Lr, Mr in gen.region:
-            rm = float(np.linalg.eigvalsh(region_matrix(model, gen, v, Lr, Mr)).max())
-            reg_max.append(rm)
-            if rm > 1e-9 * max(1.0, float(np.abs(gen.P).max())):
-                raise GainFileError(f"generator {name!r}: the pole-region LMI (4.66) does "
-                                    f"not hold at rho = {v.tolist()} (max eigenvalue "
-                                    f"{rm:.3e})")
-    if eig_res > EIGVEC_RTOL:
-        raise GainFileError(f"generator {name!r}: the eigenvector constraint (4.37) "
-                            f"(A - L C) V = lambda V does not hold (relative residual "
-                            f"{eig_res:.3e})")
+        reg_max += _region_at(model, gen, v)
+    _check_eigvec(name, eig_res)
     H = gen.H
     if np.linalg.norm(H @ H - H) > 1e-8 or np.linalg.norm(H - H.T) > 1e-8:
         raise GainFileError(f"generator {name!r}: H is not an orthogonal projection (4.55)")
@@ -211,12 +202,7 @@ def _check_affine(model: AffineModel, gen: Generator) -> dict[str, Any]:
         cl, res = _closed_loop_at(name, gen, v, model.A(v), gen.L(v), model.C)
         cl_max.append(cl)
         eig_res = max(eig_res, res)
-        for Lr, Mr in gen.region:
-            rm = float(np.linalg.eigvalsh(region_matrix(model, gen, v, Lr, Mr)).max())
-            reg_max.append(rm)
-            if rm > 1e-9 * scale:
-                raise GainFileError(f"generator {name!r}: the pole-region LMI (4.66) does "
-                                    f"not hold at rho = {v.tolist()} (max eigenvalue {rm:.3e})")
+        reg_max += _region_at(model, gen, v)
     mid = 0.5 * (model.rho_min + model.rho_max)
     def brl(r: np.ndarray) -> np.ndarray:
         return lmi_matrix(model, gen, r)
@@ -233,13 +219,31 @@ def _check_affine(model: AffineModel, gen: Generator) -> dict[str, Any]:
                 raise GainFileError(f"generator {name!r}: multi-convexity fails along "
                                     f"{model.rho_names[j] if model.rho_names else j} "
                                     f"(second derivative min eigenvalue {cmin:.3e} < 0)")
+    _check_eigvec(name, eig_res)
+    return {"lmi_max_eig": lmi_max, "p_min_eig": p_min, "closed_loop_max_real": cl_max,
+            "eigvec_residual": eig_res, "region_max_eig": reg_max,
+            "multiconvex_min_eig": convex_min}
+
+
+def _region_at(model: AffineModel, gen: Generator, v: np.ndarray) -> list[float]:
+    """Largest eigenvalue of each pole-region LMI (4.66) at vertex ``v``; refused above
+    ``1e-9 max(1, max |P|)``."""
+    out = []
+    for Lr, Mr in gen.region:
+        rm = float(np.linalg.eigvalsh(region_matrix(model, gen, v, Lr, Mr)).max())
+        out.append(rm)
+        if rm > 1e-9 * max(1.0, float(np.abs(gen.P).max())):
+            raise GainFileError(f"generator {gen.fault!r}: the pole-region LMI (4.66) does "
+                                f"not hold at rho = {v.tolist()} (max eigenvalue {rm:.3e})")
+    return out
+
+
+def _check_eigvec(name: str, eig_res: float) -> None:
+    """Refuse a relative residual of the eigenvector constraint (4.37) above the tolerance."""
     if eig_res > EIGVEC_RTOL:
         raise GainFileError(f"generator {name!r}: the eigenvector constraint (4.37) "
                             f"(A - L C) V = lambda V does not hold (relative residual "
                             f"{eig_res:.3e})")
-    return {"lmi_max_eig": lmi_max, "p_min_eig": p_min, "closed_loop_max_real": cl_max,
-            "eigvec_residual": eig_res, "region_max_eig": reg_max,
-            "multiconvex_min_eig": convex_min}
 
 
 def _closed_loop_at(name: str, gen: Any, v: np.ndarray, A_obs: np.ndarray, L: np.ndarray,
