@@ -609,21 +609,35 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         "isolation_factor": isolation_factor,
     }
     elapsed = time.perf_counter() - t0
-    summary = {
-        "plant": system.name, "filter": f"{spec.kind} b[{spec.b.size}] a[{spec.a.size}]",
-        "hold_steps": int(hold), "v_F_bar": v_F.tolist(),
-        "r_bar": {m: r_bar[q].tolist() for q, m in enumerate(system.mode_names)},
-        "r_bar_separate_eq19": {m: r_sep[q].tolist() for q, m in enumerate(system.mode_names)},
-        "agei": [{"guard": r["name"], "affected": r["affected"], "band": r["band"],
-                  "r_bar_star": np.asarray(r["r_bar_star"]).tolist()} for r in rows],
-        "isolation_threshold": (isolation_factor * iso_bound).tolist(),
-        "isolation_delay": int(settle), "estimator_spectral_radius": max(radii),
-        "uncertainty_drift_bound": eta_drift.tolist(),
-        "envelope": envelope,
-        "remainder_bar": {m: rho_bar[q].tolist() for q, m in enumerate(system.mode_names)},
-        "remainder_method": sorted({h["method"] for h in how}),
-        "design_time_s": elapsed,
-    }
+    summary = _summary(system, results, certificate, envelope, elapsed)
     return {"parameters": parameters, "results": results, "certificate": certificate,
             "summary": summary, "solver": {"name": "numpy/scipy (DARE, Monte Carlo)",
                                            "status": "optimal", "time_s": elapsed}}
+
+
+def _summary(system: System, results: dict[str, Any], certificate: dict[str, Any],
+             envelope: str, elapsed: float) -> dict[str, Any]:
+    """The designer's printed summary, read from the gain-file contents (lists, per mode)."""
+    names = system.mode_names
+    flt, est = results["filter"], results["estimator"]
+
+    def per_mode(a: np.ndarray) -> dict[str, list[float]]:
+        return {m: a[q].tolist() for q, m in enumerate(names)}
+
+    return {
+        "plant": system.name, "filter": f"{flt['kind']} b[{flt['b'].size}] a[{flt['a'].size}]",
+        "hold_steps": results["hold_steps"], "v_F_bar": results["v_F_bar"].tolist(),
+        "r_bar": per_mode(results["r_bar"]),
+        "r_bar_separate_eq19": per_mode(results["r_bar_separate"]),
+        "agei": [{"guard": r["name"], "affected": r["affected"], "band": r["band"],
+                  "r_bar_star": np.asarray(r["r_bar_star"]).tolist()}
+                 for r in results["agei"]["rows"]],
+        "isolation_threshold": est["isolation_threshold"].tolist(),
+        "isolation_delay": est["isolation_delay"],
+        "estimator_spectral_radius": max(certificate["estimator_spectral_radius"]),
+        "uncertainty_drift_bound": est["uncertainty_drift_bound"].tolist(),
+        "envelope": envelope,
+        "remainder_bar": per_mode(results["remainder_bar"]),
+        "remainder_method": sorted({h["method"] for h in results["envelope"]["remainder"]}),
+        "design_time_s": elapsed,
+    }
