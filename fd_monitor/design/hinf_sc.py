@@ -542,8 +542,7 @@ class _Problem:
             cons += self._multiconvexity(Wout if ncol else None)
         else:
             cons.append(P >> EPS * np.eye(n))
-        w = spec.weights
-        wk = {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
+        wk = self._weights()
         obj = sum(wk[k] * gv[k] for k in gv) if gv else cp.Constant(0.0)
         return cp.Problem(cp.Minimize(obj), cons)
 
@@ -580,9 +579,13 @@ class _Problem:
 
     def cost(self) -> float:
         """``a g + b g_w + c g_n`` (squared bounds) at the last solution."""
-        w = self.spec.weights
-        wk = {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
+        wk = self._weights()
         return sum(wk[k] * v for k, v in self.gamma2().items())
+
+    def _weights(self) -> dict[str, float]:
+        """Cost weight of each input group's squared bound: ``a``, ``b``, ``c``."""
+        w = self.spec.weights
+        return {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
 
     def generator(self, lam: float) -> Generator:
         """The generator (L, P, bounds) of the last solution at ``lam``."""
