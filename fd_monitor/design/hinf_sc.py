@@ -641,6 +641,22 @@ def _detectable_at(spec: BankSpec, gd: _GenData, lam: float) -> bool:
     return True
 
 
+def _solve_verified(prob: _Problem, lam: float, gen_lam: float, failed: str,
+                    unverified: str) -> tuple[Generator, dict[str, Any], float]:
+    """Solve ``prob`` at ``lam``, build its generator (lambda ``gen_lam``) and verify it with
+    the loader's check: (generator, certificate, solve seconds); ``DesignError`` saying
+    ``failed`` (status not optimal) or ``unverified`` (certificate fails) otherwise."""
+    name = prob.gd.fault.name
+    st, dt = prob.solve_at(lam)
+    if st != cp.OPTIMAL:
+        raise DesignError(f"hinf_sc: generator {name!r}: {failed} {st!r}")
+    gen = prob.generator(gen_lam)
+    try:
+        return gen, check_generator(prob.spec.model, gen), dt
+    except GainFileError as exc:
+        raise DesignError(f"hinf_sc: generator {name!r}: {unverified}: {exc}") from None
+
+
 def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
     """Grid over lambda, pick the smallest mu, re-solve and verify one generator."""
     gd = _gen_data(spec, i)
@@ -673,16 +689,8 @@ def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
                           f"{sorted(set(stats))})")
     best = int(np.nanargmin(mu_arr))
     lam = float(grid[best])
-    st, dt = prob.solve_at(lam)
-    if st != cp.OPTIMAL:
-        raise DesignError(f"hinf_sc: generator {name!r}: re-solve at lambda = {lam} returned "
-                          f"{st!r}")
-    gen = prob.generator(lam)
-    try:
-        cert = check_generator(spec.model, gen)
-    except GainFileError as exc:
-        raise DesignError(f"hinf_sc: generator {name!r}: the solver's answer at lambda = "
-                          f"{lam} does not verify: {exc}") from None
+    gen, cert, dt = _solve_verified(prob, lam, lam, f"re-solve at lambda = {lam} returned",
+                                    f"the solver's answer at lambda = {lam} does not verify")
     out: dict[str, Any] = {
         "gen": gen, "cert": cert, "lambda": lam, "mu": float(mu_arr[best]),
         "gamma2": gen.gamma2, "k": gd.fault.k, "sensitivity": gd.sens,
@@ -690,17 +698,9 @@ def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
         "solve_s": solve_s + dt, "build_s": build_s,
     }
     if spec.compare_pure:
-        pp = _Problem(spec, gd, sc=False)
-        st, _ = pp.solve_at(0.0)
-        if st != cp.OPTIMAL:
-            raise DesignError(f"hinf_sc: generator {name!r}: pure attenuation design (4.24) "
-                              f"returned {st!r}")
-        pg = pp.generator(float("nan"))
-        try:
-            pcert = check_generator(spec.model, pg)
-        except GainFileError as exc:
-            raise DesignError(f"hinf_sc: generator {name!r}: the pure attenuation design "
-                              f"(4.24) does not verify: {exc}") from None
+        pg, pcert, _ = _solve_verified(_Problem(spec, gd, sc=False), 0.0, float("nan"),
+                                       "pure attenuation design (4.24) returned",
+                                       "the pure attenuation design (4.24) does not verify")
         out["pure"] = {"gen": pg, "cert": pcert, "gamma2": pg.gamma2}
     return out
 
