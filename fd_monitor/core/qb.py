@@ -34,11 +34,10 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 
 from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.kalman import kalman_gains
-from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.plant import SampledPlant, zoh
 from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.core.qb_certificate import gains_matrices, gains_model
 from fd_monitor.core.qb_model import QBModel, default_fault_states, qb_model
@@ -82,12 +81,9 @@ def observer_matrices(model: QBModel, L: np.ndarray, dt: float) -> tuple[np.ndar
         F = model.A[i] - L[i] @ model.C[i]
         G = np.column_stack([model.B[i], L[i], model.offset[i]])
         if model.time == "continuous":
-            n, m = G.shape
-            M = np.zeros((n + m, n + m))
-            M[:n, :n], M[:n, n:] = F, G
-            Md = expm(M * dt)
-            Phis.append(Md[:n, :n])
-            Gams.append(Md[:n, n:])
+            Phi, Gam = zoh(F, G, dt)
+            Phis.append(Phi)
+            Gams.append(Gam)
         else:
             Phis.append(F)
             Gams.append(G)
