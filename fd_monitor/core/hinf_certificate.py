@@ -64,25 +64,11 @@ def lmi_matrix(model: AffineModel, gen: Generator, rho: np.ndarray,
     numpy.ndarray
         Symmetric matrix; negative definite when the certificate holds at ``rho``.
     """
+    if gen.kind == "uncertain":
+        return _lmi_uncertain(model, gen, rho)
     C, H = model.C, gen.H
     HC = H @ C
     A = model.A(rho)
-    if gen.kind == "uncertain":
-        n = model.n
-        P1, P2 = gen.P[:n, :n], gen.P[n:, n:]
-        Acl = model.A0 - gen.L0 @ C
-        g = float(np.sqrt(max(gen.gamma2.get("nuisance", 0.0), 0.0)))
-        m = gen.Fhat.shape[1]
-        p = C.shape[0]
-        M = np.zeros((2 * n + m + p, 2 * n + m + p))
-        M[:n, :n] = A.T @ P1 + P1 @ A
-        M[:n, n:2 * n] = (A - model.A0).T @ P2
-        M[:n, 2 * n:2 * n + m] = P1 @ gen.Fhat
-        M[n:2 * n, n:2 * n] = Acl.T @ P2 + P2 @ Acl
-        M[n:2 * n, 2 * n:2 * n + m] = P2 @ gen.Fhat
-        M[n:2 * n, 2 * n + m:] = HC.T
-        M[2 * n:, 2 * n:] = -g * np.eye(m + p)
-        return np.triu(M) + np.triu(M, 1).T
     L = gen.L(rho)
     P = gen.Pm(rho)
     Acl = A - L @ C
@@ -101,6 +87,28 @@ def lmi_matrix(model: AffineModel, gen: Generator, rho: np.ndarray,
     bot = np.hstack([(P @ Bcl + HC.T @ HW).T, HW.T @ HW - np.diag(gam)])
     M = np.vstack([top, bot])
     return 0.5 * (M + M.T)
+
+
+def _lmi_uncertain(model: AffineModel, gen: Generator, rho: np.ndarray) -> np.ndarray:
+    """The LMI (5.30/5.45) of an ``uncertain`` generator at ``rho`` (see :func:`lmi_matrix`)."""
+    C = model.C
+    HC = gen.H @ C
+    A = model.A(rho)
+    n = model.n
+    P1, P2 = gen.P[:n, :n], gen.P[n:, n:]
+    Acl = model.A0 - gen.L0 @ C
+    g = float(np.sqrt(max(gen.gamma2.get("nuisance", 0.0), 0.0)))
+    m = gen.Fhat.shape[1]
+    p = C.shape[0]
+    M = np.zeros((2 * n + m + p, 2 * n + m + p))
+    M[:n, :n] = A.T @ P1 + P1 @ A
+    M[:n, n:2 * n] = (A - model.A0).T @ P2
+    M[:n, 2 * n:2 * n + m] = P1 @ gen.Fhat
+    M[n:2 * n, n:2 * n] = Acl.T @ P2 + P2 @ Acl
+    M[n:2 * n, 2 * n:2 * n + m] = P2 @ gen.Fhat
+    M[n:2 * n, 2 * n + m:] = HC.T
+    M[2 * n:, 2 * n:] = -g * np.eye(m + p)
+    return np.triu(M) + np.triu(M, 1).T
 
 
 def region_matrix(model: AffineModel, gen: Generator, rho: np.ndarray,
