@@ -3,8 +3,8 @@
 Run: .venv/bin/python benchmarks/bench_bags.py [--repeat 1] [--only NAME ...]
 
 Per bag of ``bags/library.yaml``: samples, size on disk, the wall time of the regression
-summary (:func:`fd_monitor.analysis.library.analyze_summary`: ``analyze``'s chain, or the QB runtime
-for pwa_cascade bags) and of the full report
+summary (:func:`fd_monitor.analysis.expectations.analyze_summary`: ``analyze``'s chain, or
+the QB runtime for pwa_cascade bags) and of the full report
 (:func:`fd_monitor.analysis.report.bag_report`: one more
 pass for the per-sample arrays, 3-4 PNG figures, summary.md), best of ``--repeat``.
 """
@@ -15,7 +15,8 @@ import argparse
 import tempfile
 import time
 
-from fd_monitor.analysis.library import analyze_summary, load_library
+from fd_monitor.analysis.expectations import analyze_summary
+from fd_monitor.analysis.library import load_library
 from fd_monitor.analysis.report import bag_report
 
 

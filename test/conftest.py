@@ -17,9 +17,6 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 # Set before any rclpy import (the RMW reads them at init).
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.pop("ROS_LOCALHOST_ONLY", None)
-os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 # UDP on loopback only: Fast DDS's shared-memory transport can hang at start on segments a
 # killed process left in /dev/shm (tests kill processes on purpose).
 os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
@@ -29,14 +26,13 @@ try:
     _ROS = importlib.util.find_spec("rclpy") is not None
 except (ImportError, ValueError):
     _ROS = False
-if "ROS_DOMAIN_ID" not in os.environ:
-    if _ROS:
-        # a domain nobody else on this (shared) machine is using
-        from fd_monitor.nodes.domain import free_domain
+if _ROS:
+    # localhost discovery and a domain nobody else on this (shared) machine is using
+    from fd_monitor.nodes.domain import isolate_env
 
-        os.environ["ROS_DOMAIN_ID"] = str(free_domain())
-    else:
-        os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
+    isolate_env(os.environ, keep_domain=True)
+elif "ROS_DOMAIN_ID" not in os.environ:
+    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="fd_monitor_roslog_"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.pop("FD_MONITOR_CONFIG", None)

@@ -16,7 +16,8 @@ from fd_monitor.design.envelope import jacobian_centre, remainder_bound
 from fd_monitor.model.errors import SystemFileError
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import parse_scenario
-from fd_monitor.model.system import load_system, parse_system, read_yaml
+from fd_monitor.model.system import load_system, parse_system
+from fd_monitor.model.yaml_io import read_yaml
 
 U_LO, U_HI = np.array([0.0, 0.0, 0.0]), np.array([1.5e-4, 1.5e-4, 1.0])
 

@@ -31,7 +31,8 @@ from hypothesis import strategies as st
 
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import find_config_file
-from fd_monitor.model.system import load_system, parse_system, parse_yaml_text
+from fd_monitor.model.system import load_system, parse_system
+from fd_monitor.model.yaml_io import parse_yaml_text
 
 #: Examples per target in the test suite (the benchmark runs more).
 SUITE_EXAMPLES = 40

@@ -5,14 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fd_monitor.analysis.library import (
-    LibraryError,
-    check_expected,
-    check_truth,
-    generate_bag,
-    load_expected,
-    load_library,
-)
+from fd_monitor.analysis.expectations import check_expected, check_truth
+from fd_monitor.analysis.generate import generate_bag
+from fd_monitor.analysis.library import LibraryError, load_expected, load_library
 from fd_monitor.analysis.offline import read_inputs
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.system import load_system
@@ -120,7 +115,7 @@ def test_check_expected_reports_each_kind_of_failure():
 
 
 def test_mode_min_dwell_drops_chatter_only():
-    from fd_monitor.analysis.library import settled_modes
+    from fd_monitor.analysis.summary import settled_modes
 
     segs = [["q2", 0, 1], ["q0", 1, 2000], ["q1", 2001, 2], ["q0", 2003, 3],
             ["q1", 2006, 500]]

@@ -8,14 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fd_monitor.analysis.library import (
-    check_expected,
-    core_summary,
-    generate_bag,
-    load_expected,
-    load_library,
-    truth_facts,
-)
+from fd_monitor.analysis.expectations import check_expected, core_summary
+from fd_monitor.analysis.generate import generate_bag
+from fd_monitor.analysis.library import load_expected, load_library
+from fd_monitor.analysis.summary import read_bag_truth, truth_facts
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.scenario import load_scenario
@@ -56,7 +52,7 @@ def test_sample_counts_and_truth_faults_at_their_onsets(name):
     for t in ("/plant/u", "/plant/y", "/plant/truth"):
         assert len(b[t]) == K, t
         np.testing.assert_array_equal(b[t].stamps, np.arange(K))
-    facts = truth_facts(spec.folder, sc.system)
+    facts = truth_facts(read_bag_truth(spec.folder), sc.system)
     assert {f: v["onset_sample"] for f, v in facts["faults"].items()} == ONSETS[name]
     tr = b["/plant/truth"]
     for ev in sc.faults:

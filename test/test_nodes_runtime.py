@@ -55,9 +55,11 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
                 pub[t].publish(to_msg(labels, k, vals[k]))
             ex.spin_once(timeout_sec=0.0)
             if k in pause_at:
-                # the plant holds this state 0.6 s (3 diagnostics periods), as a real plant
-                # would: /diagnostics has time to show it (not a synchronisation wait)
-                spin_until(ex, lambda: False, 0.6)
+                # the plant holds this state until /diagnostics has shown it: the node has
+                # taken sample k, then published two diagnostics arrays
+                assert spin_until(ex, lambda k=k: node.processed >= k + 1, 30.0), node.processed
+                seen = len(col.diagnostics)
+                assert spin_until(ex, lambda seen=seen: len(col.diagnostics) >= seen + 2, 10.0)
         want = n if expect is None else expect
         done = spin_until(ex, lambda: all(len(col.msgs[t]) >= want for t in OUT), 60.0)
         assert done, ({t: len(col.msgs[t]) for t in OUT}, node.processed)

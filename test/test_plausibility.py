@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fd_monitor.analysis.offline import InputReport, run_bag, run_thresholds, summarize_run
+from fd_monitor.analysis.offline import InputReport, run_bag, run_thresholds
+from fd_monitor.analysis.summary import summarize_run
 from fd_monitor.core.monitor import Monitor
 from fd_monitor.core.plausibility import PREDICTION_FACTOR, Plausibility
 from fd_monitor.core.simulator import simulate

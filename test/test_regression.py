@@ -1,7 +1,7 @@
 """Regression suite: every library bag analysed offline matches its expected.yaml.
 
 Every bag goes through ``analyze``'s offline run
-(:func:`fd_monitor.analysis.library.analyze_summary`
+(:func:`fd_monitor.analysis.expectations.analyze_summary`
 calls :func:`fd_monitor.analysis.offline.run_bag`: the gain file's runtime from the registry of
 :mod:`fd_monitor.core.runtime`, whatever its method). A test shows that a threshold 20 %
 higher in the gain file makes the suite fail.
@@ -15,7 +15,8 @@ import sys
 import pytest
 import yaml
 
-from fd_monitor.analysis.library import analyze_summary, check_expected, load_expected, load_library
+from fd_monitor.analysis.expectations import analyze_summary, check_expected
+from fd_monitor.analysis.library import load_expected, load_library
 from fd_monitor.commands.analyze import analyze_bag
 from fd_monitor.model.errors import GainFileError
 from fd_monitor.model.gains import load_gains, write_gain_doc

@@ -17,8 +17,10 @@ import numpy as np
 import pytest
 from ros_util import Proc, replay_through
 
-from fd_monitor.analysis.library import check_expected, load_expected, load_library
+from fd_monitor.analysis.expectations import check_expected
+from fd_monitor.analysis.library import load_expected, load_library
 from fd_monitor.analysis.offline import run_bag, stamp_runs
+from fd_monitor.analysis.summary import recorded_outputs, summarize
 from fd_monitor.wire.bags import read_bag
 
 pytestmark = pytest.mark.ros
@@ -27,26 +29,6 @@ LIB = load_library()
 LIVE = [b.name for b in LIB.bags if b.live]
 TOPICS = ["/fd/alarm", "/fd/state_estimate", "/fd/bias_estimate", "/fd/residual"]
 BAD = "three_tank_bad_input"
-
-
-def live_summary(rec, system_outputs, mode_names):
-    """The analyze-style summary of what the nodes published (recorded bag ``rec``)."""
-    got = read_bag(rec, TOPICS)
-    al, st, be = got["/fd/alarm"], got["/fd/state_estimate"], got["/fd/bias_estimate"]
-    alarms = []
-    for c in system_outputs:
-        hits = np.flatnonzero(al.column(c) > 0.5)
-        if hits.size:
-            alarms.append({"channel": c, "first_sample": int(al.stamps[hits[0]])})
-    modes = []
-    for q in st.column("mode"):
-        name = mode_names[int(q)]
-        if not modes or modes[-1] != name:
-            modes.append(name)
-    restarts = [int(k) for k in st.stamps[1:][st.column("restart")[1:] > 0.5]]
-    return {"alarms": alarms, "modes": modes, "samples": len(al), "restarts": restarts,
-            "isolated": [c for c in system_outputs if be.column(f"iso:{c}")[-1] > 0.5],
-            "bias_estimate": {c: float(be.column(c)[-1]) for c in system_outputs}}
 
 
 def logged_input_errors(log: str) -> dict[str, list]:
@@ -101,7 +83,8 @@ def test_live_nodes_match_expected(tmp_path, name, layout):
     # monitor: itself).
     replay_through(procs, rec, spec.folder, ["/plant/u", "/plant/y"],
                    wait_subscribers=1 if layout == "monitor" else 2)
-    s = live_summary(tmp_path / "rec", system.outputs, system.mode_names)
+    # what the nodes published, summarised as the offline run is
+    s = summarize(recorded_outputs(read_bag(tmp_path / "rec", TOPICS), system))
     s["input_errors"] = logged_input_errors("".join(p.output() for p in procs))
     assert s["samples"] == n                       # no valid sample lost
     assert check_expected(load_expected(spec.expected_file), s) == []

@@ -347,14 +347,14 @@ def test_regression_library_takes_an_hinf_sc_bag(tmp_path):
     """A library bag with an ``hinf_sc`` gain file: generated, its expectations proposed from
     one analysis and the truth, honest (check_truth: no alarm before the onsets, the leaking
     tanks isolated) and met (check_expected)."""
-    from fd_monitor.analysis.library import (
+    from fd_monitor.analysis.expectations import (
         analyze_summary,
         check_expected,
         check_truth,
-        generate_bag,
-        load_library,
         propose_expected,
     )
+    from fd_monitor.analysis.generate import generate_bag
+    from fd_monitor.analysis.library import load_library
 
     (tmp_path / "library.yaml").write_text(yaml.safe_dump({"format_version": 1, "bags": [
         {"name": "lpv_leaks", "scenario": "three_tank_lpv_abrupt", "seed": 2,

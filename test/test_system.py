@@ -97,6 +97,30 @@ def test_identity_is_canonical(tmp_path: Path) -> None:
     assert c.sha256 != a.sha256
 
 
+def test_units_come_from_the_plant_file(tmp_path: Path) -> None:
+    """``units`` names each channel's unit ("-" where not given); it is not part of the
+    plant's identity, and a runtime labels its channels with it, whatever the plant's name."""
+    from fd_monitor.core.runtime import runtime_for
+    from fd_monitor.model.gains import load_gains
+
+    a = load_system(write(tmp_path, MINIMAL, "a.yaml"))
+    assert a.state_units == ("-", "-") and a.input_units == ("-",) and a.output_units == ("-",)
+    b = load_system(write(tmp_path, mutated(("units",), {"states": {"x1": "m"},
+                                                         "outputs": {"y1": "m/s"}}), "b.yaml"))
+    assert b.state_units == ("m", "-") and b.output_units == ("m/s",)
+    assert b.sha256 == a.sha256
+
+    tanks = load_system("three_tank")
+    assert tanks.output_units == ("m", "m", "m")
+    gains = load_gains("three_tank_thresholds", tanks)
+    assert runtime_for(tanks, gains).units == ("m", "m", "m")
+    doc = yaml.safe_load(Path(tanks.source).read_text())
+    del doc["units"]
+    bare = load_system(write(tmp_path, doc, "three_tank.yaml"))
+    assert bare.name == "three_tank" and bare.sha256 == tanks.sha256
+    assert runtime_for(bare, gains).units == ("-", "-", "-")
+
+
 # (mutation, message fragment that must appear); every message also names the file.
 MALFORMED = [
     pytest.param(mutated(("sample_time",), delete=True), r"sample_time: expected .*missing key",
@@ -139,6 +163,15 @@ MALFORMED = [
     pytest.param(mutated(("modes",), {"a": {"dynamics": "nonlinear", "model": "nope"}}),
                  r"modes\.a\.model: expected a known nonlinear model: \[.*three_tank",
                  id="unknown-model"),
+    pytest.param(mutated(("units",), {"outputs": {"y9": "m"}}),
+                 r"units\.outputs\.y9: expected one of the keys \['y1'\] \(unknown key\)",
+                 id="unit-of-unknown-output"),
+    pytest.param(mutated(("units",), {"states": {"x1": 3}}),
+                 r"units\.states\.x1: expected a unit \(a non-empty string such as 'm'\), "
+                 r"got 3", id="unit-not-a-string"),
+    pytest.param(mutated(("units",), {"speeds": {}}),
+                 r"units\.speeds: expected one of the keys \['inputs', 'outputs', 'states'\]",
+                 id="unit-unknown-group"),
 ]
 
 

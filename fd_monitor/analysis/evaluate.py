@@ -176,47 +176,72 @@ def run_campaign(gains: GainFile, scenarios: Sequence[Scenario], runs: int, *,
     bar = ProgressBar(n_chunks * len(scenarios) * len(variants), "evaluate", stream, progress)
     rows: list[CampaignRow] = []
     for sc in scenarios:
-        dt = sc.system.sample_time
-        onset = _onset(sc)
-        k_tr = round(transient / dt)
-        k_on = sc.n_samples if onset is None else round(onset / dt)
-        # per variant, per rho: lists of per-run false-alarm flags and first-alarm indices
-        fa: dict[tuple[str, int], list[np.ndarray]] = {}
-        first: dict[tuple[str, int], list[np.ndarray]] = {}
-        for c in range(n_chunks):
-            seeds = list(range(seed0 + c * chunk, seed0 + min((c + 1) * chunk, runs)))
-            traj = simulate_batch(sc, seeds)
-            for label, opts in variants.items():
-                res = runner(sc.system, gains, traj, **dict(opts))
-                sel = _select(res, channels)
-                if rhos:
-                    if not (res.extra.get("threshold_scalable") and res.residual is not None
-                            and res.threshold is not None):
-                        raise FdMonitorError(f"--rho: method {gains.method!r} has no scalable "
-                                             f"thresholds; evaluate it without --rho")
-                    thr = np.broadcast_to(res.threshold, res.residual.shape)[..., sel]
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        ratio = (res.residual[..., sel] / thr).max(axis=2)  # (N, K)
-                for j, rho in enumerate(rho_list):
-                    alarm = (ratio > rho) if rho is not None else res.alarm[..., sel].any(axis=2)
-                    fa.setdefault((label, j), []).append(alarm[:, k_tr:k_on].any(axis=1))
-                    if onset is not None:
-                        f = _first_true(alarm[:, k_on:])
-                        first.setdefault((label, j), []).append(f)
-                bar.update(1, f"{sc.name} {label}")
-        for label in variants:
-            for j, rho in enumerate(rho_list):
-                row = CampaignRow(sc.name, label, rho, runs,
-                                  float(np.concatenate(fa[(label, j)]).mean()), onset_s=onset)
-                if onset is not None:
-                    f = np.concatenate(first[(label, j)])
-                    det = f >= 0
-                    row.detection_rate = float(det.mean())
-                    if det.any():
-                        d = f[det] * dt
-                        row.delays = d
-                        row.delay_mean_s = float(d.mean())
-                        row.delay_median_s = float(np.median(d))
-                        row.delay_max_s = float(d.max())
-                rows.append(row)
+        fa, first = _scenario_alarms(runner, gains, sc, runs, seed0, chunk, variants, rhos,
+                                     transient, channels, bar)
+        rows += [_row(sc, label, rho, runs, fa[(label, j)], first.get((label, j)))
+                 for label in variants for j, rho in enumerate(rho_list)]
     return rows
+
+
+def _scenario_alarms(runner: Callable[..., BatchResult], gains: GainFile, sc: Scenario,
+                     runs: int, seed0: int, chunk: int,
+                     variants: Mapping[str, Mapping[str, Any]], rhos: Sequence[float] | None,
+                     transient: float, channels: Sequence[str] | None, bar: ProgressBar
+                     ) -> tuple[dict[tuple[str, int], list[np.ndarray]],
+                                dict[tuple[str, int], list[np.ndarray]]]:
+    """Simulate one scenario's runs chunk by chunk and run every variant on them.
+
+    Returns
+    -------
+    (dict, dict)
+        (variant, rho index) -> per chunk: (runs,) bool "false alarm" (any alarm in
+        ``[transient, onset)``), and (runs,) index of the first alarm at or after the onset
+        (-1: none; faulty scenarios only).
+    """
+    rho_list: list[float | None] = list(rhos) if rhos else [None]
+    dt = sc.system.sample_time
+    onset = _onset(sc)
+    k_tr = round(transient / dt)
+    k_on = sc.n_samples if onset is None else round(onset / dt)
+    fa: dict[tuple[str, int], list[np.ndarray]] = {}
+    first: dict[tuple[str, int], list[np.ndarray]] = {}
+    for c in range(-(-runs // chunk)):
+        seeds = list(range(seed0 + c * chunk, seed0 + min((c + 1) * chunk, runs)))
+        traj = simulate_batch(sc, seeds)
+        for label, opts in variants.items():
+            res = runner(sc.system, gains, traj, **dict(opts))
+            sel = _select(res, channels)
+            if rhos:
+                if not (res.extra.get("threshold_scalable") and res.residual is not None
+                        and res.threshold is not None):
+                    raise FdMonitorError(f"--rho: method {gains.method!r} has no scalable "
+                                         f"thresholds; evaluate it without --rho")
+                thr = np.broadcast_to(res.threshold, res.residual.shape)[..., sel]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    ratio = (res.residual[..., sel] / thr).max(axis=2)  # (N, K)
+            for j, rho in enumerate(rho_list):
+                alarm = (ratio > rho) if rho is not None else res.alarm[..., sel].any(axis=2)
+                fa.setdefault((label, j), []).append(alarm[:, k_tr:k_on].any(axis=1))
+                if onset is not None:
+                    first.setdefault((label, j), []).append(_first_true(alarm[:, k_on:]))
+            bar.update(1, f"{sc.name} {label}")
+    return fa, first
+
+
+def _row(sc: Scenario, label: str, rho: float | None, runs: int, fa: list[np.ndarray],
+         first: list[np.ndarray] | None) -> CampaignRow:
+    """The metrics of one (scenario, variant, rho) cell from :func:`_scenario_alarms`."""
+    onset = _onset(sc)
+    row = CampaignRow(sc.name, label, rho, runs, float(np.concatenate(fa).mean()),
+                      onset_s=onset)
+    if onset is not None and first is not None:
+        f = np.concatenate(first)
+        det = f >= 0
+        row.detection_rate = float(det.mean())
+        if det.any():
+            d = f[det] * sc.system.sample_time
+            row.delays = d
+            row.delay_mean_s = float(d.mean())
+            row.delay_median_s = float(np.median(d))
+            row.delay_max_s = float(d.max())
+    return row

@@ -14,9 +14,9 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    it after a hole (the state estimate is re-initialised from the next measurement and the
    filters start again, so no stale estimate is carried across missing data). Nothing is
    lost: every valid sample is processed and every rejected one is reported.
-3. :func:`summarize_run` (regression expectations) and
-   :func:`fd_monitor.commands.analyze.analyze_run` (the ``analyze`` summary) read the
-   resulting :class:`BagRun`.
+3. :mod:`fd_monitor.analysis.summary` reads the resulting :class:`BagRun`
+   (:func:`~fd_monitor.analysis.summary.summarize_run`,
+   :func:`~fd_monitor.analysis.summary.analyze_run`).
 
 Nothing here imports rclpy (the message decoding is the nodes' pure conversion function).
 """
@@ -35,12 +35,18 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.runtime import runtime_for
-from fd_monitor.model.errors import BagError, FdMonitorError, ImplausibleError, MessageError
+from fd_monitor.model.errors import (
+    BagError,
+    FdMonitorError,
+    ImplausibleError,
+    MessageError,
+    NonFiniteError,
+    WrongLengthError,
+)
 
-__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "collapse", "read_inputs",
+__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "read_inputs",
            "read_streams", "run_bag", "run_runtime", "run_thresholds", "scan_bag",
-           "side_topic",
-           "stamp_runs", "summarize_run", "truth_at"]
+           "side_topic", "stamp_runs"]
 
 #: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml).
 INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
@@ -73,15 +79,14 @@ class InputReport:
         return {k: sorted(v) for k, v in out.items()}
 
 
+#: Input-error kind of each MessageError class (the first that matches); any other: malformed.
+_KIND_OF = ((ImplausibleError, "implausible"), (NonFiniteError, "non_finite"),
+            (WrongLengthError, "wrong_length"))
+
+
 def _classify(exc: MessageError) -> str:
-    text = str(exc)
-    if isinstance(exc, ImplausibleError):
-        return "implausible"
-    if "expected finite" in text or "non-finite" in text:
-        return "non_finite"
-    if "wrong length" in text or "labels for" in text or "size" in text:
-        return "wrong_length"
-    return "malformed"
+    """The :data:`INPUT_ERROR_KINDS` entry of a refused message, by the error's class."""
+    return next((kind for cls, kind in _KIND_OF if isinstance(exc, cls)), "malformed")
 
 
 @dataclass
@@ -542,71 +547,3 @@ def _refused(rep: InputReport, k: int, exc: MessageError) -> None:
     """Report sample k refused by the runtime (implausible) as an input error."""
     rep.errors.append({"kind": _classify(exc), "topic": "/plant/u,/plant/y", "sample": k,
                        "message": str(exc)})
-
-
-def truth_at(truth: Any, ks: Sequence[int], labels: Sequence[str]) -> np.ndarray:
-    """(len(ks), len(labels)) truth values at the given stamps (NaN where absent)."""
-    idx = {int(s): i for i, s in enumerate(truth.stamps)}
-    out = np.full((len(ks), len(labels)), np.nan)
-    cols = [truth.labels.index(lab) for lab in labels]
-    for j, k in enumerate(ks):
-        i = idx.get(int(k))
-        if i is not None:
-            out[j] = truth.values[i, cols]
-    return out
-
-
-def collapse(seq: Sequence[Any]) -> list[Any]:
-    out: list[Any] = []
-    for s in seq:
-        if not out or out[-1] != s:
-            out.append(s)
-    return out
-
-
-def _segments(ks: Sequence[int], modes: Sequence[str]) -> list[list[Any]]:
-    """``[[mode, first_sample, samples], ...]``: runs of one mode."""
-    out: list[list[Any]] = []
-    for k, m in zip(ks, modes):
-        if out and out[-1][0] == m:
-            out[-1][2] += 1
-        else:
-            out.append([m, int(k), 1])
-    return out
-
-
-def summarize_run(run: BagRun) -> dict[str, Any]:
-    """The analyze-style summary of a :class:`BagRun`.
-
-    Returns
-    -------
-    dict
-        ``alarms`` (list of ``{channel, first_sample, time}`` after the transient),
-        ``isolated`` (channel names flagged at the last sample), ``bias_estimate``
-        (``{name: final value}``), ``modes`` (estimated mode names, repeats collapsed),
-        ``input_errors`` (kind -> stamps), ``restarts``, ``samples``, ``channels`` (the
-        runtime's alarm channels) and ``estimate_kind`` (what ``bias_estimate`` estimates).
-    """
-    sys_ = run.system
-    dt = float(sys_.sample_time)
-    k_tr = round(run.transient / dt)
-    alarms = []
-    for i, c in enumerate(run.channels):
-        hits = np.flatnonzero(run.alarm[:, i] & (run.k >= k_tr))
-        if hits.size:
-            k = int(run.k[hits[0]])
-            alarms.append({"channel": c, "first_sample": k, "time": round(k * dt, 9)})
-    isolated: list[str] = []
-    if run.isolated is not None and len(run.k):
-        isolated = [c for c, f in zip(sys_.outputs, run.isolated[-1]) if f]
-    else:
-        isolated = [a["channel"] for a in alarms if a["channel"] in run.isolating]
-    names = sys_.mode_names
-    return {"bag": run.bag, "gains": run.gains, "method": run.method,
-            "samples": len(run.k), "alarms": alarms, "isolated": isolated,
-            "bias_estimate": {n: float(v[-1]) for n, v in run.estimate.items()},
-            "modes": collapse([names[int(q)] for q in run.mode_hat]),
-            "mode_segments": _segments(run.k, [names[int(q)] for q in run.mode_hat]),
-            "input_errors": run.inputs.by_kind(), "restarts": list(run.inputs.restarts),
-            "transient_s": run.transient, "channels": list(run.channels),
-            "estimate_kind": run.estimate_kind}

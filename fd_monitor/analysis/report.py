@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.analysis.summary import episodes, summarize_run, truth_at, truth_facts
 from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["bag_report", "campaign_report", "figure_residuals", "figure_modes", "figure_bias",
@@ -50,26 +51,13 @@ def _plt() -> Any:
     return plt
 
 
-def _episodes(flags: np.ndarray) -> list[tuple[int, int]]:
-    f = np.concatenate([[False], np.asarray(flags, bool), [False]]).astype(int)
-    d = np.diff(f)
-    return list(zip(np.flatnonzero(d == 1).tolist(), (np.flatnonzero(d == -1) - 1).tolist()))
-
-
 def _onsets(run: Any) -> list[tuple[str, float]]:
     """(fault name, onset time s) of every fault channel that is ever non-zero in the truth."""
-    tr = run.truth
-    if tr is None:
+    if run.truth is None:
         return []
     dt = float(run.system.sample_time)
-    out = []
-    for f in run.system.faults:
-        lab = f"f.{f.name}"
-        if lab in tr.labels:
-            nz = np.flatnonzero(tr.column(lab) != 0.0)
-            if nz.size:
-                out.append((f.name, float(tr.stamps[nz[0]]) * dt))
-    return out
+    return [(name, f["onset_sample"] * dt)
+            for name, f in truth_facts(run.truth, run.system)["faults"].items()]
 
 
 def _decorate(ax: Any, run: Any, t: np.ndarray, alarm: np.ndarray | None,
@@ -82,7 +70,7 @@ def _decorate(ax: Any, run: Any, t: np.ndarray, alarm: np.ndarray | None,
         label_once["tr"] = True
     if alarm is not None and t.size:
         half = max(dt / 2, 0.002 * float(t[-1] - t[0]))  # short alarms stay visible
-        for a, b in _episodes(alarm):
+        for a, b in episodes(alarm):
             ax.axvspan(t[a] - half, t[b] + half, color=_ALARM, alpha=0.3, lw=0,
                        label=None if label_once.get("al") else "alarm period")
             label_once["al"] = True
@@ -136,8 +124,6 @@ def figure_residuals(run: Any, path: str | Path) -> Path:
 def _true_modes(run: Any) -> np.ndarray | None:
     if run.truth is None or "mode" not in run.truth.labels:
         return None
-    from fd_monitor.analysis.offline import truth_at
-
     return truth_at(run.truth, run.k, ["mode"])[:, 0]
 
 
@@ -171,8 +157,6 @@ def figure_bias(run: Any, path: str | Path) -> Path:
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.9 * len(names) + 1.0),
                              sharex=True, squeeze=False)
     t = run.t
-    from fd_monitor.analysis.offline import truth_at
-
     qb = run.estimate_kind == "state"   # fault-model states against the true state
     for i, n in enumerate(names):
         ax = axes[i, 0]
@@ -308,8 +292,9 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
         ``summary`` (the analysis summary), ``figures`` (paths), ``summary_md`` (path),
         ``expected_failures`` (list, or None without expectations).
     """
-    from fd_monitor.analysis.library import check_expected, expected_path, load_expected
-    from fd_monitor.analysis.offline import run_bag, summarize_run
+    from fd_monitor.analysis.expectations import check_expected
+    from fd_monitor.analysis.library import expected_path, load_expected
+    from fd_monitor.analysis.offline import run_bag
     from fd_monitor.model.errors import BagError
 
     bagp = Path(bag)
@@ -411,45 +396,62 @@ def campaign_report(rows: Sequence[Any], scenarios: Sequence[Any], out_dir: str 
     dict
         ``figures`` and ``summary_md`` paths.
     """
-    plt = _plt()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     by_name = {sc.name: sc for sc in scenarios}
+    figs: dict[str, Path] = {}
+    if any(r.detection_rate is not None for r in rows):
+        figs["detection"] = _detection_figure(rows, by_name, gains, out / "detection.png")
+    figs["false_alarms"] = _false_alarm_figure(rows, out / "false_alarms.png")
+    md = _campaign_markdown(rows, by_name, figs, gains, transient)
+    (out / "summary.md").write_text(md, encoding="utf-8")
+    return {"figures": {k: str(v) for k, v in figs.items()},
+            "summary_md": str(out / "summary.md")}
+
+
+def _detection_figure(rows: Sequence[Any], by_name: Mapping[str, Any], gains: str,
+                      path: Path) -> Path:
+    """Detection rate and delay against the fault magnitude, a line per variant (and rho,
+    and fault profile)."""
+    plt = _plt()
     series: dict[str, list[Any]] = {}
     for r in rows:
         sc = by_name.get(r.scenario)
         prof = f" ({sc.faults[0].profile})" if sc is not None and sc.faults else ""
         key = r.variant + ("" if r.rho is None else f", rho={r.rho:g}") + prof
         series.setdefault(key, []).append(r)
-    figs: dict[str, Path] = {}
-    faulty = [r for r in rows if r.detection_rate is not None]
-    if faulty:
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-        for key, rs in series.items():
-            pts = sorted(((_magnitude(by_name[r.scenario]) or 0.0, r) for r in rs
-                          if r.detection_rate is not None and r.scenario in by_name),
-                         key=lambda p: p[0])
-            if not pts:
-                continue
-            x = [p[0] for p in pts]
-            a1.plot(x, [100 * p[1].detection_rate for p in pts], "o-", label=key)
-            dm = [np.nan if p[1].delay_mean_s is None else p[1].delay_mean_s for p in pts]
-            dx = [np.nan if p[1].delay_max_s is None else p[1].delay_max_s for p in pts]
-            line, = a2.plot(x, dm, "o-", label=f"{key} mean")
-            a2.plot(x, dx, "v--", color=line.get_color(), alpha=0.7, label=f"{key} max")
-        a1.set_xlabel("fault magnitude |delta| [fault channel unit]")
-        a1.set_ylabel("detection rate [%]")
-        a1.set_ylim(-5, 105)
-        a1.set_title("detection rate against fault magnitude")
-        a2.set_xlabel("fault magnitude |delta| [fault channel unit]")
-        a2.set_ylabel("detection delay [s]")
-        a2.set_title("detection delay (detected runs)")
-        for a in (a1, a2):
-            a.grid(True, alpha=0.3)
-            a.legend(fontsize=7)
-        fig.suptitle(f"Monte Carlo campaign {gains}")
-        fig.tight_layout()
-        figs["detection"] = _save(fig, out / "detection.png")
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    for key, rs in series.items():
+        pts = sorted(((_magnitude(by_name[r.scenario]) or 0.0, r) for r in rs
+                      if r.detection_rate is not None and r.scenario in by_name),
+                     key=lambda p: p[0])
+        if not pts:
+            continue
+        x = [p[0] for p in pts]
+        a1.plot(x, [100 * p[1].detection_rate for p in pts], "o-", label=key)
+        dm = [np.nan if p[1].delay_mean_s is None else p[1].delay_mean_s for p in pts]
+        dx = [np.nan if p[1].delay_max_s is None else p[1].delay_max_s for p in pts]
+        line, = a2.plot(x, dm, "o-", label=f"{key} mean")
+        a2.plot(x, dx, "v--", color=line.get_color(), alpha=0.7, label=f"{key} max")
+    a1.set_xlabel("fault magnitude |delta| [fault channel unit]")
+    a1.set_ylabel("detection rate [%]")
+    a1.set_ylim(-5, 105)
+    a1.set_title("detection rate against fault magnitude")
+    a2.set_xlabel("fault magnitude |delta| [fault channel unit]")
+    a2.set_ylabel("detection delay [s]")
+    a2.set_title("detection delay (detected runs)")
+    for a in (a1, a2):
+        a.grid(True, alpha=0.3)
+        a.legend(fontsize=7)
+    fig.suptitle(f"Monte Carlo campaign {gains}")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _false_alarm_figure(rows: Sequence[Any], path: Path) -> Path:
+    """False-alarm rate per scenario and variant (bars), or against the threshold scale rho
+    (a sweep)."""
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(10, 4))
     rhos = sorted({r.rho for r in rows if r.rho is not None})
     if len(rhos) > 1:
@@ -477,7 +479,12 @@ def campaign_report(rows: Sequence[Any], scenarios: Sequence[Any], out_dir: str 
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    figs["false_alarms"] = _save(fig, out / "false_alarms.png")
+    return _save(fig, path)
+
+
+def _campaign_markdown(rows: Sequence[Any], by_name: Mapping[str, Any],
+                       figs: Mapping[str, Path], gains: str, transient: float) -> str:
+    """``summary.md`` of a campaign: the metrics table and the figures."""
     table = []
     for r in rows:
         mag = _magnitude(by_name[r.scenario]) if r.scenario in by_name else None
@@ -499,6 +506,4 @@ def campaign_report(rows: Sequence[Any], scenarios: Sequence[Any], out_dir: str 
     lines += ["", "## Figures", ""]
     for k, p in figs.items():
         lines += [f"![{k}]({p.name})", ""]
-    (out / "summary.md").write_text("\n".join(lines), encoding="utf-8")
-    return {"figures": {k: str(v) for k, v in figs.items()},
-            "summary_md": str(out / "summary.md")}
+    return "\n".join(lines)

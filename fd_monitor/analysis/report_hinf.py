@@ -42,6 +42,22 @@ def _fault_inputs(system: System, results: Mapping[str, Any]) -> dict[str, tuple
     return out
 
 
+def _label(ax: Any, title: str, xlabel: str, ylabel: str) -> None:
+    """Title, axis labels and a log grid."""
+    ax.set_title(title)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+
+
+def _save(fig: Any, path: Path) -> Path:
+    """Lay out, write (PNG, 110 dpi) and close a figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_bank(system: System, results: Mapping[str, Any], outdir: str | Path) -> list[Path]:
     """One figure per generator (sigma of every fault -> r_i) and one of mu(lambda)."""
     out = Path(outdir)
@@ -60,16 +76,10 @@ def plot_bank(system: System, results: Mapping[str, Any], outdir: str | Path) ->
                 s = sigma_db(A, B, C, D, OMEGA)[:, 0]
                 ls = "-" if name == g.fault else "--"
                 ax.semilogx(OMEGA, s, ls, label=f"{name} -> r_{g.fault}{tag}")
-        ax.set_title(f"{system.name}: residual generator for {g.fault} (lambda = {g.lam:g})")
-        ax.set_xlabel("frequency omega (rad/s)")
-        ax.set_ylabel("singular value (dB)")
-        ax.grid(True, which="both", alpha=0.3)
+        _label(ax, f"{system.name}: residual generator for {g.fault} (lambda = {g.lam:g})",
+               "frequency omega (rad/s)", "singular value (dB)")
         ax.legend(fontsize=7)
-        p = out / f"{system.name}_sigma_{g.fault}.png"
-        fig.tight_layout()
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        files.append(p)
+        files.append(_save(fig, out / f"{system.name}_sigma_{g.fault}.png"))
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for g in results["generators"]:
         mg = g.get("mu_grid") or {}
@@ -79,17 +89,11 @@ def plot_bank(system: System, results: Mapping[str, Any], outdir: str | Path) ->
             ax.semilogy(lam, mu, "o-", ms=3, label=f"mu_{g['fault']}")
         elif lam.size == 1:  # a fixed lambda (no grid): one point per generator
             ax.semilogy(lam, mu, "s", label=f"mu_{g['fault']} (fixed lambda)")
-    ax.set_title(f"{system.name}: performance ratio mu(lambda) (4.35)")
-    ax.set_xlabel("lambda (1/s)")
-    ax.set_ylabel("mu (dimensionless)")
-    ax.grid(True, which="both", alpha=0.3)
+    _label(ax, f"{system.name}: performance ratio mu(lambda) (4.35)", "lambda (1/s)",
+           "mu (dimensionless)")
     if ax.get_lines():
         ax.legend()
-    p = out / f"{system.name}_mu.png"
-    fig.tight_layout()
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    files.append(p)
+    files.append(_save(fig, out / f"{system.name}_mu.png"))
     return files
 
 
@@ -115,13 +119,7 @@ def plot_switched(system: System, results: Mapping[str, Any], outdir: str | Path
             ax.semilogx(w, sigma_db(A, B, C, D, w, dt)[:, -1], ls, label=lab)
         for wk in (1e-3, 1e-2, 1e-1, 1.0):
             ax.axvline(wk, color="0.8", lw=0.6)
-        ax.set_title(f"{system.name}: T_rf, {system.modes[i].name}")
-        ax.set_xlabel("frequency omega (rad/s)")
-        ax.set_ylabel("minimum singular value (dB)")
-        ax.grid(True, which="both", alpha=0.3)
+        _label(ax, f"{system.name}: T_rf, {system.modes[i].name}",
+               "frequency omega (rad/s)", "minimum singular value (dB)")
         ax.legend(fontsize=8)
-    p = out / f"{system.name}_trf.png"
-    fig.tight_layout()
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return [p]
+    return [_save(fig, out / f"{system.name}_trf.png")]

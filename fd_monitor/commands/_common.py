@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
-from fd_monitor.model.gains import to_plain
+from fd_monitor.model.gains import save_gains, to_plain
+from fd_monitor.model.paths import default_gain_path
 
-__all__ = ["add_json_flag", "print_json", "print_table", "emit"]
+__all__ = ["add_json_flag", "print_json", "print_table", "emit", "gain_path", "save_design"]
 
 
 def add_json_flag(parser: Any) -> None:
@@ -53,3 +55,18 @@ def emit(summary: Mapping[str, Any], as_json: bool, title: str | None = None) ->
         print_json(summary)
     else:
         print_table([(k, v) for k, v in summary.items()], title=title)
+
+
+def gain_path(args: Any, system: Any, name: str) -> Path:
+    """The gain file ``design`` writes: ``-o``, else ``<plant>_<name>.yaml`` in the default
+    place (:func:`fd_monitor.model.paths.default_gain_path`)."""
+    return Path(args.output) if args.output else default_gain_path(system.name, name)
+
+
+def save_design(args: Any, system: Any, method: str, design: Mapping[str, Any]) -> Path:
+    """Write a designer's output (``parameters``, ``results``, ``certificate``, ``solver``) as
+    the gain file of :func:`gain_path`; returns its path."""
+    path = gain_path(args, system, method)
+    save_gains(path, method, system, design["parameters"], design["results"],
+               design["certificate"], design["solver"])
+    return path

@@ -28,28 +28,19 @@ explicitly); the bag's channel names must match it.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fd_monitor.analysis.offline import (
-    BagRun,
-    InputReport,
-    run_bag,
-    run_runtime,
-    scan_bag,
-    summarize_run,
-    truth_at,
-)
+from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime, scan_bag
+from fd_monitor.analysis.summary import analyze_run
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
-from fd_monitor.core.envelope import describe_excess
 from fd_monitor.core.runtime import runtime_for
 from fd_monitor.model.errors import BagError
 from fd_monitor.model.system import System
 
-__all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag", "analyze_run"]
+__all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,79 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-agei", action="store_true",
                         help="ablation: run without the AGEI module")
     add_json_flag(parser)
-
-
-def _episodes(flags: np.ndarray) -> list[tuple[int, int]]:
-    """(first, last) index pairs of the True runs of a 1-D bool array."""
-    f = np.concatenate([[False], flags.astype(bool), [False]])
-    d = np.diff(f.astype(int))
-    starts = np.nonzero(d == 1)[0]
-    ends = np.nonzero(d == -1)[0] - 1
-    return list(zip(starts.tolist(), ends.tolist()))
-
-
-def _transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
-                 dt: float) -> list[dict[str, Any]]:
-    out = []
-    for j in np.nonzero(np.diff(modes) != 0)[0] + 1:
-        a, b = int(modes[j - 1]), int(modes[j])
-        out.append({"sample": int(k[j]), "time": float(k[j] * dt),
-                    "from": names[a] if 0 <= a < len(names) else str(a),
-                    "to": names[b] if 0 <= b < len(names) else str(b)})
-    return out
-
-
-def analyze_run(run: BagRun) -> dict[str, Any]:
-    """The ``analyze`` summary of an offline run (:func:`fd_monitor.analysis.offline.run_bag`).
-
-    Returns
-    -------
-    dict
-        ``samples``, ``alarms`` (one entry per alarm episode and channel: ``channel``,
-        ``first_sample``, ``time``, ``last_sample``, ``samples``), ``detection`` (first alarm:
-        ``{sample, time}``, or None), ``transitions_estimated``, ``transitions_true`` (or
-        None), ``mode_agreement`` (or None), ``isolated``, ``bias_estimate``,
-        ``input_errors`` (every rejected or suspicious input message: ``{kind, topic, sample,
-        message}``) and ``restarts`` (samples where the monitor restarted after a hole).
-    """
-    system = run.system
-    k = run.k
-    dt = float(system.sample_time)
-    alarms = []
-    for i, name in enumerate(run.channels):
-        for a, b in _episodes(run.alarm[:, i]):
-            ep: dict[str, Any] = {"channel": name, "first_sample": int(k[a]),
-                                  "time": float(k[a] * dt), "last_sample": int(k[b]),
-                                  "samples": int(b - a + 1)}
-            if run.outside is not None:
-                # alarms are raised everywhere, but guaranteed only inside the region
-                part = run.outside[a:b + 1]
-                worst = part[np.argmax(np.abs(part).max(axis=1))]
-                ep["outside_certified_region"] = bool(np.any(part != 0.0))
-                ep["outside_detail"] = describe_excess(run.region_names, worst)
-            alarms.append(ep)
-    alarms.sort(key=lambda e: (e["first_sample"], e["channel"]))
-    names = system.mode_names
-    true_mode = None
-    if run.truth is not None and "mode" in run.truth.labels:
-        tm = truth_at(run.truth, k, ["mode"])[:, 0]
-        true_mode = None if np.isnan(tm).any() else tm.astype(int)
-    summary = summarize_run(run)
-    return {
-        "samples": int(k.size),
-        "alarms": alarms,
-        "detection": None if not alarms else {"sample": alarms[0]["first_sample"],
-                                              "time": alarms[0]["time"]},
-        "transitions_estimated": _transitions(k, run.mode_hat, names, dt),
-        "transitions_true": None if true_mode is None else _transitions(k, true_mode, names,
-                                                                        dt),
-        "mode_agreement": None if true_mode is None else float(np.mean(true_mode
-                                                                       == run.mode_hat)),
-        "isolated": summary["isolated"],
-        "bias_estimate": summary["bias_estimate"],
-        "input_errors": list(run.inputs.errors),
-        "restarts": list(run.inputs.restarts),
-    }
 
 
 def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: np.ndarray,
@@ -163,7 +81,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     Returns
     -------
     dict
-        As :func:`analyze_run`.
+        As :func:`fd_monitor.analysis.summary.analyze_run`.
 
     Raises
     ------
@@ -191,7 +109,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
 def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
                 agei: bool = True) -> dict[str, Any]:
     """Run the gain file's monitor over a bag (:func:`fd_monitor.analysis.offline.run_bag`) and
-    summarise (:func:`analyze_run`).
+    summarise (:func:`fd_monitor.analysis.summary.analyze_run`).
 
     Bad input messages (NaN/Inf, wrong length, duplicates, out-of-order stamps, holes) are
     reported in ``input_errors`` and ``restarts``, never fatal.

@@ -24,8 +24,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.domain import die_with_parent
@@ -113,14 +111,10 @@ def _gains(out: Path, env: dict[str, str]) -> Path:
 
 def _env(out: Path) -> dict[str, str]:
     from fd_monitor.nodes.common import use_dds_profile  # noqa: F401  (ROS present?)
-    from fd_monitor.nodes.domain import free_domain
+    from fd_monitor.nodes.domain import isolate_env
 
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     # Its own domain: a foreign node in it would feed the chain or count as a subscriber.
-    env["ROS_DOMAIN_ID"] = str(free_domain(env))
+    env = isolate_env(dict(os.environ))
     env["ROS_LOG_DIR"] = str(out / "ros_logs")
     env["PYTHONUNBUFFERED"] = "1"
     root = Path(__file__).resolve().parents[2]
@@ -263,6 +257,13 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         ``bias_estimate`` {output: sigma-hat at the end}, ``true_bias``, ``transitions``
         {true, tracked}, ``samples`` {topic: count}, ``lost`` (samples missing).
     """
+    from fd_monitor.analysis.summary import (
+        mode_tracking,
+        recorded_outputs,
+        true_biases,
+        truth_facts,
+    )
+    from fd_monitor.analysis.summary import summarize as summarize_outputs
     from fd_monitor.wire.bags import read_bag
 
     b = read_bag(bag, list(TOPICS))
@@ -276,34 +277,14 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         ch = sys_.faults[f.channel]
         fault = {"channel": ch.name, "output": sys_.outputs[ch.index] if ch.index >= 0 else None,
                  "time": f.time, "magnitude": f.magnitude}
-    alarm = b["/fd/alarm"].values > 0.5
-    ks = b["/fd/alarm"].stamps
-    hit = np.flatnonzero(alarm.any(axis=1))
-    detected_at = float(ks[hit[0]] * dt) if hit.size else None
-    alarm_channels = ([o for o, a in zip(sys_.outputs, alarm[hit[0]]) if a] if hit.size
-                      else [])
-    bias = b["/fd/bias_estimate"]
-    last = bias.values[-1]
-    ny = sys_.ny
-    isolated = [o for o, v in zip(sys_.outputs, last[ny:2 * ny]) if v > 0.5]
+    out = recorded_outputs(b, sys_)
+    s = summarize_outputs(out)
+    first = min((a["first_sample"] for a in s["alarms"]), default=None)
+    detected_at = None if first is None else float(first * dt)
+    alarm_channels = [a["channel"] for a in s["alarms"] if a["first_sample"] == first]
     truth = b["/plant/truth"]
     true_bias = {o: 0.0 for o in sys_.outputs}
-    for fc in sys_.faults:
-        if fc.kind == "sensor_bias":
-            true_bias[sys_.outputs[fc.index]] = float(truth.column(f"f.{fc.name}")[-1])
-    # Mode transitions: a true transition to mode m is tracked when the estimated mode
-    # becomes m before the plant's next transition; the delay is how long that took.
-    q = truth.column("mode").astype(int)
-    q_hat = b["/fd/state_estimate"].column("mode").astype(int)
-    n = min(len(q), len(q_hat))
-    changes = [int(k) for k in np.flatnonzero(np.diff(q[:n]) != 0) + 1]
-    delays = []
-    for i, k in enumerate(changes):
-        end = changes[i + 1] if i + 1 < len(changes) else n
-        same = np.flatnonzero(q_hat[k:end] == q[k])
-        if same.size:
-            delays.append(float(same[0] * dt))
-    agree = float(np.mean(q_hat[:n] == q[:n])) if n else 0.0
+    true_bias.update(true_biases(truth_facts(truth, sys_)))
     return {
         "scenario": scenario.name,
         "gains": str(gains),
@@ -312,12 +293,10 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         "detection_delay": (None if detected_at is None or fault is None
                             else round(detected_at - fault["time"], 6)),
         "alarm_channels": alarm_channels,
-        "isolated": isolated,
-        "bias_estimate": {o: float(v) for o, v in zip(sys_.outputs, last[:ny])},
+        "isolated": s["isolated"],
+        "bias_estimate": s["bias_estimate"],
         "true_bias": true_bias,
-        "transitions": {"true": len(changes), "tracked": len(delays),
-                        "max_delay_s": round(max(delays), 6) if delays else None,
-                        "mode_agreement": round(agree, 4)},
+        "transitions": mode_tracking(truth.column("mode").astype(int), out.mode, dt),
         "samples": counts,
         "lost": int(sum(K - c for c in counts.values())),
     }

@@ -1,22 +1,15 @@
-"""``python -m fd_monitor design hinf_sc``: the command line of
-:mod:`fd_monitor.design.hinf_sc`.
-
-``add_arguments(parser)`` adds the method's options (SYSTEM, ``-o`` and ``--json`` come from
-:mod:`fd_monitor.commands.design`); ``run(args)`` designs, writes the gain file and prints the
-summary. The designer itself is a function of the plant and its options.
+"""``design hinf_sc``: options and summary of the bank of sensitivity-constrained H-infinity
+generators, :mod:`fd_monitor.design.hinf_sc`.
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from fd_monitor.commands._common import print_json, print_table
+from fd_monitor.commands._common import print_json, print_table, save_design
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.design.hinf_sc import design
 from fd_monitor.model.errors import DesignError
-from fd_monitor.model.gains import save_gains
-from fd_monitor.model.paths import default_gain_path
 from fd_monitor.model.system import load_system
 
 __all__ = ["add_arguments", "run"]
@@ -68,9 +61,7 @@ def run(args: argparse.Namespace) -> int:
                               f"{args.rate!r}") from None
         section["rate"] = {"min": [-v for v in r], "max": r}
     out = design(system, section, origin, sha)
-    path = Path(args.output) if args.output else default_gain_path(system.name, "hinf_sc")
-    save_gains(path, "hinf_sc", system, out["parameters"], out["results"], out["certificate"],
-               out["solver"])
+    path = save_design(args, system, "hinf_sc", out)
     plots: list[str] = []
     if args.plot:
         from fd_monitor.analysis.report_hinf import plot_bank

@@ -1,22 +1,15 @@
-"""``python -m fd_monitor design hminus_switched``: the command line of
-:mod:`fd_monitor.design.hminus_switched`.
-
-``add_arguments(parser)`` adds the method's options (SYSTEM, ``-o`` and ``--json`` come from
-:mod:`fd_monitor.commands.design`); ``run(args)`` designs, writes the gain file and prints the
-summary. The designer itself is a function of the plant and its options.
+"""``design hminus_switched``: options and summary of the switched H-minus observer (Farhat &
+Koenig), :mod:`fd_monitor.design.hminus_switched`.
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from fd_monitor.commands._common import print_json, print_table
+from fd_monitor.commands._common import print_json, print_table, save_design
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.design.hminus_switched import FREQS, design
 from fd_monitor.model.errors import DesignError
-from fd_monitor.model.gains import save_gains
-from fd_monitor.model.paths import default_gain_path
 from fd_monitor.model.system import load_system
 
 __all__ = ["add_arguments", "run"]
@@ -37,9 +30,7 @@ def run(args: argparse.Namespace) -> int:
     if not sec:
         raise DesignError(f"{origin}: hminus_switched: missing section (E, fault, ...)")
     out = design(system, sec, origin, sha)
-    path = Path(args.output) if args.output else default_gain_path(system.name, "hminus_switched")
-    save_gains(path, "hminus_switched", system, out["parameters"], out["results"],
-               out["certificate"], out["solver"])
+    path = save_design(args, system, "hminus_switched", out)
     plots: list[str] = []
     if args.plot:
         from fd_monitor.analysis.report_hinf import plot_switched

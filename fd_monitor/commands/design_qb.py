@@ -1,25 +1,19 @@
-"""``python -m fd_monitor design qb``: the command line of
-:mod:`fd_monitor.design.qb`.
-
-``add_arguments(parser)`` adds the method's options (SYSTEM, ``-o`` and ``--json`` come from
-:mod:`fd_monitor.commands.design`); ``run(args)`` designs, writes the gain file and prints the
-summary. The designer itself is a function of the plant and its options.
+"""``design qb``: options and summary of the quadratic-boundedness observer (Alessandri, Boem &
+Parisini) of :mod:`fd_monitor.design.qb`.
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fd_monitor.commands._common import emit
+from fd_monitor.commands._common import emit, gain_path
 from fd_monitor.core.qb_certificate import guarantee
 from fd_monitor.core.qb_model import default_fault_states
 from fd_monitor.design.qb import XATOL, design_qb, write_gain_file
 from fd_monitor.model.errors import DesignError
-from fd_monitor.model.paths import default_gain_path
 from fd_monitor.model.system import load_system
 
 __all__ = ["add_arguments", "run"]
@@ -54,8 +48,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         fs = default_fault_states(system)
     d = design_qb(system, args.beta, margin=args.margin, sampled=args.sampled)
-    out = (Path(args.output) if args.output
-           else default_gain_path(system.name, "qb_sampled" if args.sampled else "qb"))
+    out = gain_path(args, system, "qb_sampled" if args.sampled else "qb")
     params = {"beta": "search" if args.beta is None else args.beta, "margin": args.margin,
               "search": ("reduced LMIs (Y eliminated), max lambda_min(P): log grid + bounded "
                          f"Brent in log(beta), xatol {XATOL}"),

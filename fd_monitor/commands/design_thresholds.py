@@ -1,21 +1,14 @@
-"""``python -m fd_monitor design thresholds``: the command line of
-:mod:`fd_monitor.design.thresholds`.
-
-``add_arguments(parser)`` adds the method's options (SYSTEM, ``-o`` and ``--json`` come from
-:mod:`fd_monitor.commands.design`); ``run(args)`` designs, writes the gain file and prints the
-summary. The designer itself is a function of the plant and its options.
+"""``design thresholds``: options and summary of the filters, thresholds, AGEI matrix and estimator
+gains of :mod:`fd_monitor.design.thresholds`.
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from fd_monitor.commands._common import emit
+from fd_monitor.commands._common import emit, save_design
 from fd_monitor.core.agei import DEFAULT_DELTA
 from fd_monitor.design.thresholds import design_thresholds
-from fd_monitor.model.gains import save_gains
-from fd_monitor.model.paths import default_gain_path
 from fd_monitor.model.system import load_system
 
 __all__ = ["add_arguments", "run"]
@@ -76,9 +69,7 @@ def run(args: argparse.Namespace) -> int:
                           gamma=args.gamma, lam=args.lam, alpha=args.alpha, init=args.init,
                           M_sigma=args.m_sigma, envelope=args.envelope,
                           box_width=args.box_width)
-    out = Path(args.output) if args.output else default_gain_path(system.name, "thresholds")
-    save_gains(out, "thresholds", system, d["parameters"], d["results"], d["certificate"],
-               d["solver"])
+    out = save_design(args, system, "thresholds", d)
     load_gains(out, system)  # re-verifies the certificate
     summary = {"gain_file": str(out), **d["summary"]}
     emit(summary, args.json, title=f"thresholds design of {system.name} -> {out}")

@@ -13,8 +13,6 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-
 from fd_monitor.commands._common import add_json_flag, emit, print_json, print_table
 from fd_monitor.model.errors import ScenarioError
 
@@ -43,14 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None = None,
                     duration: float | None = None) -> dict:
     """Simulate and write the bag; return a summary mapping."""
-    from fd_monitor.core.simulator import (
-        measured_signals,
-        simulate,
-        truth_labels,
-        truth_values,
-    )
+    from fd_monitor.analysis.generate import simulate_bag
     from fd_monitor.model.scenario import check_horizon, load_scenario
-    from fd_monitor.wire.bags import arrays_from, write_bag
 
     sc = load_scenario(scenario_source)
     if seed is not None and seed < 0:
@@ -64,19 +56,11 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
                             f"({sc.system.sample_time} s)")
     dt = sc.system.sample_time
     K = sc.n_samples if duration is None else max(1, round(duration / dt))
-    traj = simulate(sc, seed, K)
     sys_ = sc.system
-    ns = np.rint(traj.k * dt * 1e9).astype(np.int64)
-    side = measured_signals(traj)
-    path = write_bag(output, [
-        arrays_from("/plant/u", sys_.inputs, traj.k, traj.u[0], ns),
-        arrays_from("/plant/y", sys_.outputs, traj.k, traj.y[0], ns),
-        *(arrays_from(t, labels, traj.k, v, ns) for t, (labels, v) in side.items()),
-        arrays_from("/plant/truth", truth_labels(sc), traj.k, truth_values(traj), ns),
-    ])
+    path, topics = simulate_bag(output, sc, seed, K)
     return {"bag": str(path), "scenario": sc.name, "system": sys_.name,
-            "seed": traj.seeds[0], "samples": K, "sample_time": dt, "duration": K * dt,
-            "topics": ["/plant/u", "/plant/y", *side, "/plant/truth"],
+            "seed": sc.seed if seed is None else seed, "samples": K, "sample_time": dt,
+            "duration": K * dt, "topics": list(topics),
             "faults": [{"channel": sys_.faults[f.channel].name, "time": f.time,
                         "magnitude": f.magnitude, "profile": f.profile}
                        for f in sc.faults]}
@@ -102,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _simulate_library(library: str | Path, only: Sequence[str] | None, as_json: bool) -> int:
     """``python -m fd_monitor simulate --library LIBRARY [--only NAME...]``: rebuild bags."""
-    from fd_monitor.analysis.library import generate_library, load_library
+    from fd_monitor.analysis.generate import generate_library
+    from fd_monitor.analysis.library import load_library
 
     lib = load_library(library)
     rows = generate_library(lib, only)

@@ -11,7 +11,8 @@ import numpy as np
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.model.errors import ScenarioError, SystemFileError
 from fd_monitor.model.scenario import Scenario, load_scenario
-from fd_monitor.model.system import System, load_system, read_yaml
+from fd_monitor.model.system import System, load_system
+from fd_monitor.model.yaml_io import read_yaml
 
 __all__ = ["add_arguments", "run", "system_summary"]
 

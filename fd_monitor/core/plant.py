@@ -23,7 +23,8 @@ import numpy as np
 from scipy.linalg import expm
 
 from fd_monitor.model.nonlinear import get_model
-from fd_monitor.model.system import Mode, System
+from fd_monitor.model.plant_parts import Mode
+from fd_monitor.model.system import System
 
 __all__ = ["LPV_SUBSTEPS", "DiscreteMode", "SampledPlant", "rk4_step", "zoh"]
 

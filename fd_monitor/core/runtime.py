@@ -429,7 +429,7 @@ class ThresholdsRuntime(Runtime):
         self.agei = bool(agei)
         self.monitor = Monitor(system, gains, agei=agei)
         self.channels = tuple(system.outputs)
-        self.units = (_units(system),) * system.ny
+        self.units = tuple(system.output_units)
         region = self.monitor.gains.region
         self.region_names = () if region is None else region.names
 
@@ -457,8 +457,10 @@ class ThresholdsRuntime(Runtime):
         return monitor_run_batch(system, gains, traj, **options)
 
 
-def _units(system: System) -> str:
-    return "m" if system.name == "three_tank" else "-"
+def _norm_unit(system: System) -> str:
+    """Unit of a norm of the outputs: their common unit (plant file ``units``), else "-"."""
+    units = set(system.output_units)
+    return units.pop() if len(units) == 1 else "-"
 
 
 # --------------------------------------------------------------------------------------
@@ -588,7 +590,7 @@ class HinfScRuntime(Runtime):
         model = self.bank.model
         self.channels = tuple(self.bank.faults)
         self.isolating = self.channels          # generator i alarms: fault i isolated
-        self.units = (_units(system),) * len(self.channels)
+        self.units = (_norm_unit(system),) * len(self.channels)
         self.lpv = self.bank.kind == "lpv"
         names = model.rho_names or tuple(f"rho{j + 1}" for j in range(model.d))
         self.region_names = tuple(names) if self.lpv else ()
@@ -685,7 +687,7 @@ class HminusSwitchedRuntime(Runtime):
         self.observer = GeneralizedObserver(system, gains, design, threshold)
         self.n_modes = len(self.observer.modes)
         self.channels = ("r_norm",)
-        self.units = (_units(system),)
+        self.units = (_norm_unit(system),)
         self.region_names = ("mode",)
         if "mode" in system.inputs:
             self.mode_source = "input"

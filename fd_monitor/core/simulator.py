@@ -328,10 +328,12 @@ def truth_labels(scenario: Scenario) -> tuple[str, ...]:
             *(f"rho.{n}" for n in scenario.rho_names))
 
 
-def truth_values(traj: Trajectory, run: int = 0) -> np.ndarray:
-    """(K, m) ``/plant/truth`` values of one run, columns as :func:`truth_labels`."""
-    return np.concatenate([traj.mode[run][:, None].astype(float), traj.x[run],
-                           traj.faults[run], traj.rho[run]], axis=1)
+def truth_values(traj: Trajectory | Sample, run: int = 0) -> np.ndarray:
+    """``/plant/truth`` values of one run, columns as :func:`truth_labels`: (K, m) of a
+    :class:`Trajectory`, (m,) of a :class:`Sample` (what ``plant_sim`` publishes)."""
+    mode = np.asarray(traj.mode[run], dtype=float)
+    return np.concatenate([mode[..., None], traj.x[run], traj.faults[run], traj.rho[run]],
+                          axis=-1)
 
 
 def measured_layout(scenario: Scenario) -> dict[str, tuple[tuple[str, ...],

@@ -27,78 +27,20 @@ import cvxpy as cp
 import numpy as np
 
 from fd_monitor.model.errors import DesignError
-from fd_monitor.model.system import System, parse_yaml_text
+from fd_monitor.model.system import System
+from fd_monitor.model.validate import Checker, Got
+from fd_monitor.model.yaml_io import parse_yaml_text
 
-__all__ = ["Ctx", "load_design_section", "solve", "left_pinv", "complement_projector",
+__all__ = ["design_checker", "load_design_section", "solve", "left_pinv", "complement_projector",
            "is_observable", "is_detectable", "region_blocks", "SOLVER"]
 
 SOLVER = "CLARABEL"
 
 
-class Ctx:
-    """Validation context: prefixes every error with the design file and section."""
-
-    def __init__(self, origin: str, section: str) -> None:
-        self.origin = origin
-        self.section = section
-
-    def fail(self, key: str, expected: str, got: Any = None, *, show: bool = True) -> None:
-        """Raise ``DesignError`` ``<file>: <section>.<key>: expected ..., got ...``."""
-        tail = ""
-        if show:
-            s = repr(got)
-            tail = f", got {s if len(s) <= 60 else s[:57] + '...'}"
-        where = f"{self.section}.{key}" if key else self.section
-        raise DesignError(f"{self.origin}: {where}: expected {expected}{tail}")
-
-    def number(self, key: str, v: Any, *, positive: bool = False, negative: bool = False,
-               nonneg: bool = False) -> float:
-        """A finite number (optionally > 0, < 0 or >= 0)."""
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            self.fail(key, "a finite number", v)
-        x = float(v)
-        if positive and x <= 0:
-            self.fail(key, "a number > 0", v)
-        if negative and x >= 0:
-            self.fail(key, "a number < 0", v)
-        if nonneg and x < 0:
-            self.fail(key, "a number >= 0", v)
-        return x
-
-    def matrix(self, key: str, v: Any, shape: tuple[int | None, int | None]) -> np.ndarray:
-        """A matrix given as a list of rows; ``None`` in ``shape`` means any size."""
-        rows, cols = shape
-        want = f"a {rows if rows is not None else 'r'}x{cols if cols is not None else 'c'} " \
-               f"matrix (a list of rows)"
-        if not isinstance(v, list) or not v or not all(isinstance(r, list) for r in v):
-            self.fail(key, want, v)
-        widths = {len(r) for r in v}
-        if len(widths) != 1 or (rows is not None and len(v) != rows) or \
-                (cols is not None and widths != {cols}):
-            self.fail(key, want, f"{len(v)} rows of length {sorted(widths)}")
-        out = np.empty((len(v), len(v[0])))
-        for i, r in enumerate(v):
-            for j, e in enumerate(r):
-                out[i, j] = self.number(f"{key}[{i}][{j}]", e)
-        return out
-
-    def vector(self, key: str, v: Any, size: int | None) -> np.ndarray:
-        """A list of numbers (of ``size`` entries when given)."""
-        if not isinstance(v, list) or (size is not None and len(v) != size):
-            self.fail(key, f"a list of {size if size is not None else 'some'} numbers", v)
-        return np.array([self.number(f"{key}[{i}]", e) for i, e in enumerate(v)])
-
-    def mapping(self, key: str, v: Any, allowed: set[str] | None = None) -> Mapping[str, Any]:
-        """A mapping whose keys are in ``allowed`` (when given)."""
-        if not isinstance(v, Mapping):
-            self.fail(key, "a mapping", v)
-        if allowed is not None:
-            for k in v:
-                if k not in allowed:
-                    where = f"{key}.{k}" if key else str(k)
-                    self.fail(where, f"one of the keys {sorted(allowed)} (unknown key)",
-                              show=False)
-        return v
+def design_checker(origin: str, section: str) -> Checker:
+    """The :class:`~fd_monitor.model.validate.Checker` of one section of a design file:
+    ``DesignError`` ``<file>: <section>.<key>: expected ..., got ...``."""
+    return Checker(origin, DesignError, section)
 
 
 def design_file_for(system: System) -> Path:
@@ -128,25 +70,25 @@ def load_design_section(system: System, section: str, path: str | Path | None = 
         return {}, str(p), ""
     raw = p.read_bytes()
     data = parse_yaml_text(raw, str(p), DesignError)
-    ctx = Ctx(str(p), "(top level)")
     if not isinstance(data, Mapping):
-        ctx.fail("", "a mapping of design-file keys", type(data).__name__)
+        design_checker(str(p), "(top level)").fail("", "a mapping of design-file keys",
+                                                    type(data).__name__)
+    ck = Checker(str(p), DesignError, clip=None)
     for k in data:
         if k not in ("format_version", "plant", "description", "hinf_sc", "hminus_switched"):
-            raise DesignError(f"{p}: {k}: expected one of format_version, plant, description, "
-                              f"hinf_sc, hminus_switched (unknown key)")
+            ck.fail(k, "one of format_version, plant, description, hinf_sc, hminus_switched "
+                    "(unknown key)", show=False)
     if isinstance(data.get("format_version"), bool) or data.get("format_version", 1) != 1:
-        raise DesignError(f"{p}: format_version: expected 1, got {data.get('format_version')!r}")
+        ck.fail("format_version", "1", data.get("format_version"))
     if data.get("plant") != system.name:
-        raise DesignError(f"{p}: plant: expected {system.name!r} (the plant being designed "
-                          f"for), got {data.get('plant')!r}")
+        ck.fail("plant", f"{system.name!r} (the plant being designed for)", data.get("plant"))
     sec = data.get(section)
     if sec is None:
         if path is not None:
             raise DesignError(f"{p}: {section}: missing section")
         return {}, str(p), hashlib.sha256(raw).hexdigest()
     if not isinstance(sec, Mapping):
-        raise DesignError(f"{p}: {section}: expected a mapping, got {type(sec).__name__}")
+        ck.fail(section, "a mapping", Got(type(sec).__name__))
     return sec, str(p), hashlib.sha256(raw).hexdigest()
 
 
@@ -209,7 +151,7 @@ def is_detectable(A: np.ndarray, C: np.ndarray) -> bool:
     return _pbh_ok(A, C, only_unstable=True)
 
 
-def region_blocks(ctx: Ctx, key: str, spec: Any) -> list[tuple[np.ndarray, np.ndarray]]:
+def region_blocks(ctx: Checker, key: str, spec: Any) -> list[tuple[np.ndarray, np.ndarray]]:
     """LMI-region characteristic matrices ``(L, M)`` (thesis 2.26-2.27) from a design file.
 
     Kinds: ``{kind: halfplane, alpha}`` (Re z < -alpha), ``{kind: disk, center, radius}``

@@ -70,12 +70,14 @@ from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.design.hinf_thresholds import bound_thresholds, monte_carlo_thresholds
 from fd_monitor.model.errors import DesignError, GainFileError, ScenarioError
+from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import System
+from fd_monitor.model.validate import Checker
 
 from ._lmi_common import (
-    Ctx,
     complement_projector,
+    design_checker,
     is_detectable,
     is_observable,
     left_pinv,
@@ -149,17 +151,52 @@ class BankSpec:
 def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
                ) -> BankSpec:
     """Validate the ``hinf_sc`` section against the plant; build the model and directions."""
-    ctx = Ctx(origin, "hinf_sc")
+    ctx = design_checker(origin, "hinf_sc")
     ctx.mapping("", section, _SECTION_KEYS)
-    plant_lpv = bool(system.lpv) and "parameters" not in section
-    if plant_lpv:
-        # the parameter box and A_rho / B_rho come from the plant file (lpv key)
+    kind = _kind(ctx, system, section)
+    A0, B0, C = _nominal_model(ctx, system, section)
+    box = _parameter_box(ctx, system, section, kind)
+    sched = _scheduling(ctx, section, kind)
+    lyap, rate_min, rate_max = _lyapunov(ctx, section, kind, len(box.names))
+    model = AffineModel(A0, box.A_rho, B0, box.B_rho, C, box.rmin, box.rmax, box.names,
+                        sched, rate_min, rate_max)
+    faults = _with_k(_fault_directions(ctx, system, section, A0, B0, C), A0, C, origin, kind)
+    w = ctx.mapping("weights", section.get("weights") or {}, {"a", "b", "c"})
+    weights = {k: ctx.number(f"weights.{k}", w.get(k, 1.0), positive=True)
+               for k in ("a", "b", "c")}
+    grid, fixed = _lambdas(ctx, section)
+    Dw, Ew, Dn = _nuisance_inputs(ctx, system, section, kind)
+    region_spec = section.get("region")
+    region = region_blocks(ctx, "region", region_spec)
+    cp_ = ctx.boolean("compare_pure", section.get("compare_pure", False))
+    th = ctx.mapping("thresholds", section.get("thresholds") or {"method": "none"})
+    if th.get("method", "none") not in ("none", "bound", "monte_carlo"):
+        ctx.fail("thresholds.method", "none, bound or monte_carlo", th.get("method"))
+    return BankSpec(str(kind), model, faults, [f.name for f in faults], weights, grid, fixed,
+                    Dw, Ew, Dn, region, region_spec, cp_, th, origin, sha, lyapunov=str(lyap))
+
+
+def _plant_lpv(system: System, section: Mapping[str, Any]) -> bool:
+    """Whether the parameter box and A_rho / B_rho come from the plant file (its lpv key)."""
+    return bool(system.lpv) and "parameters" not in section
+
+
+def _kind(ctx: Checker, system: System, section: Mapping[str, Any]) -> str:
+    """``kind``: lti, uncertain or lpv (default: from the plant's lpv parameters)."""
+    if _plant_lpv(system, section):
         default_kind = "lpv" if all(p.measured for p in system.lpv) else "uncertain"
     else:
         default_kind = "lti"
     kind = section.get("kind", default_kind)
     if kind not in ("lti", "uncertain", "lpv"):
         ctx.fail("kind", "lti, uncertain or lpv", kind)
+    return str(kind)
+
+
+def _nominal_model(ctx: Checker, system: System, section: Mapping[str, Any]
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``model: {A0, B0, C}`` of the design file, else the plant's single continuous-time
+    linear mode: (n, n) A0, (n, nu) B0, (p, n) C."""
     n, p, nu = system.n, system.ny, system.nu
     mode = system.modes[0]
     if "model" in section:
@@ -167,95 +204,139 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
         A0 = ctx.matrix("model.A0", m.get("A0"), (n, n))
         B0 = ctx.matrix("model.B0", m["B0"], (n, nu)) if "B0" in m else np.zeros((n, nu))
         C = ctx.matrix("model.C", m["C"], (p, n)) if "C" in m else mode.C
-    else:
-        if mode.dynamics != "linear" or mode.time != "continuous" or len(system.modes) != 1:
-            ctx.fail("model", "{A0, B0, C}: the plant is not a single continuous-time linear "
-                     "mode, so the design needs its continuous-time (LPV) model (thesis "
-                     "ch. 4-6 are continuous-time)", show=False)
-        assert mode.A is not None
-        A0, B0, C = mode.A, mode.B, mode.C
-    d = 0
-    rmin = rmax = np.zeros(0)
-    names: tuple[str, ...] = ()
-    A_rho = np.zeros((0, n, n))
-    B_rho = np.zeros((0, n, nu))
-    if kind in ("uncertain", "lpv") and plant_lpv:
-        for k in ("A_rho", "B_rho"):
-            if k in section:
-                ctx.fail(k, f"no {k} in the design file: plant {system.name!r} declares its "
-                         f"lpv parameters, so {k} belongs in its modes", show=False)
-        if kind == "lpv" and not all(p.measured for p in system.lpv):
-            ctx.fail("kind", "uncertain: the plant's lpv parameters "
-                     f"{[p.name for p in system.lpv if not p.measured]} are not measured",
-                     kind)
-        names = tuple(p.name for p in system.lpv)
-        d = len(names)
-        rmin = np.array([p.min for p in system.lpv])
-        rmax = np.array([p.max for p in system.lpv])
-        A_rho = mode.A_rho if mode.A_rho is not None else np.zeros((d, n, n))
-        if mode.B_rho is not None:
-            if kind == "uncertain":
-                ctx.fail("kind", "lpv: the plant has B_rho (5.1 has a constant B)", kind)
-            B_rho = mode.B_rho
-    elif kind in ("uncertain", "lpv"):
-        if "parameters" not in section:
-            ctx.fail("parameters", "{names, min, max} of the parameter box (missing key)",
-                     show=False)
-        pr = ctx.mapping("parameters", section["parameters"], {"names", "min", "max"})
-        nm = pr.get("names")
-        if not isinstance(nm, list) or not nm or not all(isinstance(s, str) for s in nm):
-            ctx.fail("parameters.names", "a non-empty list of names", nm)
-        names = tuple(nm)
-        d = len(names)
-        rmin = ctx.vector("parameters.min", pr.get("min"), d)
-        rmax = ctx.vector("parameters.max", pr.get("max"), d)
-        if np.any(rmax < rmin):
-            ctx.fail("parameters.max", "max >= min for every parameter", pr.get("max"))
-        raw = section.get("A_rho")
-        if not isinstance(raw, list) or len(raw) != d:
-            ctx.fail("A_rho", f"a list of {d} {n}x{n} matrices (one per parameter)", raw)
-        A_rho = np.array([ctx.matrix(f"A_rho[{j}]", a, (n, n)) for j, a in enumerate(raw)])
-        if "B_rho" in section:
-            if kind == "uncertain":
-                ctx.fail("B_rho", "no B_rho in an uncertain design (5.1 has a constant B)",
-                         show=False)
-            rb = section["B_rho"]
-            if not isinstance(rb, list) or len(rb) != d:
-                ctx.fail("B_rho", f"a list of {d} {n}x{nu} matrices", rb)
-            B_rho = np.array([ctx.matrix(f"B_rho[{j}]", b, (n, nu)) for j, b in enumerate(rb)])
-    elif any(k in section for k in ("parameters", "A_rho", "B_rho")):
-        ctx.fail("kind", "uncertain or lpv when parameters / A_rho are given", kind)
-    sched = None
-    if "scheduling" in section:
-        if kind != "lpv":
-            ctx.fail("scheduling", "a scheduling map only for kind lpv", show=False)
-        from fd_monitor.model.nonlinear import SCHEDULING_MAPS
+        return A0, B0, C
+    if mode.dynamics != "linear" or mode.time != "continuous" or len(system.modes) != 1:
+        ctx.fail("model", "{A0, B0, C}: the plant is not a single continuous-time linear "
+                 "mode, so the design needs its continuous-time (LPV) model (thesis "
+                 "ch. 4-6 are continuous-time)", show=False)
+    assert mode.A is not None
+    return mode.A, mode.B, mode.C
 
-        s = ctx.mapping("scheduling", section["scheduling"], {"map", "params"})
-        if s.get("map") not in SCHEDULING_MAPS:
-            ctx.fail("scheduling.map", f"one of {sorted(SCHEDULING_MAPS)}", s.get("map"))
-        sched = {"map": s["map"], "params": dict(s.get("params") or {})}
+
+@dataclass(frozen=True)
+class _Box:
+    """The parameter box of an uncertain / LPV design: names, (d,) bounds, (d, n, n) A_rho
+    and (d, n, nu) B_rho (d = 0 for lti)."""
+
+    names: tuple[str, ...]
+    rmin: np.ndarray
+    rmax: np.ndarray
+    A_rho: np.ndarray
+    B_rho: np.ndarray
+
+
+def _parameter_box(ctx: Checker, system: System, section: Mapping[str, Any], kind: str
+                   ) -> _Box:
+    """The parameters: from the plant's lpv key, or ``parameters`` / ``A_rho`` / ``B_rho``
+    of the design file."""
+    n, nu = system.n, system.nu
+    if kind in ("uncertain", "lpv") and _plant_lpv(system, section):
+        return _plant_box(ctx, system, section, kind)
+    if kind in ("uncertain", "lpv"):
+        return _design_file_box(ctx, system, section, kind)
+    if any(k in section for k in ("parameters", "A_rho", "B_rho")):
+        ctx.fail("kind", "uncertain or lpv when parameters / A_rho are given", kind)
+    return _Box((), np.zeros(0), np.zeros(0), np.zeros((0, n, n)), np.zeros((0, n, nu)))
+
+
+def _plant_box(ctx: Checker, system: System, section: Mapping[str, Any], kind: str) -> _Box:
+    """The box and affine parts the plant file declares (its lpv key and modes)."""
+    n, nu = system.n, system.nu
+    mode = system.modes[0]
+    for k in ("A_rho", "B_rho"):
+        if k in section:
+            ctx.fail(k, f"no {k} in the design file: plant {system.name!r} declares its "
+                     f"lpv parameters, so {k} belongs in its modes", show=False)
+    if kind == "lpv" and not all(p.measured for p in system.lpv):
+        ctx.fail("kind", "uncertain: the plant's lpv parameters "
+                 f"{[p.name for p in system.lpv if not p.measured]} are not measured", kind)
+    names = tuple(p.name for p in system.lpv)
+    d = len(names)
+    A_rho = mode.A_rho if mode.A_rho is not None else np.zeros((d, n, n))
+    B_rho = np.zeros((0, n, nu))
+    if mode.B_rho is not None:
+        if kind == "uncertain":
+            ctx.fail("kind", "lpv: the plant has B_rho (5.1 has a constant B)", kind)
+        B_rho = mode.B_rho
+    return _Box(names, np.array([p.min for p in system.lpv]),
+                np.array([p.max for p in system.lpv]), A_rho, B_rho)
+
+
+def _design_file_box(ctx: Checker, system: System, section: Mapping[str, Any], kind: str
+                     ) -> _Box:
+    """``parameters: {names, min, max}``, ``A_rho`` and ``B_rho`` of the design file."""
+    n, nu = system.n, system.nu
+    if "parameters" not in section:
+        ctx.fail("parameters", "{names, min, max} of the parameter box (missing key)",
+                 show=False)
+    pr = ctx.mapping("parameters", section["parameters"], {"names", "min", "max"})
+    nm = pr.get("names")
+    if not isinstance(nm, list) or not nm or not all(isinstance(s, str) for s in nm):
+        ctx.fail("parameters.names", "a non-empty list of names", nm)
+    names = tuple(nm)
+    d = len(names)
+    rmin = ctx.vector("parameters.min", pr.get("min"), d)
+    rmax = ctx.vector("parameters.max", pr.get("max"), d)
+    if np.any(rmax < rmin):
+        ctx.fail("parameters.max", "max >= min for every parameter", pr.get("max"))
+    raw = section.get("A_rho")
+    if not isinstance(raw, list) or len(raw) != d:
+        ctx.fail("A_rho", f"a list of {d} {n}x{n} matrices (one per parameter)", raw)
+    A_rho = np.array([ctx.matrix(f"A_rho[{j}]", a, (n, n)) for j, a in enumerate(raw)])
+    B_rho = np.zeros((0, n, nu))
+    if "B_rho" in section:
+        if kind == "uncertain":
+            ctx.fail("B_rho", "no B_rho in an uncertain design (5.1 has a constant B)",
+                     show=False)
+        rb = section["B_rho"]
+        if not isinstance(rb, list) or len(rb) != d:
+            ctx.fail("B_rho", f"a list of {d} {n}x{nu} matrices", rb)
+        B_rho = np.array([ctx.matrix(f"B_rho[{j}]", b, (n, nu)) for j, b in enumerate(rb)])
+    return _Box(names, rmin, rmax, A_rho, B_rho)
+
+
+def _scheduling(ctx: Checker, section: Mapping[str, Any], kind: str) -> dict[str, Any] | None:
+    """``scheduling: {map, params}``: rho computed from y at run time (kind lpv only)."""
+    if "scheduling" not in section:
+        return None
+    if kind != "lpv":
+        ctx.fail("scheduling", "a scheduling map only for kind lpv", show=False)
+    s = ctx.mapping("scheduling", section["scheduling"], {"map", "params"})
+    if s.get("map") not in SCHEDULING_MAPS:
+        ctx.fail("scheduling.map", f"one of {sorted(SCHEDULING_MAPS)}", s.get("map"))
+    return {"map": s["map"], "params": dict(s.get("params") or {})}
+
+
+def _lyapunov(ctx: Checker, section: Mapping[str, Any], kind: str, d: int
+              ) -> tuple[str, np.ndarray | None, np.ndarray | None]:
+    """``lyapunov`` (common or affine) and, for affine, the (d,) ``rate`` bounds (1/s)."""
     lyap = section.get("lyapunov", "common")
     if lyap not in ("common", "affine"):
         ctx.fail("lyapunov", "common or affine", lyap)
-    rate_min = rate_max = None
-    if lyap == "affine":
-        if kind != "lpv":
-            ctx.fail("lyapunov", "affine only for kind lpv (thesis 6.4: rho and its rate "
-                     "measured)", lyap)
-        if "rate" not in section:
-            ctx.fail("rate", "{min, max} bounds of d rho/dt (6.52), needed by lyapunov: "
-                     "affine (missing key)", show=False)
-        rt = ctx.mapping("rate", section["rate"], {"min", "max"})
-        rate_min = ctx.vector("rate.min", rt.get("min"), d)
-        rate_max = ctx.vector("rate.max", rt.get("max"), d)
-        if np.any(rate_max < rate_min):
-            ctx.fail("rate.max", "max >= min for every parameter", rt.get("max"))
-    elif "rate" in section:
-        ctx.fail("rate", "rate bounds only with lyapunov: affine", show=False)
-    model = AffineModel(A0, A_rho, B0, B_rho, C, rmin, rmax, names, sched, rate_min, rate_max)
+    if lyap != "affine":
+        if "rate" in section:
+            ctx.fail("rate", "rate bounds only with lyapunov: affine", show=False)
+        return str(lyap), None, None
+    if kind != "lpv":
+        ctx.fail("lyapunov", "affine only for kind lpv (thesis 6.4: rho and its rate "
+                 "measured)", lyap)
+    if "rate" not in section:
+        ctx.fail("rate", "{min, max} bounds of d rho/dt (6.52), needed by lyapunov: "
+                 "affine (missing key)", show=False)
+    rt = ctx.mapping("rate", section["rate"], {"min", "max"})
+    rate_min = ctx.vector("rate.min", rt.get("min"), d)
+    rate_max = ctx.vector("rate.max", rt.get("max"), d)
+    if np.any(rate_max < rate_min):
+        ctx.fail("rate.max", "max >= min for every parameter", rt.get("max"))
+    return str(lyap), rate_min, rate_max
 
-    # fault directions
+
+def _fault_directions(ctx: Checker, system: System, section: Mapping[str, Any],
+                      A0: np.ndarray, B0: np.ndarray, C: np.ndarray) -> list[FaultDir]:
+    """How each fault enters (``directions``, else from the plant's fault channel), for the
+    faults the section selects (``faults``, default every fault with a direction)."""
+    n, p = system.n, system.ny
+    origin = ctx.origin
     dirs_raw = ctx.mapping("directions", section.get("directions") or {})
     faults: list[FaultDir] = []
     for f in system.faults:
@@ -291,20 +372,18 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
     gens = section.get("faults", known)
     if not isinstance(gens, list) or not gens or not all(g in known for g in gens):
         ctx.fail("faults", f"a non-empty list of faults with a direction: {known}", gens)
-    faults = [f for f in faults if f.name in gens] if "faults" in section else faults
-    faults = _with_k(faults, A0, C, origin, kind)
+    return [f for f in faults if f.name in gens] if "faults" in section else faults
 
-    w = ctx.mapping("weights", section.get("weights") or {}, {"a", "b", "c"})
-    weights = {k: ctx.number(f"weights.{k}", w.get(k, 1.0), positive=True)
-               for k in ("a", "b", "c")}
+
+def _lambdas(ctx: Checker, section: Mapping[str, Any]) -> tuple[np.ndarray, float | None]:
+    """``lambda_grid`` (a list, or ``{start, stop, num}``; every lambda < 0) and the fixed
+    ``lambda`` (< 0) when given."""
     g = section.get("lambda_grid", {"start": -10.0, "stop": -0.1, "num": 50})
     if isinstance(g, list):
         grid = ctx.vector("lambda_grid", g, None)
     else:
         g = ctx.mapping("lambda_grid", g, {"start", "stop", "num"})
-        num = g.get("num", 50)
-        if not isinstance(num, int) or isinstance(num, bool) or num < 1:
-            ctx.fail("lambda_grid.num", "an integer >= 1", num)
+        num = ctx.integer("lambda_grid.num", g.get("num", 50), 1)
         grid = np.linspace(ctx.number("lambda_grid.start", g.get("start", -10.0)),
                            ctx.number("lambda_grid.stop", g.get("stop", -0.1)), num)
     if grid.size == 0 or np.any(grid >= 0):
@@ -312,28 +391,25 @@ def parse_spec(system: System, section: Mapping[str, Any], origin: str, sha: str
     fixed = None
     if section.get("lambda") is not None:
         fixed = ctx.number("lambda", section["lambda"], negative=True)
-    # disturbances (plant D, E) and noise (D_n = I on noisy outputs)
+    return grid, fixed
+
+
+def _nuisance_inputs(ctx: Checker, system: System, section: Mapping[str, Any], kind: str
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Disturbances (the plant's (n, nw) D and (p, nw) E) and, with ``noise: true``,
+    measurement noise (p, p_noisy) D_n = I on the noisy outputs."""
+    n, p = system.n, system.ny
+    mode = system.modes[0]
     if "model" in section or mode.dynamics != "linear":
         Dw, Ew = np.zeros((n, 0)), np.zeros((p, 0))
     else:
         Dw, Ew = mode.D, mode.E
-    noise = section.get("noise", False)
-    if not isinstance(noise, bool):
-        ctx.fail("noise", "true or false", noise)
+    noise = ctx.boolean("noise", section.get("noise", False))
     Dn = np.eye(p)[:, system.measurement_noise > 0] if noise else np.zeros((p, 0))
     if kind == "uncertain" and (Dw.shape[1] or Dn.shape[1]):
         ctx.fail("kind", "an uncertain design (5.45) without disturbances or noise (it "
                  "attenuates the nuisance faults only)", show=False)
-    region_spec = section.get("region")
-    region = region_blocks(ctx, "region", region_spec)
-    cp_ = section.get("compare_pure", False)
-    if not isinstance(cp_, bool):
-        ctx.fail("compare_pure", "true or false", cp_)
-    th = ctx.mapping("thresholds", section.get("thresholds") or {"method": "none"})
-    if th.get("method", "none") not in ("none", "bound", "monte_carlo"):
-        ctx.fail("thresholds.method", "none, bound or monte_carlo", th.get("method"))
-    return BankSpec(str(kind), model, faults, [f.name for f in faults], weights, grid, fixed,
-                    Dw, Ew, Dn, region, region_spec, cp_, th, origin, sha, lyapunov=str(lyap))
+    return Dw, Ew, Dn
 
 
 def _with_k(faults: list[FaultDir], A: np.ndarray, C: np.ndarray, origin: str,
@@ -802,7 +878,7 @@ def _thresholds(system: System, spec: BankSpec, results: dict[str, Any]
                 ) -> tuple[list[float], dict[str, Any]] | None:
     th = dict(spec.thresholds)
     method = th.get("method", "none")
-    ctx = Ctx(spec.origin, "hinf_sc.thresholds")
+    ctx = design_checker(spec.origin, "hinf_sc.thresholds")
     margin = ctx.number("margin", th.get("margin", 1.0), positive=True)
     if method == "none":
         return None

@@ -53,7 +53,7 @@ from fd_monitor.core.generalized_observer import check_certificate, residual_ss
 from fd_monitor.model.errors import DesignError, GainFileError
 from fd_monitor.model.system import System
 
-from ._lmi_common import Ctx, solve
+from ._lmi_common import design_checker, solve
 
 __all__ = [ "design", "FREQS"]
 
@@ -74,7 +74,7 @@ def _detectable_discrete(A: np.ndarray, C: np.ndarray) -> bool:
 
 
 def _parse(system: System, sec: Mapping[str, Any], origin: str) -> dict[str, Any]:
-    ctx = Ctx(origin, "hminus_switched")
+    ctx = design_checker(origin, "hminus_switched")
     ctx.mapping("", sec, {"E", "fault", "D_add", "filter", "threshold", "description",
                           "require_hminus", "decay_rate"})
     n, p = system.n, system.ny
@@ -105,20 +105,16 @@ def _parse(system: System, sec: Mapping[str, Any], origin: str) -> dict[str, Any
         w2 = ctx.number("filter.omega2", f.get("omega2"), positive=True)
         if w2 <= w1:
             ctx.fail("filter.omega2", f"omega2 > omega1 = {w1} (41)", w2)
-        order = f.get("order", 1)
-        if not isinstance(order, int) or isinstance(order, bool) or order < 1:
-            ctx.fail("filter.order", "an integer >= 1", order)
+        order = ctx.integer("filter.order", f.get("order", 1), 1)
         if w2 * system.sample_time >= np.pi:
             ctx.fail("filter.omega2", f"a corner below the Nyquist frequency "
                      f"{np.pi / system.sample_time:.4g} rad/s", w2)
-        filt = (w1, w2, int(order))
+        filt = (w1, w2, order)
     if (filt is None) != (Dadd is None):
         ctx.fail("filter", "filter and D_add together (the loop-shaping design (41)-(44))",
                  show=False)
     th = ctx.mapping("threshold", sec.get("threshold") or {"method": "none"})
-    req = sec.get("require_hminus", False)
-    if not isinstance(req, bool):
-        ctx.fail("require_hminus", "true or false", req)
+    req = ctx.boolean("require_hminus", sec.get("require_hminus", False))
     rho = ctx.number("decay_rate", sec.get("decay_rate", 0.98), positive=True)
     if rho > 1:
         ctx.fail("decay_rate", "a number in (0, 1] (LMI 26 with rho^2 P_j)", rho)

@@ -78,7 +78,8 @@ from fd_monitor.core.qb_certificate import guarantee, lmi_blocks, qb_bounds
 from fd_monitor.core.qb_model import QBModel, qb_model, spectral_abscissa, unobservable_unstable
 from fd_monitor.model.errors import DesignError
 from fd_monitor.model.gains import save_gains
-from fd_monitor.model.system import System, require_memory
+from fd_monitor.model.system import System
+from fd_monitor.model.yaml_io import require_memory
 
 __all__ = ["QBDesign", "QBProblem", "design_qb"]
 

@@ -18,6 +18,8 @@ __all__ = [
     "MessageError",
     "FdMonitorWarning",
     "ImplausibleError",
+    "NonFiniteError",
+    "WrongLengthError",
 ]
 
 
@@ -65,3 +67,11 @@ class FdMonitorWarning(UserWarning):
 
 class ImplausibleError(MessageError):
     """A finite sample outside the plant's physical range or far from its prediction."""
+
+
+class NonFiniteError(MessageError):
+    """A message holds NaN or Inf where finite numbers are expected."""
+
+
+class WrongLengthError(MessageError):
+    """A message holds another number of values than its layout, labels or plant say."""

@@ -39,7 +39,8 @@ import yaml
 
 from fd_monitor.model.errors import GainFileError
 from fd_monitor.model.paths import find_config_file
-from fd_monitor.model.system import System, read_yaml
+from fd_monitor.model.system import System
+from fd_monitor.model.yaml_io import read_yaml
 
 __all__ = ["GainFile", "CERTIFICATE_CHECKS", "check_digest", "gain_digest", "gains_from_doc",
            "load_gains",

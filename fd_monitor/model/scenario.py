@@ -78,7 +78,9 @@ import numpy as np
 
 from fd_monitor.model.errors import ScenarioError, SystemFileError
 from fd_monitor.model.paths import find_config_file
-from fd_monitor.model.system import System, load_system, parse_system, read_yaml, require_memory
+from fd_monitor.model.system import System, load_system, parse_system
+from fd_monitor.model.validate import Checker
+from fd_monitor.model.yaml_io import read_yaml, require_memory
 
 __all__ = ["FaultEvent", "Profile", "PIController", "Scenario", "Scheduling", "check_horizon",
            "load_scenario", "parse_scenario"]
@@ -313,212 +315,231 @@ def check_horizon(system: System, duration: float, what: str,
     return round(n)
 
 
-def _fail(origin: str, key: str, expected: str, got: Any = None, show: bool = True) -> None:
-    tail = f", got {got!r}" if show else ""
-    raise ScenarioError(f"{origin}: {key}: expected {expected}{tail}")
+def _checker(origin: str) -> Checker:
+    """The :class:`~fd_monitor.model.validate.Checker` of a scenario file."""
+    return Checker(origin, ScenarioError, clip=None)
 
 
-def _num(origin: str, key: str, v: Any, *, positive: bool = False, nonneg: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-        _fail(origin, key, "a finite number", v)
-    x = float(v)
-    if positive and x <= 0:
-        _fail(origin, key, "a number > 0", v)
-    if nonneg and x < 0:
-        _fail(origin, key, "a number >= 0", v)
-    return x
-
-
-def _profile(origin: str, key: str, v: Any) -> Profile:
+def _profile(ck: Checker, key: str, v: Any) -> Profile:
     if isinstance(v, (int, float)) and not isinstance(v, bool):
-        return Profile("constant", (_num(origin, key, v),))
+        return Profile("constant", (ck.number(key, v),))
     if not isinstance(v, Mapping) or len(v) != 1:
-        _fail(origin, key, "a number or one of {constant, steps, ramp, sine}", v)
+        ck.fail(key, "a number or one of {constant, steps, ramp, sine}", v)
     (kind, spec), = v.items()
     if kind == "constant":
-        return Profile("constant", (_num(origin, f"{key}.constant", spec),))
+        return Profile("constant", (ck.number(f"{key}.constant", spec),))
     if kind == "steps":
         if not isinstance(spec, list) or not spec:
-            _fail(origin, f"{key}.steps", "a list of [time, value] pairs", spec)
+            ck.fail(f"{key}.steps", "a list of [time, value] pairs", spec)
         flat: list[float] = []
         last = -math.inf
         for i, pair in enumerate(spec):
             if not isinstance(pair, list) or len(pair) != 2:
-                _fail(origin, f"{key}.steps[{i}]", "a [time, value] pair", pair)
-            t = _num(origin, f"{key}.steps[{i}][0]", pair[0])
+                ck.fail(f"{key}.steps[{i}]", "a [time, value] pair", pair)
+            t = ck.number(f"{key}.steps[{i}][0]", pair[0])
             if t < last:
-                _fail(origin, f"{key}.steps[{i}][0]", "times in increasing order", pair[0])
+                ck.fail(f"{key}.steps[{i}][0]", "times in increasing order", pair[0])
             last = t
-            flat += [t, _num(origin, f"{key}.steps[{i}][1]", pair[1])]
+            flat += [t, ck.number(f"{key}.steps[{i}][1]", pair[1])]
         return Profile("steps", tuple(flat))
     if kind == "ramp":
         if not isinstance(spec, Mapping) or set(spec) != {"start", "end", "from", "to"}:
-            _fail(origin, f"{key}.ramp", "{start, end, from, to}", spec)
-        vals = [_num(origin, f"{key}.ramp.{k}", spec[k]) for k in ("start", "end", "from", "to")]
+            ck.fail(f"{key}.ramp", "{start, end, from, to}", spec)
+        vals = [ck.number(f"{key}.ramp.{k}", spec[k]) for k in ("start", "end", "from", "to")]
         if vals[1] <= vals[0]:
-            _fail(origin, f"{key}.ramp.end", "end > start", spec["end"])
+            ck.fail(f"{key}.ramp.end", "end > start", spec["end"])
         return Profile("ramp", tuple(vals))
     if kind == "sine":
         if not isinstance(spec, Mapping) or not {"amplitude", "period"} <= set(spec):
-            _fail(origin, f"{key}.sine", "{amplitude, period[, offset, phase]}", spec)
+            ck.fail(f"{key}.sine", "{amplitude, period[, offset, phase]}", spec)
         return Profile("sine", (
-            _num(origin, f"{key}.sine.amplitude", spec["amplitude"]),
-            _num(origin, f"{key}.sine.period", spec["period"], positive=True),
-            _num(origin, f"{key}.sine.offset", spec.get("offset", 0.0)),
-            _num(origin, f"{key}.sine.phase", spec.get("phase", 0.0))))
-    _fail(origin, key, "one of {constant, steps, ramp, sine, pi}", kind)
-    raise AssertionError  # unreachable
+            ck.number(f"{key}.sine.amplitude", spec["amplitude"]),
+            ck.number(f"{key}.sine.period", spec["period"], positive=True),
+            ck.number(f"{key}.sine.offset", spec.get("offset", 0.0)),
+            ck.number(f"{key}.sine.phase", spec.get("phase", 0.0))))
+    ck.fail(key, "one of {constant, steps, ramp, sine, pi}", kind)
 
 
 def parse_scenario(data: Any, origin: str = "<dict>", system: System | None = None) -> Scenario:
     """Validate parsed YAML ``data`` into a :class:`Scenario` (see the module docstring)."""
+    ck = _checker(origin)
     if not isinstance(data, Mapping):
-        _fail(origin, "(top level)", "a mapping of scenario keys", type(data).__name__)
-    allowed = {"name", "description", "system", "duration", "seed", "initial", "noise",
-               "uncertainty", "inputs", "faults", "scheduling", "switching", "fault_channels"}
-    for k in data:
-        if k not in allowed:
-            _fail(origin, str(k), f"one of the keys {sorted(allowed)} (unknown key)", show=False)
+        ck.fail("(top level)", "a mapping of scenario keys", type(data).__name__)
+    ck.keys("", data, _TOP_KEYS)
+    system = _plant(ck, data, system)
+    name = str(data.get("name", Path(origin).stem))
+    duration, seed = _duration_and_seed(ck, data, system)
+    q0, x0 = _initial(ck, data, system)
+    nscale, ndist = _noise_spec(ck, data, "noise")
+    uscale, udist = _noise_spec(ck, data, "uncertainty")
+    inputs = _inputs(ck, data, system)
+    faults = _faults(ck, data, system, duration)
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        ck.fail("description", "a string", type(description).__name__)
+    scheduling = _scheduling(ck, system, data.get("scheduling"), np.asarray(x0, float))
+    switching, dwell = _switching(ck, system, data.get("switching"))
+    return Scenario(name, description, system, duration, seed, q0,
+                    np.asarray(x0, dtype=float), nscale, ndist, uscale, udist, inputs,
+                    faults, origin, scheduling, switching, dwell)
+
+
+_TOP_KEYS = {"name", "description", "system", "duration", "seed", "initial", "noise",
+             "uncertainty", "inputs", "faults", "scheduling", "switching", "fault_channels"}
+
+
+def _plant(ck: Checker, data: Mapping[str, Any], system: System | None) -> System:
+    """The plant ``system`` names (relative to the scenario's folder first) unless one is
+    given, with the scenario's ``fault_channels`` added."""
     if system is None:
         if "system" not in data:
-            _fail(origin, "system", "a plant name or path (missing key)", show=False)
+            ck.fail("system", "a plant name or path (missing key)", show=False)
         ref = str(data["system"])
-        rel = Path(origin).parent / ref
+        rel = Path(ck.origin).parent / ref
         try:
             system = load_system(rel if rel.is_file() else ref)
         except SystemFileError as exc:
-            raise ScenarioError(f"{origin}: system: {exc}") from None
+            raise ScenarioError(f"{ck.origin}: system: {exc}") from None
     if data.get("fault_channels"):
-        system = _with_fault_channels(origin, system, data["fault_channels"])
-    name = str(data.get("name", Path(origin).stem))
-    if "duration" not in data:
-        _fail(origin, "duration", "the run length in s (missing key)", show=False)
-    duration = _num(origin, "duration", data["duration"], positive=True)
-    if duration < system.sample_time:
-        _fail(origin, "duration", f"at least one sample ({system.sample_time} s)", duration)
-    check_horizon(system, duration, f"{origin}: duration", ScenarioError)
-    seed = data.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        _fail(origin, "seed", "an integer >= 0", seed)
+        system = _with_fault_channels(ck, system, data["fault_channels"])
+    return system
 
+
+def _duration_and_seed(ck: Checker, data: Mapping[str, Any], system: System
+                       ) -> tuple[float, int]:
+    """``duration`` (s, at least one sample, within memory) and ``seed`` (default 0)."""
+    if "duration" not in data:
+        ck.fail("duration", "the run length in s (missing key)", show=False)
+    duration = ck.number("duration", data["duration"], positive=True)
+    if duration < system.sample_time:
+        ck.fail("duration", f"at least one sample ({system.sample_time} s)", duration)
+    check_horizon(system, duration, f"{ck.origin}: duration", ScenarioError)
+    seed = ck.integer("seed", data.get("seed", 0))
+    return duration, seed
+
+
+def _initial(ck: Checker, data: Mapping[str, Any], system: System) -> tuple[int, np.ndarray]:
+    """``initial: {mode, state}``, each defaulting to the plant's."""
     q0, x0 = system.initial_mode, system.initial_state
     if "initial" in data:
         init = data["initial"]
         if not isinstance(init, Mapping):
-            _fail(origin, "initial", "{mode, state}", init)
+            ck.fail("initial", "{mode, state}", init)
         if "mode" in init:
             if init["mode"] not in system.mode_names:
-                _fail(origin, "initial.mode", f"one of {list(system.mode_names)}", init["mode"])
+                ck.fail("initial.mode", f"one of {list(system.mode_names)}", init["mode"])
             q0 = system.mode_index(init["mode"])
         if "state" in init:
             st = init["state"]
             if not isinstance(st, list) or len(st) != system.n:
-                _fail(origin, "initial.state", f"a list of {system.n} numbers", st)
-            x0 = np.array([_num(origin, f"initial.state[{i}]", v) for i, v in enumerate(st)])
+                ck.fail("initial.state", f"a list of {system.n} numbers", st)
+            x0 = np.array([ck.number(f"initial.state[{i}]", v) for i, v in enumerate(st)])
+    return q0, x0
 
-    def noise_spec(key: str) -> tuple[float, str]:
-        spec = data.get(key, {}) or {}
-        if not isinstance(spec, Mapping) or not set(spec) <= {"scale", "distribution"}:
-            _fail(origin, key, "{scale, distribution}", spec)
-        scale = _num(origin, f"{key}.scale", spec.get("scale", 1.0), nonneg=True)
-        dist = spec.get("distribution", "uniform")
-        if dist not in _DISTRIBUTIONS:
-            _fail(origin, f"{key}.distribution", f"one of {list(_DISTRIBUTIONS)}", dist)
-        return scale, str(dist)
 
-    nscale, ndist = noise_spec("noise")
-    uscale, udist = noise_spec("uncertainty")
+def _noise_spec(ck: Checker, data: Mapping[str, Any], key: str) -> tuple[float, str]:
+    """``noise`` / ``uncertainty``: ``{scale, distribution}``."""
+    spec = data.get(key, {}) or {}
+    if not isinstance(spec, Mapping) or not set(spec) <= {"scale", "distribution"}:
+        ck.fail(key, "{scale, distribution}", spec)
+    scale = ck.number(f"{key}.scale", spec.get("scale", 1.0), nonneg=True)
+    dist = spec.get("distribution", "uniform")
+    if dist not in _DISTRIBUTIONS:
+        ck.fail(f"{key}.distribution", f"one of {list(_DISTRIBUTIONS)}", dist)
+    return scale, str(dist)
 
+
+def _inputs(ck: Checker, data: Mapping[str, Any], system: System
+            ) -> tuple[Profile | PIController, ...]:
+    """``inputs``: a profile or a PI controller for every plant input."""
     raw_inputs = data.get("inputs", {}) or {}
     if not isinstance(raw_inputs, Mapping):
-        _fail(origin, "inputs", "a mapping of input names to profiles", raw_inputs)
+        ck.fail("inputs", "a mapping of input names to profiles", raw_inputs)
     for k in raw_inputs:
         if k not in system.inputs:
-            _fail(origin, f"inputs.{k}", f"an input of plant {system.name!r}: "
-                  f"{list(system.inputs)}", show=False)
+            ck.fail(f"inputs.{k}", f"an input of plant {system.name!r}: "
+                    f"{list(system.inputs)}", show=False)
     inputs: list[Profile | PIController] = []
     for name_u in system.inputs:
         key = f"inputs.{name_u}"
         if name_u not in raw_inputs:
-            _fail(origin, key, "a profile for every plant input (missing input)", show=False)
+            ck.fail(key, "a profile for every plant input (missing input)", show=False)
         spec = raw_inputs[name_u]
         if isinstance(spec, Mapping) and "pi" in spec:
-            pi = spec["pi"]
-            need = {"output", "reference", "kp", "ki", "min", "max"}
-            if not isinstance(pi, Mapping) or set(pi) != need:
-                _fail(origin, f"{key}.pi", f"the keys {sorted(need)}", pi)
-            if pi["output"] not in system.outputs:
-                _fail(origin, f"{key}.pi.output", f"one of {list(system.outputs)}", pi["output"])
-            lo = _num(origin, f"{key}.pi.min", pi["min"])
-            hi = _num(origin, f"{key}.pi.max", pi["max"])
-            if hi <= lo:
-                _fail(origin, f"{key}.pi.max", "max > min", pi["max"])
-            inputs.append(PIController(
-                system.outputs.index(pi["output"]), _profile(origin, f"{key}.pi.reference",
-                                                             pi["reference"]),
-                _num(origin, f"{key}.pi.kp", pi["kp"]), _num(origin, f"{key}.pi.ki", pi["ki"]),
-                lo, hi))
+            inputs.append(_pi_controller(ck, f"{key}.pi", spec["pi"], system))
         else:
-            inputs.append(_profile(origin, key, spec))
+            inputs.append(_profile(ck, key, spec))
+    return tuple(inputs)
 
-    faults: list[FaultEvent] = []
+
+def _pi_controller(ck: Checker, key: str, pi: Any, system: System) -> PIController:
+    """``{pi: {output, reference, kp, ki, min, max}}``."""
+    need = {"output", "reference", "kp", "ki", "min", "max"}
+    if not isinstance(pi, Mapping) or set(pi) != need:
+        ck.fail(key, f"the keys {sorted(need)}", pi)
+    if pi["output"] not in system.outputs:
+        ck.fail(f"{key}.output", f"one of {list(system.outputs)}", pi["output"])
+    lo = ck.number(f"{key}.min", pi["min"])
+    hi = ck.number(f"{key}.max", pi["max"])
+    if hi <= lo:
+        ck.fail(f"{key}.max", "max > min", pi["max"])
+    return PIController(system.outputs.index(pi["output"]),
+                        _profile(ck, f"{key}.reference", pi["reference"]),
+                        ck.number(f"{key}.kp", pi["kp"]), ck.number(f"{key}.ki", pi["ki"]),
+                        lo, hi)
+
+
+def _faults(ck: Checker, data: Mapping[str, Any], system: System, duration: float
+            ) -> tuple[FaultEvent, ...]:
+    """``faults``: the fault events of the run."""
     raw_faults = data.get("faults", []) or []
     if not isinstance(raw_faults, list):
-        _fail(origin, "faults", "a list of faults", raw_faults)
-    names = [f.name for f in system.faults]
-    for i, f in enumerate(raw_faults):
-        key = f"faults[{i}]"
-        if not isinstance(f, Mapping):
-            _fail(origin, key, "{channel, profile, time, magnitude[, rate, relative]}", f)
-        extra = set(f) - {"channel", "profile", "time", "magnitude", "rate", "relative"}
-        if extra:
-            _fail(origin, f"{key}.{sorted(extra)[0]}", "channel, profile, time, magnitude, "
-                  "rate or relative (unknown key)", show=False)
-        for req in ("channel", "profile", "time", "magnitude"):
-            if req not in f:
-                _fail(origin, f"{key}.{req}", "a value (missing key)", show=False)
-        if f["channel"] not in names:
-            _fail(origin, f"{key}.channel", f"a fault channel of plant {system.name!r}: {names}",
-                  f["channel"])
-        ch = names.index(f["channel"])
-        prof = f["profile"]
-        if prof not in ("abrupt", "incipient"):
-            _fail(origin, f"{key}.profile", "'abrupt' or 'incipient'", prof)
-        rate = 0.0
-        if prof == "incipient":
-            if "rate" not in f:
-                _fail(origin, f"{key}.rate", "the decay rate alpha > 0 of an incipient fault "
-                      "(thesis eq. 1.4; missing key)", show=False)
-            rate = _num(origin, f"{key}.rate", f["rate"], positive=True)
-        relative = f.get("relative", False)
-        if not isinstance(relative, bool):
-            _fail(origin, f"{key}.relative", "true or false", relative)
-        if relative and system.faults[ch].kind != "actuator":
-            _fail(origin, f"{key}.relative", "relative faults only on actuator channels",
-                  show=False)
-        t_f = _num(origin, f"{key}.time", f["time"], nonneg=True)
-        if round(t_f / system.sample_time) >= round(duration / system.sample_time):
-            _fail(origin, f"{key}.time", f"a time inside the run [0, {duration:g}) s (a fault "
-                  f"after the end would never be applied)", f["time"])
-        faults.append(FaultEvent(ch, str(prof), t_f,
-                                 _num(origin, f"{key}.magnitude", f["magnitude"]), rate,
-                                 relative))
-    description = data.get("description", "")
-    if not isinstance(description, str):
-        _fail(origin, "description", "a string", type(description).__name__)
-    scheduling = _scheduling(origin, system, data.get("scheduling"), np.asarray(x0, float))
-    switching, dwell = _switching(origin, system, data.get("switching"))
-    return Scenario(name, description, system, duration, int(seed), q0,
-                    np.asarray(x0, dtype=float), nscale, ndist, uscale, udist, tuple(inputs),
-                    tuple(faults), origin, scheduling, switching, dwell)
+        ck.fail("faults", "a list of faults", raw_faults)
+    return tuple(_fault_event(ck, f"faults[{i}]", f, system, duration)
+                 for i, f in enumerate(raw_faults))
 
 
-def _with_fault_channels(origin: str, system: System, raw: Any) -> System:
+def _fault_event(ck: Checker, key: str, f: Any, system: System, duration: float
+                 ) -> FaultEvent:
+    """One entry ``faults[i]``: ``{channel, profile, time, magnitude[, rate, relative]}``."""
+    names = [fc.name for fc in system.faults]
+    if not isinstance(f, Mapping):
+        ck.fail(key, "{channel, profile, time, magnitude[, rate, relative]}", f)
+    extra = set(f) - {"channel", "profile", "time", "magnitude", "rate", "relative"}
+    if extra:
+        ck.fail(f"{key}.{sorted(extra)[0]}", "channel, profile, time, magnitude, "
+                "rate or relative (unknown key)", show=False)
+    ck.require(key, f, ("channel", "profile", "time", "magnitude"))
+    if f["channel"] not in names:
+        ck.fail(f"{key}.channel", f"a fault channel of plant {system.name!r}: {names}",
+                f["channel"])
+    ch = names.index(f["channel"])
+    prof = f["profile"]
+    if prof not in ("abrupt", "incipient"):
+        ck.fail(f"{key}.profile", "'abrupt' or 'incipient'", prof)
+    rate = 0.0
+    if prof == "incipient":
+        if "rate" not in f:
+            ck.fail(f"{key}.rate", "the decay rate alpha > 0 of an incipient fault "
+                    "(thesis eq. 1.4; missing key)", show=False)
+        rate = ck.number(f"{key}.rate", f["rate"], positive=True)
+    relative = ck.boolean(f"{key}.relative", f.get("relative", False))
+    if relative and system.faults[ch].kind != "actuator":
+        ck.fail(f"{key}.relative", "relative faults only on actuator channels", show=False)
+    t_f = ck.number(f"{key}.time", f["time"], nonneg=True)
+    if round(t_f / system.sample_time) >= round(duration / system.sample_time):
+        ck.fail(f"{key}.time", f"a time inside the run [0, {duration:g}) s (a fault "
+                f"after the end would never be applied)", f["time"])
+    return FaultEvent(ch, str(prof), t_f, ck.number(f"{key}.magnitude", f["magnitude"]), rate,
+                      relative)
+
+
+def _with_fault_channels(ck: Checker, system: System, raw: Any) -> System:
     """The plant with the scenario's ``fault_channels`` appended (plant-file syntax)."""
     if not isinstance(raw, list):
-        _fail(origin, "fault_channels", "a list of fault channels (plant-file syntax)", raw)
+        ck.fail("fault_channels", "a list of fault channels (plant-file syntax)", raw)
     if not Path(system.source).is_file():
-        _fail(origin, "fault_channels", "a plant read from a file", system.source)
+        ck.fail("fault_channels", "a plant read from a file", system.source)
     doc = dict(read_yaml(Path(system.source)))
     doc["faults"] = list(doc.get("faults") or []) + list(raw)
     try:
@@ -535,99 +556,99 @@ def _with_fault_channels(origin: str, system: System, raw: Any) -> System:
             msg = f"fault_channels[{int(m.group(1)) - n0}]{m.group(2)}"
         else:
             msg = f"fault_channels: {msg}"
-        raise ScenarioError(f"{origin}: {msg}") from None
+        raise ScenarioError(f"{ck.origin}: {msg}") from None
 
 
-def _scheduling(origin: str, system: System, raw: Any, x0: np.ndarray) -> Scheduling | None:
+def _scheduling(ck: Checker, system: System, raw: Any, x0: np.ndarray) -> Scheduling | None:
     from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 
     lpv = {p.name: p for p in system.lpv}
     needs = any(m.A_rho is not None or m.B_rho is not None for m in system.modes)
     if raw is None:
         if needs:
-            _fail(origin, "scheduling", f"rho(t) for the lpv parameters {list(lpv)} of plant "
+            ck.fail("scheduling", f"rho(t) for the lpv parameters {list(lpv)} of plant "
                   f"{system.name!r} (missing key)", show=False)
         return None
     if not isinstance(raw, Mapping) or not raw:
-        _fail(origin, "scheduling", "a profile per parameter, or {map, names, params}", raw)
+        ck.fail("scheduling", "a profile per parameter, or {map, names, params}", raw)
     if "map" in raw:
         extra = set(raw) - {"map", "names", "params"}
         if extra:
-            _fail(origin, f"scheduling.{sorted(extra)[0]}", "map, names or params (unknown key)",
+            ck.fail(f"scheduling.{sorted(extra)[0]}", "map, names or params (unknown key)",
                   show=False)
         if raw["map"] not in SCHEDULING_MAPS:
-            _fail(origin, "scheduling.map", f"one of {sorted(SCHEDULING_MAPS)}", raw["map"])
+            ck.fail("scheduling.map", f"one of {sorted(SCHEDULING_MAPS)}", raw["map"])
         params = raw.get("params") or {}
         if not isinstance(params, Mapping):
-            _fail(origin, "scheduling.params", "a mapping", params)
+            ck.fail("scheduling.params", "a mapping", params)
         try:
             d = int(np.asarray(SCHEDULING_MAPS[raw["map"]](x0, dict(params))).size)
         except (IndexError, ValueError, TypeError) as exc:
-            _fail(origin, "scheduling.map", f"a map of the {system.n} states of plant "
+            ck.fail("scheduling.map", f"a map of the {system.n} states of plant "
                   f"{system.name!r} ({exc})", raw["map"])
         names = raw.get("names", list(lpv) if lpv else [f"rho{i + 1}" for i in range(d)])
         if (not isinstance(names, list) or len(names) != d
                 or not all(isinstance(n, str) and n for n in names)):
-            _fail(origin, "scheduling.names", f"{d} parameter names (the map gives {d})", names)
+            ck.fail("scheduling.names", f"{d} parameter names (the map gives {d})", names)
         if lpv and list(names) != list(lpv):
-            _fail(origin, "scheduling.names", f"the plant's lpv parameters {list(lpv)}", names)
+            ck.fail("scheduling.names", f"the plant's lpv parameters {list(lpv)}", names)
         return Scheduling(tuple(names), (), str(raw["map"]), dict(params))
     profiles = []
     if lpv and set(raw) != set(lpv):
         missing = sorted(set(lpv) - set(raw))
         key = f"scheduling.{missing[0]}" if missing else \
             f"scheduling.{sorted(set(raw) - set(lpv))[0]}"
-        _fail(origin, key, f"a profile for each lpv parameter {list(lpv)} of plant "
+        ck.fail(key, f"a profile for each lpv parameter {list(lpv)} of plant "
               f"{system.name!r} and no other", show=False)
     names = list(lpv) if lpv else [str(k) for k in raw]
     for nm in names:
-        prof = _profile(origin, f"scheduling.{nm}", raw[nm])
+        prof = _profile(ck, f"scheduling.{nm}", raw[nm])
         if nm in lpv:
             lo, hi = prof.bounds()
             if lo < lpv[nm].min or hi > lpv[nm].max:
-                _fail(origin, f"scheduling.{nm}", f"values inside the parameter box "
+                ck.fail(f"scheduling.{nm}", f"values inside the parameter box "
                       f"[{lpv[nm].min:g}, {lpv[nm].max:g}] (the profile spans "
                       f"[{lo:g}, {hi:g}])", show=False)
         profiles.append(prof)
     return Scheduling(tuple(names), tuple(profiles))
 
 
-def _switching(origin: str, system: System, raw: Any
+def _switching(ck: Checker, system: System, raw: Any
                ) -> tuple[tuple[tuple[float, int], ...] | None, tuple[float, float] | None]:
     if raw is None:
         return None, None
     if not isinstance(raw, Mapping) or len(raw) != 1 or set(raw) > {"schedule", "random"}:
-        _fail(origin, "switching", "{schedule: [[time, mode], ...]} or {random: {min_dwell, "
+        ck.fail("switching", "{schedule: [[time, mode], ...]} or {random: {min_dwell, "
               "max_dwell}}", raw)
     if "random" in raw:
         rnd = raw["random"]
         if not isinstance(rnd, Mapping) or set(rnd) != {"min_dwell", "max_dwell"}:
-            _fail(origin, "switching.random", "{min_dwell, max_dwell} (s)", rnd)
-        lo = _num(origin, "switching.random.min_dwell", rnd["min_dwell"], positive=True)
-        hi = _num(origin, "switching.random.max_dwell", rnd["max_dwell"], positive=True)
+            ck.fail("switching.random", "{min_dwell, max_dwell} (s)", rnd)
+        lo = ck.number("switching.random.min_dwell", rnd["min_dwell"], positive=True)
+        hi = ck.number("switching.random.max_dwell", rnd["max_dwell"], positive=True)
         if lo < system.sample_time:
-            _fail(origin, "switching.random.min_dwell", f"at least one sample "
+            ck.fail("switching.random.min_dwell", f"at least one sample "
                   f"({system.sample_time:g} s)", lo)
         if hi < lo:
-            _fail(origin, "switching.random.max_dwell", "max_dwell >= min_dwell", hi)
+            ck.fail("switching.random.max_dwell", "max_dwell >= min_dwell", hi)
         if len(system.modes) < 2:
-            _fail(origin, "switching.random", f"a plant with two modes or more ({system.name!r} "
+            ck.fail("switching.random", f"a plant with two modes or more ({system.name!r} "
                   f"has one)", show=False)
         return None, (lo, hi)
     sched = raw["schedule"]
     if not isinstance(sched, list) or not sched:
-        _fail(origin, "switching.schedule", "a non-empty list of [time, mode] pairs", sched)
+        ck.fail("switching.schedule", "a non-empty list of [time, mode] pairs", sched)
     out: list[tuple[float, int]] = []
     last = -math.inf
     for i, pair in enumerate(sched):
         key = f"switching.schedule[{i}]"
         if not isinstance(pair, list) or len(pair) != 2:
-            _fail(origin, key, "a [time, mode] pair", pair)
-        t = _num(origin, f"{key}[0]", pair[0], nonneg=True)
+            ck.fail(key, "a [time, mode] pair", pair)
+        t = ck.number(f"{key}[0]", pair[0], nonneg=True)
         if t < last:
-            _fail(origin, f"{key}[0]", "times in increasing order", pair[0])
+            ck.fail(f"{key}[0]", "times in increasing order", pair[0])
         last = t
         if pair[1] not in system.mode_names:
-            _fail(origin, f"{key}[1]", f"one of the modes {list(system.mode_names)}", pair[1])
+            ck.fail(f"{key}[1]", f"one of the modes {list(system.mode_names)}", pair[1])
         out.append((t, system.mode_index(pair[1])))
     return tuple(out), None

@@ -13,9 +13,9 @@ import os
 import random
 import subprocess
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, MutableMapping
 
-__all__ = ["die_with_parent", "domain_is_free", "free_domain", "hold_domain"]
+__all__ = ["die_with_parent", "domain_is_free", "free_domain", "hold_domain", "isolate_env"]
 
 #: Child process: exit 1 when another participant shows up within 3 s (measured here:
 #: discovery takes 0.05-2.4 s on loopback; a node's name may come after its topics).
@@ -109,3 +109,32 @@ def free_domain(env: Mapping[str, str] | None = None, tries: int = 5) -> int:
             return domain
         domain = rng.randint(1, 100)
     return domain
+
+
+def isolate_env(env: MutableMapping[str, str], keep_domain: bool = False
+                ) -> MutableMapping[str, str]:
+    """Make ``env`` a DDS environment of its own on this machine (the demo, the test suite).
+
+    Discovery on localhost only (``ROS_AUTOMATIC_DISCOVERY_RANGE``; the deprecated
+    ``ROS_LOCALHOST_ONLY`` removed), Fast DDS unless another RMW is chosen, and a
+    ``ROS_DOMAIN_ID`` nobody else uses (:func:`free_domain`). Set it before rclpy starts in
+    any process of that environment (the RMW reads it at init).
+
+    Parameters
+    ----------
+    env : mutable mapping
+        Changed in place (``os.environ`` or a child's copy).
+    keep_domain : bool
+        Keep a ``ROS_DOMAIN_ID`` already set (a test run given its domain).
+
+    Returns
+    -------
+    mutable mapping
+        ``env``.
+    """
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    if not (keep_domain and "ROS_DOMAIN_ID" in env):
+        env["ROS_DOMAIN_ID"] = str(free_domain(env))
+    return env

@@ -37,6 +37,7 @@ from fd_monitor.core.simulator import (
     measured_layout,
     measured_values,
     truth_labels,
+    truth_values,
 )
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.scenario import load_scenario
@@ -209,9 +210,7 @@ class PlantSimNode(Node):
         for pub, labels, cols in self.pub_side:
             pub.publish(to_msg(labels, k, measured_values(cols, s.mode[0], s.rho[0])))
         if self.pub_truth is not None:
-            self.pub_truth.publish(to_msg(self.labels_truth, k,
-                                          [float(s.mode[0]), *s.x[0], *s.faults[0],
-                                           *s.rho[0]]))
+            self.pub_truth.publish(to_msg(self.labels_truth, k, truth_values(s)))
         self.published += 1
         self.diag.touch("simulation")
         if not self._pacer.published():

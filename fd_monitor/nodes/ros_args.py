@@ -27,7 +27,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import config_dirs
-from fd_monitor.model.system import read_yaml
+from fd_monitor.model.yaml_io import read_yaml
 
 __all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file"]
 

@@ -56,7 +56,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError
+from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError, WrongLengthError
 from fd_monitor.wire.conversions import ArrivalStamper, decode, encode_data, join_labels
 
 __all__ = [
@@ -80,6 +80,7 @@ __all__ = [
     "recover_bag",
     "serialize_array",
     "write_bag",
+    "write_messages",
 ]
 
 FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
@@ -140,7 +141,7 @@ def array_msg(labels: Sequence[str], stamp: int, values: Any) -> Any:
     n = len(labels)
     data = np.asarray(encode_data(stamp, values), dtype=np.float64)
     if data.size - 1 != n:
-        raise MessageError(f"{n} labels for {data.size - 1} values")
+        raise WrongLengthError(f"{n} labels for {data.size - 1} values")
     dim = types["std_msgs/msg/MultiArrayDimension"](label=join_labels(labels), size=n,
                                                    stride=n)
     layout = types["std_msgs/msg/MultiArrayLayout"](dim=[dim], data_offset=1)
@@ -397,6 +398,32 @@ class BagWriter:
         self.close()
 
 
+def write_messages(path: str | Path,
+                   messages: Iterable[tuple[str, int, int, Sequence[str], Any]],
+                   topics: Sequence[str] = ()) -> Path:
+    """Write stamped Float64MultiArray messages into a new MCAP bag, in the order given.
+
+    The one writer of simulated bags (:func:`write_bag`, ``simulate``, the bag library).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Bag folder to create.
+    messages : iterable
+        ``(topic, timestamp_ns, stamp, labels, values)`` per message.
+    topics : sequence of str
+        Topics declared first, in this order (with no message or not); the others are
+        declared in the order of their first message.
+    """
+    msgs = list(messages)
+    with BagWriter(path) as w:
+        for topic in dict.fromkeys([*topics, *(m[0] for m in msgs)]):
+            w.add_topic(topic)
+        for topic, t, stamp, labels, values in msgs:
+            w.write_array(topic, int(stamp), labels, values, int(t))
+    return Path(path)
+
+
 def write_bag(path: str | Path, arrays: Iterable[TopicArrays]) -> Path:
     """Write topics given as arrays into a new MCAP bag, in bag-timestamp order.
 
@@ -410,13 +437,9 @@ def write_bag(path: str | Path, arrays: Iterable[TopicArrays]) -> Path:
                            f"({a.stamps.size}, {len(a.labels)})")
         events += [(int(t), i, j) for j, t in enumerate(a.receive_ns)]
     events.sort()
-    with BagWriter(path) as w:
-        for a in items:
-            w.add_topic(a.topic)
-        for t, i, j in events:
-            a = items[i]
-            w.write_array(a.topic, int(a.stamps[j]), a.labels, a.values[j], t)
-    return Path(path)
+    return write_messages(path, ((items[i].topic, t, int(items[i].stamps[j]), items[i].labels,
+                                  items[i].values[j]) for t, i, j in events),
+                          [a.topic for a in items])
 
 
 # --------------------------------------------------------------------------- reading

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.model.errors import MessageError
+from fd_monitor.model.errors import MessageError, NonFiniteError, WrongLengthError
 
 __all__ = [
     "STAMP_OFFSET",
@@ -106,7 +106,7 @@ def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None)
     """
     data = encode_data(stamp, values)
     if len(data) - 1 != len(labels):
-        raise MessageError(f"{len(labels)} labels for {len(data) - 1} values")
+        raise WrongLengthError(f"{len(labels)} labels for {len(data) - 1} values")
     if msg_type is None:
         from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -212,15 +212,17 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
     if dims:
         got_labels = split_labels(str(dims[0].label))
         if int(dims[0].size) != values.size:
-            raise MessageError(f"{where}: layout.dim[0].size {int(dims[0].size)} but "
+            raise WrongLengthError(f"{where}: layout.dim[0].size {int(dims[0].size)} but "
                                f"{values.size} values")
         if got_labels and len(got_labels) != values.size:
-            raise MessageError(f"{where}: {len(got_labels)} labels for {values.size} values")
+            raise WrongLengthError(f"{where}: {len(got_labels)} labels for {values.size} "
+                                   f"values")
     expected = tuple(labels) if labels is not None else None
     n = size if size is not None else (len(expected) if expected is not None else None)
     if n is not None and values.size != n:
         names = f" ({','.join(expected)})" if expected else ""
-        raise MessageError(f"{where}: wrong length: {values.size} values, expected {n}{names}")
+        raise WrongLengthError(f"{where}: wrong length: {values.size} values, expected "
+                               f"{n}{names}")
     if expected is not None and got_labels and got_labels != expected:
         raise MessageError(f"{where}: channels {','.join(got_labels)}: expected "
                            f"{','.join(expected)}")
@@ -233,8 +235,8 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
         i = int(np.flatnonzero(bad)[0])
         names = got_labels or expected or ()
         name = names[i] if i < len(names) else f"#{i}"
-        raise MessageError(f"{where}: value {name} is {float(values[i])!r}: expected finite "
-                           f"numbers")
+        raise NonFiniteError(f"{where}: value {name} is {float(values[i])!r}: expected finite "
+                             f"numbers")
     return Decoded(stamp, got_labels or (expected or ()), values.copy())
 
 

@@ -1,0 +1,198 @@
+"""Simulated bags: a scenario's messages, the library's corruptions, the MCAP file.
+
+:func:`simulated_messages` is what ``python -m fd_monitor simulate`` records and what every
+bag of the library (:mod:`fd_monitor.analysis.library`) starts from; :func:`bag_messages`
+applies a bag spec's corruptions (module docstring of :mod:`fd_monitor.analysis.library`);
+:func:`generate_bag` and :func:`generate_library` write them
+(:func:`fd_monitor.wire.bags.write_messages`), the same spec giving the same bytes.
+
+Nothing here imports rclpy.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.analysis.library import BagSpec, Corruption, Library, LibraryError
+from fd_monitor.wire.bags import write_messages
+
+__all__ = ["bag_messages", "generate_bag", "generate_library", "simulate_bag",
+           "simulated_messages"]
+
+
+@dataclass
+class _Msg:
+    """One simulated message (mutable: corruptions change it in place)."""
+
+    t_ns: int
+    topic: str
+    stamp: int
+    labels: tuple[str, ...]
+    values: np.ndarray
+
+
+def simulated_messages(scenario: Any, seed: int | None, n_samples: int) -> list[_Msg]:
+    """Simulate a scenario and return its messages in recording order: per sample k
+    (bag timestamp ``k Ts`` in ns) ``/plant/u``, ``/plant/y``, the measured side signals
+    (:func:`~fd_monitor.core.simulator.measured_signals`) and ``/plant/truth``.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    seed : int or None
+        None: the scenario's.
+    n_samples : int
+    """
+    from fd_monitor.core.simulator import (
+        measured_signals,
+        simulate,
+        truth_labels,
+        truth_values,
+    )
+
+    sys_ = scenario.system
+    dt = sys_.sample_time
+    traj = simulate(scenario, seed, n_samples)
+    topics = {"/plant/u": (tuple(sys_.inputs), traj.u[0]),
+              "/plant/y": (tuple(sys_.outputs), traj.y[0]),
+              **measured_signals(traj),
+              "/plant/truth": (truth_labels(scenario), truth_values(traj))}
+    return [_Msg(round(k * dt * 1e9), topic, int(k), labels, vals[k].copy())
+            for k in range(n_samples) for topic, (labels, vals) in topics.items()]
+
+
+def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
+    """Simulate ``spec`` and return its messages in recording order, corruptions applied.
+
+    Returns
+    -------
+    (list, Scenario)
+        Messages (:func:`simulated_messages`), and the scenario.
+    """
+    from fd_monitor.model.scenario import load_scenario
+
+    sc = load_scenario(spec.scenario)
+    K = max(1, round(spec.duration / sc.system.sample_time))
+    msgs = simulated_messages(sc, spec.seed, K)
+    for c in spec.corruptions:
+        msgs = _corrupt(msgs, c, spec)
+    return msgs, sc
+
+
+def _find(msgs: list[_Msg], topic: str, k: int, spec: BagSpec) -> int:
+    for i, m in enumerate(msgs):
+        if m.topic == topic and m.stamp == k:
+            return i
+    raise LibraryError(f"bag {spec.name}: corruption on {topic} stamp {k}: no such message")
+
+
+def _corrupt(msgs: list[_Msg], c: Corruption, spec: BagSpec) -> list[_Msg]:
+    if c.kind == "gap":
+        k0, n = c.samples
+        return [m for m in msgs if not k0 <= m.stamp < k0 + n]
+    for k in c.samples:
+        i = _find(msgs, c.topic, k, spec)
+        m = msgs[i]
+        if c.kind == "nan":
+            if c.channel not in m.labels:
+                raise LibraryError(f"bag {spec.name}: nan corruption: no channel "
+                                   f"{c.channel!r} on {c.topic}")
+            m.values[m.labels.index(str(c.channel))] = math.nan
+        elif c.kind == "wrong_length":
+            m.values, m.labels = m.values[:-1], m.labels[:-1]
+        elif c.kind == "duplicate":
+            msgs.insert(i + 1, _Msg(m.t_ns, m.topic, m.stamp, m.labels, m.values.copy()))
+        else:  # out_of_order: stamp k + 1 recorded (and replayed) before stamp k
+            j = _find(msgs, c.topic, k + 1, spec)
+            a, b = msgs[i], msgs[j]
+            a.stamp, b.stamp = b.stamp, a.stamp
+            a.values, b.values = b.values, a.values
+            a.labels, b.labels = b.labels, a.labels
+    return msgs
+
+
+def _write(path: str | Path, msgs: Sequence[_Msg]) -> Path:
+    """Write messages into a new bag (:func:`fd_monitor.wire.bags.write_messages`)."""
+    return write_messages(path, ((m.topic, m.t_ns, m.stamp, m.labels, m.values)
+                                 for m in msgs))
+
+
+def simulate_bag(path: str | Path, scenario: Any, seed: int | None,
+                 n_samples: int) -> tuple[Path, tuple[str, ...]]:
+    """Write the bag of :func:`simulated_messages` (``python -m fd_monitor simulate``); the
+    bag of a library spec without corruptions, byte for byte.
+
+    Returns
+    -------
+    (pathlib.Path, tuple of str)
+        The bag folder and its topics, in recording order.
+    """
+    msgs = simulated_messages(scenario, seed, n_samples)
+    return _write(path, msgs), tuple(dict.fromkeys(m.topic for m in msgs))
+
+
+def generate_bag(spec: BagSpec, folder: str | Path | None = None) -> Path:
+    """(Re)write the bag of ``spec`` into ``folder`` (default ``spec.folder``).
+
+    An existing bag there is replaced; other files of the folder (``expected.yaml``) are
+    kept. Same spec, same bytes.
+
+    Returns
+    -------
+    pathlib.Path
+        The bag folder.
+    """
+    dest = Path(folder) if folder is not None else spec.folder
+    msgs, _ = bag_messages(spec)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=dest.parent, prefix=f".{spec.name}.") as tmp:
+        out = Path(tmp) / spec.name
+        _write(out, msgs)
+        dest.mkdir(exist_ok=True)
+        for old in [*dest.glob("*.mcap"), dest / "metadata.yaml"]:
+            if old.exists():
+                old.unlink()
+        for f in out.iterdir():
+            shutil.move(str(f), str(dest / f.name))
+    return dest
+
+
+def generate_library(library: Library, names: Sequence[str] | None = None,
+                     out_root: str | Path | None = None) -> list[dict[str, Any]]:
+    """Regenerate the bags of a library (all, or ``names``).
+
+    Parameters
+    ----------
+    library : Library
+    names : sequence of str, optional
+    out_root : str or pathlib.Path, optional
+        Write ``<out_root>/<name>/`` instead of the library's own folders.
+
+    Returns
+    -------
+    list of dict
+        Per bag: name, folder, samples, bytes.
+    """
+    out = []
+    for name in (names or library.names):
+        spec = library[name]
+        dest = spec.folder if out_root is None else Path(out_root) / spec.name
+        generate_bag(spec, dest)
+        size = sum(f.stat().st_size for f in dest.iterdir() if f.is_file())
+        out.append({"name": spec.name, "folder": str(dest),
+                    "samples": round(spec.duration / _sample_time(spec)), "bytes": size})
+    return out
+
+
+def _sample_time(spec: BagSpec) -> float:
+    from fd_monitor.model.scenario import load_scenario
+
+    return float(load_scenario(spec.scenario).system.sample_time)

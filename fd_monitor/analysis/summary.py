@@ -1,0 +1,385 @@
+"""One result summary: what a monitor's outputs over a run say, wherever they come from.
+
+A run's per-sample outputs (:class:`Outputs`: alarm flags per channel, the estimated mode,
+the final estimates, isolation flags, restarts) come from an offline run
+(:func:`outputs_of_run`, of :func:`fd_monitor.analysis.offline.run_bag`) or from what the live
+nodes recorded (:func:`recorded_outputs`); :func:`summarize` reduces them the same way for
+``analyze`` (:func:`analyze_run`), the bag report, the library checks
+(:func:`summarize_run`), the demo and the live regression tests. What the bag's
+``/plant/truth`` says (fault onsets, true biases, true modes) is :func:`truth_facts`.
+
+Nothing here imports rclpy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.core.envelope import describe_excess
+
+__all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "mode_tracking",
+           "outputs_of_run",
+           "read_bag_truth", "recorded_outputs", "segments", "settled_modes", "summarize",
+           "summarize_run", "transitions", "true_biases", "truth_at", "truth_facts"]
+
+
+# --------------------------------------------------------------------------------------
+# per-sample reductions
+
+
+def episodes(flags: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index pairs of the True runs of a 1-D bool array."""
+    f = np.concatenate([[False], np.asarray(flags, bool), [False]]).astype(int)
+    d = np.diff(f)
+    return list(zip(np.flatnonzero(d == 1).tolist(), (np.flatnonzero(d == -1) - 1).tolist()))
+
+
+def collapse(seq: Sequence[Any]) -> list[Any]:
+    """``seq`` with repeats in a row collapsed (``a a b a`` -> ``a b a``)."""
+    out: list[Any] = []
+    for s in seq:
+        if not out or out[-1] != s:
+            out.append(s)
+    return out
+
+
+def segments(ks: Sequence[int], modes: Sequence[str]) -> list[list[Any]]:
+    """``[[mode, first_sample, samples], ...]``: runs of one mode."""
+    out: list[list[Any]] = []
+    for k, m in zip(ks, modes):
+        if out and out[-1][0] == m:
+            out[-1][2] += 1
+        else:
+            out.append([m, int(k), 1])
+    return out
+
+
+def settled_modes(segs: Sequence[Sequence[Any]], min_dwell: int) -> list[str]:
+    """Mode sequence without the runs shorter than ``min_dwell`` samples (but the first).
+
+    Chatter of a mode predictor at a guard (QB eq. 13b from a noisy estimate) produces runs of
+    a few samples; dropping them and collapsing repeats gives the settled sequence.
+    """
+    kept = [str(s[0]) for i, s in enumerate(segs) if i == 0 or int(s[2]) >= min_dwell]
+    return collapse(kept)
+
+
+def transitions(k: np.ndarray, modes: np.ndarray, names: Sequence[str],
+                dt: float) -> list[dict[str, Any]]:
+    """``{sample, time, from, to}`` of every change of ``modes`` (K,) (mode indices)."""
+    out = []
+    for j in np.nonzero(np.diff(modes) != 0)[0] + 1:
+        a, b = int(modes[j - 1]), int(modes[j])
+        out.append({"sample": int(k[j]), "time": float(k[j] * dt),
+                    "from": names[a] if 0 <= a < len(names) else str(a),
+                    "to": names[b] if 0 <= b < len(names) else str(b)})
+    return out
+
+
+def mode_tracking(q: np.ndarray, q_hat: np.ndarray, dt: float) -> dict[str, Any]:
+    """How the estimated mode follows the true one.
+
+    A true transition to mode m is tracked when the estimated mode becomes m before the
+    plant's next transition; the delay is how long that took.
+
+    Parameters
+    ----------
+    q, q_hat : numpy.ndarray
+        (K,) true and estimated mode indices (the shorter length is used).
+    dt : float
+        Sample time, s.
+
+    Returns
+    -------
+    dict
+        ``true`` (transitions), ``tracked``, ``max_delay_s`` (None when none tracked),
+        ``mode_agreement`` (fraction of samples, 4 decimals).
+    """
+    n = min(len(q), len(q_hat))
+    changes = [int(k) for k in np.flatnonzero(np.diff(q[:n]) != 0) + 1]
+    delays = []
+    for i, k in enumerate(changes):
+        end = changes[i + 1] if i + 1 < len(changes) else n
+        same = np.flatnonzero(q_hat[k:end] == q[k])
+        if same.size:
+            delays.append(float(same[0] * dt))
+    agree = float(np.mean(q_hat[:n] == q[:n])) if n else 0.0
+    return {"true": len(changes), "tracked": len(delays),
+            "max_delay_s": round(max(delays), 6) if delays else None,
+            "mode_agreement": round(agree, 4)}
+
+
+def first_alarms(k: np.ndarray, alarm: np.ndarray, channels: Sequence[str], dt: float,
+                 transient: float = 0.0) -> list[dict[str, Any]]:
+    """First alarm per channel at or after ``transient`` s: ``{channel, first_sample, time}``.
+
+    Parameters
+    ----------
+    k : numpy.ndarray
+        (K,) sample stamps.
+    alarm : numpy.ndarray
+        (K, m) bool, columns ``channels``.
+    dt : float
+        Sample time, s.
+    """
+    k_tr = round(transient / dt)
+    out = []
+    for i, c in enumerate(channels):
+        hits = np.flatnonzero(alarm[:, i] & (k >= k_tr))
+        if hits.size:
+            s = int(k[hits[0]])
+            out.append({"channel": c, "first_sample": s, "time": round(s * dt, 9)})
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# the summary
+
+
+@dataclass
+class Outputs:
+    """A monitor's outputs over one run, per sample.
+
+    Attributes
+    ----------
+    k : numpy.ndarray
+        (K,) sample stamps.
+    dt : float
+        Sample time, s.
+    channels : tuple of str
+        Alarm channels.
+    alarm : numpy.ndarray
+        (K, m) bool.
+    mode : numpy.ndarray
+        (K,) estimated mode index.
+    mode_names : tuple of str
+    estimate : dict
+        name -> (K,) estimate (bias estimates; may be empty).
+    isolated : numpy.ndarray or None
+        (K, len(isolation_channels)) bool isolation flags; None: a channel whose alarm
+        isolates (``isolating``) is isolated once it alarmed.
+    isolation_channels : tuple of str
+        Names of the columns of ``isolated``.
+    isolating : tuple of str
+        Channels whose alarm isolates the fault they are named after (no isolation flags).
+    restarts : list of int
+        Samples where the monitor restarted after a hole.
+    """
+
+    k: np.ndarray
+    dt: float
+    channels: tuple[str, ...]
+    alarm: np.ndarray
+    mode: np.ndarray
+    mode_names: tuple[str, ...]
+    estimate: dict[str, np.ndarray] = field(default_factory=dict)
+    isolated: np.ndarray | None = None
+    isolation_channels: tuple[str, ...] = ()
+    isolating: tuple[str, ...] = ()
+    restarts: list[int] = field(default_factory=list)
+
+
+def summarize(out: Outputs, transient: float = 0.0) -> dict[str, Any]:
+    """The summary of a run's outputs.
+
+    Returns
+    -------
+    dict
+        ``samples``, ``alarms`` (first alarm per channel after the transient,
+        :func:`first_alarms`), ``isolated`` (channels flagged at the last sample, or the
+        isolating channels that alarmed), ``bias_estimate`` (``{name: final value}``),
+        ``modes`` (estimated mode names, repeats collapsed), ``mode_segments``
+        (:func:`segments`), ``restarts``.
+    """
+    alarms = first_alarms(out.k, out.alarm, out.channels, out.dt, transient)
+    if out.isolated is not None and len(out.k):
+        isolated = [c for c, f in zip(out.isolation_channels, out.isolated[-1]) if f]
+    else:
+        isolated = [a["channel"] for a in alarms if a["channel"] in out.isolating]
+    names = [out.mode_names[int(q)] for q in out.mode]
+    return {"samples": len(out.k), "alarms": alarms, "isolated": isolated,
+            "bias_estimate": {n: float(v[-1]) for n, v in out.estimate.items()},
+            "modes": collapse(names), "mode_segments": segments(out.k, names),
+            "restarts": list(out.restarts)}
+
+
+def outputs_of_run(run: Any) -> Outputs:
+    """The :class:`Outputs` of an offline run (:class:`fd_monitor.analysis.offline.BagRun`)."""
+    sys_ = run.system
+    return Outputs(k=run.k, dt=float(sys_.sample_time), channels=tuple(run.channels),
+                   alarm=run.alarm, mode=run.mode_hat, mode_names=tuple(sys_.mode_names),
+                   estimate=dict(run.estimate), isolated=run.isolated,
+                   isolation_channels=tuple(sys_.outputs), isolating=tuple(run.isolating),
+                   restarts=list(run.inputs.restarts))
+
+
+def summarize_run(run: Any) -> dict[str, Any]:
+    """The summary of an offline run (:class:`fd_monitor.analysis.offline.BagRun`), as the
+    library's expectations check it.
+
+    Returns
+    -------
+    dict
+        :func:`summarize`'s fields, and ``bag``, ``gains``, ``method``, ``input_errors``
+        (kind -> stamps), ``transient_s``, ``channels`` (the runtime's alarm channels) and
+        ``estimate_kind`` (what ``bias_estimate`` estimates).
+    """
+    s = summarize(outputs_of_run(run), run.transient)
+    return {"bag": run.bag, "gains": run.gains, "method": run.method,
+            "samples": s["samples"], "alarms": s["alarms"], "isolated": s["isolated"],
+            "bias_estimate": s["bias_estimate"], "modes": s["modes"],
+            "mode_segments": s["mode_segments"],
+            "input_errors": run.inputs.by_kind(), "restarts": s["restarts"],
+            "transient_s": run.transient, "channels": list(run.channels),
+            "estimate_kind": run.estimate_kind}
+
+
+def analyze_run(run: Any) -> dict[str, Any]:
+    """The ``analyze`` summary of an offline run (:func:`fd_monitor.analysis.offline.run_bag`).
+
+    Returns
+    -------
+    dict
+        ``samples``, ``alarms`` (one entry per alarm episode and channel: ``channel``,
+        ``first_sample``, ``time``, ``last_sample``, ``samples``), ``detection`` (first alarm:
+        ``{sample, time}``, or None), ``transitions_estimated``, ``transitions_true`` (or
+        None), ``mode_agreement`` (or None), ``isolated``, ``bias_estimate``,
+        ``input_errors`` (every rejected or suspicious input message: ``{kind, topic, sample,
+        message}``) and ``restarts`` (samples where the monitor restarted after a hole).
+    """
+    system = run.system
+    k = run.k
+    dt = float(system.sample_time)
+    alarms = []
+    for i, name in enumerate(run.channels):
+        for a, b in episodes(run.alarm[:, i]):
+            ep: dict[str, Any] = {"channel": name, "first_sample": int(k[a]),
+                                  "time": float(k[a] * dt), "last_sample": int(k[b]),
+                                  "samples": int(b - a + 1)}
+            if run.outside is not None:
+                # alarms are raised everywhere, but guaranteed only inside the region
+                part = run.outside[a:b + 1]
+                worst = part[np.argmax(np.abs(part).max(axis=1))]
+                ep["outside_certified_region"] = bool(np.any(part != 0.0))
+                ep["outside_detail"] = describe_excess(run.region_names, worst)
+            alarms.append(ep)
+    alarms.sort(key=lambda e: (e["first_sample"], e["channel"]))
+    names = system.mode_names
+    true_mode = None
+    if run.truth is not None and "mode" in run.truth.labels:
+        tm = truth_at(run.truth, k, ["mode"])[:, 0]
+        true_mode = None if np.isnan(tm).any() else tm.astype(int)
+    summary = summarize_run(run)
+    return {
+        "samples": int(k.size),
+        "alarms": alarms,
+        "detection": None if not alarms else {"sample": alarms[0]["first_sample"],
+                                              "time": alarms[0]["time"]},
+        "transitions_estimated": transitions(k, run.mode_hat, names, dt),
+        "transitions_true": None if true_mode is None else transitions(k, true_mode, names,
+                                                                       dt),
+        "mode_agreement": None if true_mode is None else float(np.mean(true_mode
+                                                                       == run.mode_hat)),
+        "isolated": summary["isolated"],
+        "bias_estimate": summary["bias_estimate"],
+        "input_errors": list(run.inputs.errors),
+        "restarts": list(run.inputs.restarts),
+    }
+
+
+def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
+    """The :class:`Outputs` the live diagnosis chain published, from a recorded bag.
+
+    Uses ``/fd/alarm`` (a column per output), ``/fd/state_estimate`` (columns ``mode`` and
+    ``restart``) and ``/fd/bias_estimate`` (a column per output: sigma^; ``iso:<output>``:
+    isolation flag), by label.
+
+    Parameters
+    ----------
+    topics : mapping
+        topic -> :class:`~fd_monitor.wire.bags.TopicArrays`
+        (:func:`fd_monitor.wire.bags.read_bag` of the recorded bag).
+    system : System
+    """
+    al, st = topics["/fd/alarm"], topics["/fd/state_estimate"]
+    be = topics["/fd/bias_estimate"]
+    outputs = tuple(system.outputs)
+    restart = st.column("restart")
+    return Outputs(
+        k=np.asarray(al.stamps), dt=float(system.sample_time), channels=outputs,
+        alarm=np.column_stack([al.column(c) > 0.5 for c in outputs]),
+        mode=st.column("mode").astype(int), mode_names=tuple(system.mode_names),
+        estimate={c: be.column(c) for c in outputs},
+        isolated=np.column_stack([be.column(f"iso:{c}") > 0.5 for c in outputs]),
+        isolation_channels=outputs,
+        restarts=[int(k) for k in st.stamps[1:][restart[1:] > 0.5]])
+
+
+# --------------------------------------------------------------------------------------
+# the truth
+
+
+def read_bag_truth(bag: str | Path) -> Any:
+    """``/plant/truth`` of a bag as :class:`~fd_monitor.wire.bags.TopicArrays`."""
+    from fd_monitor.wire.bags import read_bag
+
+    return read_bag(bag, ["/plant/truth"])["/plant/truth"]
+
+
+def truth_at(truth: Any, ks: Sequence[int], labels: Sequence[str]) -> np.ndarray:
+    """(len(ks), len(labels)) truth values at the given stamps (NaN where absent)."""
+    idx = {int(s): i for i, s in enumerate(truth.stamps)}
+    out = np.full((len(ks), len(labels)), np.nan)
+    cols = [truth.labels.index(lab) for lab in labels]
+    for j, k in enumerate(ks):
+        i = idx.get(int(k))
+        if i is not None:
+            out[j] = truth.values[i, cols]
+    return out
+
+
+def truth_facts(truth: Any, system: Any) -> dict[str, Any]:
+    """What a bag's ``/plant/truth`` says: fault onsets, final fault values, true modes.
+
+    Parameters
+    ----------
+    truth : fd_monitor.wire.bags.TopicArrays
+        ``/plant/truth``.
+    system : System
+
+    Returns
+    -------
+    dict
+        ``faults``: name -> ``{onset_sample, final, kind, target}`` for every fault channel
+        that is ever non-zero, in the plant's order (``target`` the output or state it acts
+        on, else the fault itself); ``modes``: the true mode sequence (repeats collapsed);
+        ``samples``.
+    """
+    faults: dict[str, Any] = {}
+    for f in system.faults:
+        lab = f"f.{f.name}"
+        if lab not in truth.labels:
+            continue
+        v = truth.column(lab)
+        nz = np.flatnonzero(v != 0.0)
+        if nz.size:
+            # what an isolation names: the biased output, the jumping state, else the fault
+            # itself (an hinf_sc bank has one channel per fault)
+            target = (system.outputs[f.index] if f.kind == "sensor_bias"
+                      else system.states[f.index] if f.kind == "state_jump" else f.name)
+            faults[f.name] = {"onset_sample": int(truth.stamps[nz[0]]), "final": float(v[-1]),
+                              "kind": f.kind, "target": target}
+    modes = (collapse([system.mode_names[int(q)] for q in truth.column("mode")])
+             if "mode" in truth.labels else [])
+    return {"faults": faults, "modes": modes, "samples": len(truth)}
+
+
+def true_biases(facts: Mapping[str, Any]) -> dict[str, float]:
+    """output -> final true sensor bias, of the faults in :func:`truth_facts`."""
+    return {f["target"]: f["final"] for f in facts["faults"].values()
+            if f["kind"] == "sensor_bias"}
