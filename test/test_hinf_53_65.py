@@ -13,15 +13,13 @@ import pytest
 pytest.importorskip("cvxpy")
 
 from fd_monitor.core.freq import sigma
-from fd_monitor.core.residual_bank import (
-    ResidualBank,
-    generator_ss,
-    parse_bank,
-    simulate_affine_plant,
-)
+from fd_monitor.core.hinf_model import generator_ss, parse_bank
+from fd_monitor.core.residual_bank import ResidualBank
+from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.gains import load_gains
+from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 
 GAINS = Path(__file__).resolve().parent.parent / "config" / "gains"
@@ -80,13 +78,11 @@ def test_singular_values_fig_5_1_to_5_3_and_6_1_to_6_3(name):
 def test_overlapping_steps_isolated_with_varying_rho(name):
     s = load_system(name)
     gf = load_gains(GAINS / f"{name}_hinf_sc.yaml", s)
-    kind, model, _g = parse_bank(gf.results)
-    t = np.arange(0.0, 80.0, s.sample_time)
-    _x, y, u, rho = simulate_affine_plant(
-        model, t, lambda tt: np.array([0.5 + np.sin(2 * np.pi * tt / 7),
-                                       0.5 * np.sin(2 * np.pi * tt / 3 + 1)]),
-        RHO[name], model.B0, lambda tt: np.array([float(tt >= 30), float(tt >= 60)]),
-        substeps=2)
+    kind, _model, _g = parse_bank(gf.results)
+    # the scenario: these inputs, RHO[name], unit actuator steps at 30 s and 60 s
+    tr = simulate(load_scenario(f"{name}_overlap"))
+    t, y, u, rho = tr.t, tr.y[0], tr.u[0], tr.rho[0]
+    np.testing.assert_allclose(rho, np.array([RHO[name](tt) for tt in t]), atol=1e-4)
     bank = ResidualBank(s, gf, thresholds=[THRESHOLD, THRESHOLD])
     r = bank.run(u, y, rho if kind == "lpv" else None)   # uncertain: rho is not measured
     al = r > bank.thresholds

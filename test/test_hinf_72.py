@@ -10,7 +10,8 @@ import pytest
 
 pytest.importorskip("cvxpy")
 
-from fd_monitor.core.residual_bank import ResidualBank, check_certificate
+from fd_monitor.core.hinf_certificate import check_certificate
+from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
@@ -43,7 +44,7 @@ def test_design_eq_6_40_lambda_minus_one(system):
     res = out["results"]
     assert res["kind"] == "lpv"
     check_certificate(system, res)
-    from fd_monitor.core.residual_bank import parse_bank, vertices
+    from fd_monitor.core.hinf_model import parse_bank, vertices
 
     _k, model, gens = parse_bank(res)
     assert model.d == 3

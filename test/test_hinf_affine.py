@@ -12,21 +12,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 pytest.importorskip("cvxpy")
 
-from fd_monitor.core.residual_bank import (
-    ResidualBank,
-    check_generator,
-    lmi_matrix,
-    parse_bank,
-    region_matrix,
-    simulate_affine_plant,
-)
+from fd_monitor.core.hinf_certificate import check_generator, lmi_matrix, region_matrix
+from fd_monitor.core.hinf_model import parse_bank
+from fd_monitor.core.residual_bank import ResidualBank
+from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.errors import GainFileError
 from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.scenario import parse_scenario
 from fd_monitor.model.system import load_system
 
 #: rate bounds: 6.5 from the trajectories of (6.85) (rho1 = sin(0.62832 t), rho2 = 0.4
@@ -86,12 +84,14 @@ def test_affine_gain_file_round_trip_and_tamper(tmp_path: Path):
     gf = load_gains(path, s)
     assert gf.certificate_status == "verified" and gf.results["lyapunov"] == "affine"
     # the bank runs with the rational gain P(rho)^-1 K(rho): f1 at 30 s shows on r1 only
-    _kind, model, _g = parse_bank(gf.results)
-    t = np.arange(0.0, 45.0, s.sample_time)
-    _x, y, u, rho = simulate_affine_plant(
-        model, t, lambda tt: np.array([0.5 + np.sin(2 * np.pi * tt / 7), 0.0]),
-        lambda tt: np.array([np.sin(0.62832 * tt), 0.4 * np.cos(0.3142 * tt)]), model.B0,
-        lambda tt: np.array([float(tt >= 30), 0.0]), substeps=2)
+    # thesis_6_5_overlap with u2 = 0 and f1 only (from 30 s), 45 s
+    sc_path = Path(__file__).resolve().parents[1] / "config" / "scenarios" / \
+        "thesis_6_5_overlap.yaml"
+    doc = yaml.safe_load(sc_path.read_text(encoding="utf-8"))
+    doc.update(duration=45.0, faults=doc["faults"][:1])
+    doc["inputs"]["u2"] = 0.0
+    tr = simulate(parse_scenario(doc, str(sc_path)))
+    t, y, u, rho = tr.t, tr.y[0], tr.u[0], tr.rho[0]
     r = ResidualBank(s, gf, thresholds=[0.1, 0.1]).run(u, y, rho)
     assert r[t < 30].max() < 0.1 and r[t > 35, 0].min() > 0.1 and r[:, 1].max() < 0.1
     # a P_j scaled up breaks P(rho) > 0, the LMI or multi-convexity: refused

@@ -19,7 +19,7 @@ import numpy as np
 
 from fd_monitor.core.freq import sigma_db
 from fd_monitor.core.generalized_observer import residual_ss
-from fd_monitor.core.residual_bank import generator_ss, parse_bank
+from fd_monitor.core.hinf_model import generator_ss, parse_bank
 from fd_monitor.model.system import System
 
 __all__ = ["plot_bank", "plot_switched"]

@@ -22,18 +22,18 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from fd_monitor.core.residual_bank import rk4_step
 from fd_monitor.model.nonlinear import get_model
 from fd_monitor.model.plant_parts import Mode
 from fd_monitor.model.system import System
 
-__all__ = ["LPV_SUBSTEPS", "DiscreteMode", "SampledPlant", "zoh"]
+__all__ = ["LPV_SUBSTEPS", "DiscreteMode", "SampledPlant", "rk4_step", "zoh"]
 
 #: Runge-Kutta substeps per sample of a continuous-time parameter-dependent mode.
 LPV_SUBSTEPS = 10
 
 
-def zoh(A: np.ndarray, G: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def zoh(A: np.ndarray, G: np.ndarray, dt: float,
+        exp: Callable[[np.ndarray], np.ndarray] = expm) -> tuple[np.ndarray, np.ndarray]:
     """Exact zero-order-hold discretisation of ``dx/dt = A x + G v`` over ``dt``.
 
     Parameters
@@ -44,6 +44,9 @@ def zoh(A: np.ndarray, G: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
         (n, m)
     dt : float
         Sample time, s.
+    exp : callable, optional
+        Matrix exponential (default ``scipy.linalg.expm``); the residual bank passes a
+        cheaper one for the small matrices it re-discretises at every sample.
 
     Returns
     -------
@@ -56,7 +59,7 @@ def zoh(A: np.ndarray, G: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
     M = np.zeros((n + m, n + m))
     M[:n, :n] = A
     M[:n, n:] = G
-    Md = expm(M * dt)
+    Md = exp(M * dt)
     return Md[:n, :n], Md[:n, n:]
 
 
@@ -137,7 +140,7 @@ class SampledPlant:
 
         A parameter-dependent mode (``A_rho`` / ``B_rho``) reads ``rho``: in continuous time
         ``dx/dt = A(rho) x + B(rho) u + D w + offset + F f`` is integrated over
-        ``[t, t + Ts]`` by :func:`~fd_monitor.core.residual_bank.rk4_step` (10 substeps;
+        ``[t, t + Ts]`` by :func:`rk4_step` (10 substeps;
         ``rho`` evaluated inside the sample, ``u``, ``w``, ``f`` held); in discrete time
         ``x_{k+1} = A(rho_k) x_k + B(rho_k) u_k + D w_k + offset + F f_k``.
 
@@ -262,3 +265,34 @@ class SampledPlant:
                     ok &= v == c.value
             qn[ok] = g.target
         return qn
+
+
+def rk4_step(rhs: Callable[[float, np.ndarray], np.ndarray], t: float, x: np.ndarray,
+             dt: float, substeps: int = 10) -> np.ndarray:
+    """Advance ``dx/dt = rhs(t, x)`` from ``t`` over one sample ``dt`` by ``substeps`` classical
+    Runge-Kutta steps (the integrator of the parameter-dependent modes).
+
+    Parameters
+    ----------
+    rhs : callable
+        ``(t, x) -> dx/dt`` of the same shape as ``x``.
+    x : numpy.ndarray
+        State at ``t``: (n,) or a batch (N, n).
+    dt : float
+        Sample time, s.
+
+    Returns
+    -------
+    numpy.ndarray
+        State at ``t + dt``, shape of ``x``.
+    """
+    h = dt / substeps
+    tt = t
+    for _ in range(substeps):
+        k1 = rhs(tt, x)
+        k2 = rhs(tt + h / 2, x + h / 2 * k1)
+        k3 = rhs(tt + h / 2, x + h / 2 * k2)
+        k4 = rhs(tt + h, x + h * k3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        tt += h
+    return x

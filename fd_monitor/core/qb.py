@@ -34,10 +34,10 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 
 from fd_monitor.core.batch import BatchResult
-from fd_monitor.core.plant import SampledPlant
+from fd_monitor.core.kalman import kalman_gains
+from fd_monitor.core.plant import SampledPlant, zoh
 from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.core.qb_certificate import gains_matrices, gains_model
 from fd_monitor.core.qb_model import QBModel, default_fault_states, qb_model
@@ -81,12 +81,9 @@ def observer_matrices(model: QBModel, L: np.ndarray, dt: float) -> tuple[np.ndar
         F = model.A[i] - L[i] @ model.C[i]
         G = np.column_stack([model.B[i], L[i], model.offset[i]])
         if model.time == "continuous":
-            n, m = G.shape
-            M = np.zeros((n + m, n + m))
-            M[:n, :n], M[:n, n:] = F, G
-            Md = expm(M * dt)
-            Phis.append(Md[:n, :n])
-            Gams.append(Md[:n, n:])
+            Phi, Gam = zoh(F, G, dt)
+            Phis.append(Phi)
+            Gams.append(Gam)
         else:
             Phis.append(F)
             Gams.append(G)
@@ -310,8 +307,6 @@ def run_batch(system: System, gains: Any, traj: Any, *, rho: float = 1.0,
         L = gains_matrices(system, gains.results)[1]
         Phi, Gam = observer_matrices(model, L, system.sample_time)
     elif estimator == "kalman":
-        from fd_monitor.core.kalman import kalman_gains
-
         Phi, Gam = kalman_gains(system, **dict(kalman or {})).matrices
     else:
         raise ValueError(f"estimator: expected 'qb' or 'kalman', got {estimator!r}")
@@ -416,28 +411,11 @@ def stress_runs(system: System, gains: Any, policy: str, n_runs: int, n_samples:
     out = {"x": np.empty((N, K, n)), "y": np.empty((N, K, system.ny)),
            "u": np.empty((N, K, 0)), "mode": np.empty((N, K), dtype=int),
            "w": np.empty((N, K, nw))}
-    nv = len(verts)
     for k in range(K):
-        if policy == "uniform":
-            w = rng.uniform(-1.0, 1.0, size=(N, nw))
-        elif policy == "extreme":
-            w = verts[rng.integers(len(verts), size=N)]
-        elif policy == "held":
-            sw = rng.random(N) < hold_prob
-            held[sw] = verts[rng.integers(len(verts), size=int(sw.sum()))]
-            w = held
+        if policy == "adversarial":
+            w = verts[_adversarial_vertex(plant, P, Phi, Gam, verts * wbar, q, x, qh, xh)]
         else:
-            # every run x every vertex: next true state minus next estimate (the runtime's map)
-            wv = np.tile(verts, (N, 1)) * wbar
-            qv, xv = np.repeat(q, nv), np.repeat(x, nv, axis=0)
-            yv = plant.output(qv, xv, wv)
-            zv = np.concatenate([yv, np.ones((N * nv, 1))], axis=1)
-            qhv = np.repeat(qh, nv)
-            ev = (plant.step(qv, xv, np.zeros((N * nv, 0)), wv)
-                  - np.einsum("nij,nj->ni", Phi[qhv], np.repeat(xh, nv, axis=0))
-                  - np.einsum("nij,nj->ni", Gam[qhv], zv))
-            Vv = np.einsum("ni,ij,nj->n", ev, P, ev).reshape(N, nv)
-            w = verts[Vv.argmax(axis=1)]
+            w = _random_disturbance(policy, rng, verts, held, hold_prob, N)
         y = plant.output(q, x, w * wbar)
         out["x"][:, k], out["y"][:, k], out["mode"][:, k], out["w"][:, k] = x, y, q, w
         z = np.concatenate([y, np.ones((N, 1))], axis=1)
@@ -448,3 +426,35 @@ def stress_runs(system: System, gains: Any, policy: str, n_runs: int, n_samples:
         q = plant.next_mode(q, x_next, u0, "autonomous")
         x = x_next
     return out
+
+
+def _random_disturbance(policy: str, rng: np.random.Generator, verts: np.ndarray,
+                        held: np.ndarray, hold_prob: float, N: int) -> np.ndarray:
+    """(N, nw) unit-bounded disturbance of one sample under ``uniform``, ``extreme`` or
+    ``held`` (updates ``held`` (N, nw) in place); ``verts`` (2^nw, nw) the box's vertices."""
+    if policy == "uniform":
+        return rng.uniform(-1.0, 1.0, size=(N, verts.shape[1]))
+    if policy == "extreme":
+        return verts[rng.integers(len(verts), size=N)]
+    sw = rng.random(N) < hold_prob
+    held[sw] = verts[rng.integers(len(verts), size=int(sw.sum()))]
+    return held
+
+
+def _adversarial_vertex(plant: SampledPlant, P: np.ndarray, Phi: np.ndarray, Gam: np.ndarray,
+                        wv1: np.ndarray, q: np.ndarray, x: np.ndarray, qh: np.ndarray,
+                        xh: np.ndarray) -> np.ndarray:
+    """(N,) index of the disturbance vertex (rows of ``wv1`` (nv, nw), scaled by the bound)
+    that maximises ``V(e_{k+1}) = e_{k+1}' P e_{k+1}``: for every run and vertex, the next
+    true state minus the observer's next estimate (the runtime's map), greedy."""
+    N, nv = x.shape[0], wv1.shape[0]
+    wv = np.tile(wv1, (N, 1))
+    qv, xv = np.repeat(q, nv), np.repeat(x, nv, axis=0)
+    yv = plant.output(qv, xv, wv)
+    zv = np.concatenate([yv, np.ones((N * nv, 1))], axis=1)
+    qhv = np.repeat(qh, nv)
+    ev = (plant.step(qv, xv, np.zeros((N * nv, 0)), wv)
+          - np.einsum("nij,nj->ni", Phi[qhv], np.repeat(xh, nv, axis=0))
+          - np.einsum("nij,nj->ni", Gam[qhv], zv))
+    Vv = np.einsum("ni,ij,nj->n", ev, P, ev).reshape(N, nv)
+    return np.asarray(Vv.argmax(axis=1))

@@ -182,77 +182,99 @@ class DiagnosisGains:
             When a key is missing or a shape is wrong (message names the key).
         """
         ny, n, s = system.ny, system.n, len(system.modes)
-
-        def arr(key: str, shape: tuple[int, ...] | None, src: Mapping[str, Any] = results,
-                where: str = "results") -> np.ndarray:
-            if key not in src:
-                raise GainFileError(f"{where}.{key}: missing")
-            a = np.asarray(src[key], dtype=float)
-            if shape is not None and a.shape != shape:
-                raise GainFileError(f"{where}.{key}: expected shape {shape}, got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise GainFileError(f"{where}.{key}: expected finite numbers")
-            return a
-
-        flt = results.get("filter")
-        if not isinstance(flt, Mapping):
-            raise GainFileError("results.filter: expected a mapping {kind, b, a}")
-        try:
-            spec = FilterSpec(np.atleast_1d(arr("b", None, flt, "results.filter")),
-                              np.atleast_1d(arr("a", None, flt, "results.filter")),
-                              str(flt.get("kind", "fir")))
-        except ValueError as exc:
-            raise GainFileError(f"results.filter: {exc}") from None
-        imp = results.get("impulse")
-        if not isinstance(imp, Mapping):
-            raise GainFileError("results.impulse: expected a mapping {h, h_p, h_p_bar}")
-        h = np.atleast_1d(arr("h", None, imp, "results.impulse"))
-        K_h = h.size
-        h_p = np.atleast_1d(arr("h_p", (K_h,), imp, "results.impulse"))
-        h_p_bar = np.atleast_1d(arr("h_p_bar", (K_h,), imp, "results.impulse"))
-        ag = results.get("agei")
-        if not isinstance(ag, Mapping) or "rows" not in ag:
-            raise GainFileError("results.agei: expected a mapping {delta, rows}")
-        rows = []
-        names = system.outputs
-        for j, r in enumerate(ag["rows"] or []):
-            where = f"results.agei.rows[{j}]"
-            try:
-                rows.append(AgeiRow(
-                    guard=int(r["guard"]), name=str(r["name"]),
-                    enabling_mode=system.mode_index(str(r["enabling_mode"])),
-                    target_mode=system.mode_index(str(r["target_mode"])),
-                    state=system.states.index(str(r["state"])), op=str(r["op"]),
-                    value=float(r["value"]), output=names.index(str(r["output"])),
-                    affected=tuple(names.index(str(a)) for a in r["affected"]),
-                    xi_minus=float(r["xi_minus"]), xi_plus=float(r["xi_plus"]),
-                    r_bar_star=arr("r_bar_star", (ny,), r, where),
-                    mismatch_bar=arr("mismatch_bar", (ny,), r, where)))
-            except (KeyError, ValueError, TypeError) as exc:
-                raise GainFileError(f"{where}: {type(exc).__name__}: {exc}") from None
-        est = results.get("estimator")
-        if not isinstance(est, Mapping):
-            raise GainFileError("results.estimator: expected a mapping")
+        spec = _filter_spec(results)   # in this order: the first missing key is reported
+        h, h_p, h_p_bar = _impulse(results)
+        delta, rows = _agei_rows(system, results)
+        est = _section(results, "estimator", "a mapping")
+        where = "results.estimator"
         return cls(
             filter=spec, h=h, h_p=h_p, h_p_bar=h_p_bar,
             hold_steps=int(results.get("hold_steps", 0)),
-            noise_bound=arr("noise_bound", (ny,)),
-            noise_l1=arr("noise_l1", (s, ny)),
-            eta_bar=arr("eta_bar", (s, ny)),
-            remainder_bar=arr("remainder_bar", (s, ny)),
-            r_bar=arr("r_bar", (s, ny)),
-            delta=float(ag.get("delta", DEFAULT_DELTA)),
-            agei_rows=tuple(rows),
-            Lambda=arr("Lambda", (n, n), est, "results.estimator"),
-            Gamma=arr("Gamma", (n, n), est, "results.estimator"),
-            M_sigma=float(arr("M_sigma", (), est, "results.estimator")),
-            isolation_threshold=arr("isolation_threshold", (ny,), est, "results.estimator"),
+            noise_bound=_array(results, "noise_bound", (ny,)),
+            noise_l1=_array(results, "noise_l1", (s, ny)),
+            eta_bar=_array(results, "eta_bar", (s, ny)),
+            remainder_bar=_array(results, "remainder_bar", (s, ny)),
+            r_bar=_array(results, "r_bar", (s, ny)),
+            delta=delta,
+            agei_rows=rows,
+            Lambda=_array(est, "Lambda", (n, n), where),
+            Gamma=_array(est, "Gamma", (n, n), where),
+            M_sigma=float(_array(est, "M_sigma", (), where)),
+            isolation_threshold=_array(est, "isolation_threshold", (ny,), where),
             isolation_delay=int(est.get("isolation_delay", 0)),
             estimator_init=str(est.get("init", "measurement")),
             presmoother_gain=float(est.get("presmoother_gain", 0.02)),
             presmoother_delay=int(est.get("presmoother_delay", 1)),
             region=CertifiedRegion.from_results(system, results),
         )
+
+
+def _array(src: Mapping[str, Any], key: str, shape: tuple[int, ...] | None,
+           where: str = "results") -> np.ndarray:
+    """``src[key]`` as a finite float array of ``shape`` (any when None); ``GainFileError``
+    naming ``where.key`` otherwise."""
+    if key not in src:
+        raise GainFileError(f"{where}.{key}: missing")
+    a = np.asarray(src[key], dtype=float)
+    if shape is not None and a.shape != shape:
+        raise GainFileError(f"{where}.{key}: expected shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise GainFileError(f"{where}.{key}: expected finite numbers")
+    return a
+
+
+def _section(results: Mapping[str, Any], key: str, expected: str) -> Mapping[str, Any]:
+    """``results[key]`` when it is a mapping; ``GainFileError`` naming it otherwise."""
+    sec = results.get(key)
+    if not isinstance(sec, Mapping):
+        raise GainFileError(f"results.{key}: expected {expected}")
+    return sec
+
+
+def _filter_spec(results: Mapping[str, Any]) -> FilterSpec:
+    """H(z) of ``results.filter`` (eq. 8)."""
+    flt = _section(results, "filter", "a mapping {kind, b, a}")
+    try:
+        return FilterSpec(np.atleast_1d(_array(flt, "b", None, "results.filter")),
+                          np.atleast_1d(_array(flt, "a", None, "results.filter")),
+                          str(flt.get("kind", "fir")))
+    except ValueError as exc:
+        raise GainFileError(f"results.filter: {exc}") from None
+
+
+def _impulse(results: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(h, h_p, h_p_bar), each (K_h,), of ``results.impulse``."""
+    imp = _section(results, "impulse", "a mapping {h, h_p, h_p_bar}")
+    h = np.atleast_1d(_array(imp, "h", None, "results.impulse"))
+    K_h = h.size
+    return (h, np.atleast_1d(_array(imp, "h_p", (K_h,), "results.impulse")),
+            np.atleast_1d(_array(imp, "h_p_bar", (K_h,), "results.impulse")))
+
+
+def _agei_rows(system: System, results: Mapping[str, Any]
+               ) -> tuple[float, tuple[AgeiRow, ...]]:
+    """(delta, rows) of ``results.agei``, names resolved against the plant."""
+    ag = results.get("agei")
+    if not isinstance(ag, Mapping) or "rows" not in ag:
+        raise GainFileError("results.agei: expected a mapping {delta, rows}")
+    ny, names = system.ny, system.outputs
+    rows = []
+    for j, r in enumerate(ag["rows"] or []):
+        where = f"results.agei.rows[{j}]"
+        try:
+            rows.append(AgeiRow(
+                guard=int(r["guard"]), name=str(r["name"]),
+                enabling_mode=system.mode_index(str(r["enabling_mode"])),
+                target_mode=system.mode_index(str(r["target_mode"])),
+                state=system.states.index(str(r["state"])), op=str(r["op"]),
+                value=float(r["value"]), output=names.index(str(r["output"])),
+                affected=tuple(names.index(str(a)) for a in r["affected"]),
+                xi_minus=float(r["xi_minus"]), xi_plus=float(r["xi_plus"]),
+                r_bar_star=_array(r, "r_bar_star", (ny,), where),
+                mismatch_bar=_array(r, "mismatch_bar", (ny,), where)))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise GainFileError(f"{where}: {type(exc).__name__}: {exc}") from None
+    return float(ag.get("delta", DEFAULT_DELTA)), tuple(rows)
 
 
 def as_gains(system: System, gains: Any) -> DiagnosisGains:
@@ -338,10 +360,22 @@ def check_certificate(system: System, gains: Any) -> None:
     """
     g = as_gains(system, gains)
     cert = getattr(gains, "certificate", {}) or {}
-    tol = 1e-9
     if system.ny != system.n or not all(np.allclose(m.C, np.eye(system.n)) for m in
                                         system.modes):
         raise GainFileError("the diagnosis chain needs full-state measurements y = x + v (C = I)")
+    _check_filter(g)
+    _check_bounds(system, g, cert)
+    _check_agei(system, g)
+    _check_estimator(system, g, cert)
+
+
+#: Absolute tolerance of the stored bounds against the recomputed ones.
+_TOL = 1e-9
+
+
+def _check_filter(g: DiagnosisGains) -> None:
+    """The filter is stable, its stored impulse responses match, the majorant dominates
+    |h_p|, they are not truncated and hold_steps covers the filter's memory."""
     rho = g.filter.spectral_radius()
     if not rho < 1.0:
         raise GainFileError(f"filter H(z) is not asymptotically stable (spectral radius {rho})")
@@ -351,7 +385,7 @@ def check_certificate(system: System, gains: Any) -> None:
         raise GainFileError("impulse.h does not match the filter coefficients")
     if not np.allclose(g.h_p[1:], h[:-1], rtol=0, atol=1e-12) or g.h_p[0] != 0.0:
         raise GainFileError("impulse.h_p is not z^-1 h")
-    if np.any(g.h_p_bar < np.abs(g.h_p) - tol):
+    if np.any(g.h_p_bar < np.abs(g.h_p) - _TOL):
         raise GainFileError("impulse.h_p_bar does not dominate |h_p|")
     if not g.filter.is_fir:
         tail = abs(float(impulse_response(g.filter, K_h + 1)[-1]))
@@ -359,14 +393,19 @@ def check_certificate(system: System, gains: Any) -> None:
             raise GainFileError("impulse responses are truncated before the filter settles")
     if g.hold_steps < (g.filter.b.size if g.filter.is_fir else 1):
         raise GainFileError(f"hold_steps {g.hold_steps} shorter than the filter's memory")
+
+
+def _check_bounds(system: System, g: DiagnosisGains, cert: Mapping[str, Any]) -> None:
+    """The noise and uncertainty bounds are the plant's, noise_l1 dominates the l1 bound
+    recomputed from the certificate's linear parts, and r_bar is derived from its parts."""
     if not np.allclose(g.noise_bound, system.measurement_noise, rtol=1e-12, atol=0):
         raise GainFileError("noise_bound differs from the plant's measurement_noise")
     unc = np.array([m.uncertainty for m in system.modes])
-    if np.any(g.eta_bar < unc - tol):
+    if np.any(g.eta_bar < unc - _TOL):
         raise GainFileError("eta_bar is below the plant's modelling-uncertainty bounds")
-    lin = np.asarray(cert.get("linear_part", []), dtype=float) if "linear_part" in cert else None
-    if lin is None:
+    if "linear_part" not in cert:
         raise GainFileError("certificate.linear_part: missing")
+    lin = np.asarray(cert["linear_part"], dtype=float)
     if lin.shape != (len(system.modes), system.n, system.n):
         raise GainFileError("certificate.linear_part: wrong shape")
     for q in range(len(system.modes)):
@@ -382,6 +421,10 @@ def check_certificate(system: System, gains: Any) -> None:
                                 f"||h_p_bar||_1 (eta_bar + remainder_bar) = {rb.tolist()}: "
                                 f"r_bar is derived; change noise_l1, eta_bar or remainder_bar "
                                 f"(or redesign) to change the thresholds")
+
+
+def _check_agei(system: System, g: DiagnosisGains) -> None:
+    """One AGEI row per autonomous guard, each matching its guard, r_bar_star >= r_bar."""
     for j, row in enumerate(g.agei_rows):
         if not 0 <= row.guard < len(system.guards):
             raise GainFileError(f"agei.rows[{j}]: no guard {row.guard}")
@@ -397,6 +440,11 @@ def check_certificate(system: System, gains: Any) -> None:
     auto = [i for i, gd in enumerate(system.guards) if gd.kind == "autonomous"]
     if sorted(r.guard for r in g.agei_rows) != auto:
         raise GainFileError("the AGEI matrix must have one row per autonomous guard")
+
+
+def _check_estimator(system: System, g: DiagnosisGains, cert: Mapping[str, Any]) -> None:
+    """Lambda Schur, Gamma SPD, a valid initialisation, M_sigma > 0 and the linearised error
+    dynamics Schur at every mode's Jacobian of the certificate."""
     lam_rho = float(np.max(np.abs(np.linalg.eigvals(g.Lambda))))
     if not lam_rho < 1.0:
         raise GainFileError(f"Lambda is not Schur stable (spectral radius {lam_rho:.6g})")

@@ -210,6 +210,18 @@ def box_grid(lo: np.ndarray, hi: np.ndarray, width: float,
         yield blo, bhi
 
 
+def _box_enclosures(enc: Callable[..., list[DiffForm]], params: Mapping[str, float], dt: float,
+                    x_lo: np.ndarray, x_hi: np.ndarray, u_lo: np.ndarray, u_hi: np.ndarray,
+                    v_bar: np.ndarray, box_width: float
+                    ) -> Iterator[tuple[int, list[DiffForm]]]:
+    """(M, forms) per chunk of the grid boxes of [x_lo, x_hi]: the enclosures ``enc`` gives
+    for M boxes at once, the input over its whole range [u_lo, u_hi]."""
+    for blo, bhi in box_grid(x_lo, x_hi, box_width):
+        M = blo.shape[0]
+        yield M, enc(params, dt, blo, bhi, np.repeat(u_lo[None], M, axis=0),
+                     np.repeat(u_hi[None], M, axis=0), v_bar)
+
+
 def remainder_bound(system: Any, plant: Any, q: int, A: np.ndarray, x_lo: np.ndarray,
                     x_hi: np.ndarray, u_lo: np.ndarray, u_hi: np.ndarray, v_bar: np.ndarray,
                     *, box_width: float, samples: int, margin: float,
@@ -251,10 +263,8 @@ def remainder_bound(system: Any, plant: Any, q: int, A: np.ndarray, x_lo: np.nda
         params = {**get_model(str(mode.model)).defaults, **dict(mode.params)}
         best = np.zeros(system.n)
         boxes = 0
-        for blo, bhi in box_grid(x_lo, x_hi, box_width):
-            M = blo.shape[0]
-            forms = enc(params, plant.dt, blo, bhi, np.repeat(u_lo[None], M, axis=0),
-                        np.repeat(u_hi[None], M, axis=0), v_bar)
+        for M, forms in _box_enclosures(enc, params, plant.dt, x_lo, x_hi, u_lo, u_hi, v_bar,
+                                        box_width):
             for i, fi in enumerate(forms):
                 b = np.abs(fi.L - A[i][None]) @ v_bar + np.maximum(np.abs(fi.rlo),
                                                                    np.abs(fi.rhi))
@@ -292,10 +302,8 @@ def jacobian_centre(system: Any, plant: Any, q: int, x_lo: np.ndarray, x_hi: np.
     params = {**get_model(str(mode.model)).defaults, **dict(mode.params)}
     n = system.n
     L_lo, L_hi = np.full((n, n), np.inf), np.full((n, n), -np.inf)
-    for blo, bhi in box_grid(x_lo, x_hi, box_width):
-        M = blo.shape[0]
-        forms = enc(params, plant.dt, blo, bhi, np.repeat(u_lo[None], M, axis=0),
-                    np.repeat(u_hi[None], M, axis=0), v_bar)
+    for _M, forms in _box_enclosures(enc, params, plant.dt, x_lo, x_hi, u_lo, u_hi, v_bar,
+                                     box_width):
         for i, fi in enumerate(forms):
             L_lo[i] = np.minimum(L_lo[i], fi.L.min(axis=0))
             L_hi[i] = np.maximum(L_hi[i], fi.L.max(axis=0))

@@ -64,17 +64,14 @@ from typing import Any
 import cvxpy as cp
 import numpy as np
 
-from fd_monitor.core.residual_bank import (
-    AffineModel,
-    Generator,
-    ResidualBank,
-    bound_thresholds,
-    check_generator,
-    monte_carlo_thresholds,
-    vertices,
-)
-from fd_monitor.model.errors import DesignError, GainFileError
+from fd_monitor.core.hinf_certificate import check_generator
+from fd_monitor.core.hinf_model import AffineModel, Generator, generator_ss, vertices
+from fd_monitor.core.residual_bank import ResidualBank
+from fd_monitor.core.simulator import simulate_batch
+from fd_monitor.design.hinf_thresholds import bound_thresholds, monte_carlo_thresholds
+from fd_monitor.model.errors import DesignError, GainFileError, ScenarioError
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
+from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import System
 from fd_monitor.model.validate import Checker
 
@@ -515,48 +512,74 @@ class _Problem:
     """The DPP-parametrised LMI problem of one generator (lambda is a cvxpy Parameter)."""
 
     def __init__(self, spec: BankSpec, gd: _GenData, sc: bool) -> None:
-        m = spec.model
-        n, p = m.n, m.C.shape[0]
         self.spec, self.gd, self.sc = spec, gd, sc
         self.lam = cp.Parameter(value=-1.0)
-        lam = self.lam
-        C, H, V, CVp, Pi = m.C, gd.H, gd.V, gd.CVp, gd.Pi
-        HC = H @ C
-        cons: list[Any] = []
-        verts = vertices(m.rho_min, m.rho_max)
+        self.Pj: list[Any] = []
         if spec.kind == "uncertain":
-            P1 = cp.Variable((n, n), symmetric=True)
-            P2 = cp.Variable((n, n), symmetric=True)
-            K = cp.Variable((n, p))
-            g = cp.Variable(nonneg=True)
-            self.P1, self.P2, self.K, self.g = P1, P2, K, g
-            A0 = m.A0
-            if sc:
-                PAcl = P2 @ (A0 - A0 @ V @ CVp @ C) + lam * (P2 @ (V @ CVp @ C)) \
-                    - K @ (Pi @ C)
-            else:
-                PAcl = P2 @ A0 - K @ C
-            mf = gd.Fhat.shape[1]
-            for v in verts:
-                Av = m.A(v)
-                Z = np.zeros
-                M = cp.bmat([
-                    [Av.T @ P1 + P1 @ Av, (Av - A0).T @ P2, P1 @ gd.Fhat, Z((n, p))],
-                    [P2 @ (Av - A0), PAcl + PAcl.T, P2 @ gd.Fhat, HC.T],
-                    [gd.Fhat.T @ P1, gd.Fhat.T @ P2, -g * np.eye(mf), Z((mf, p))],
-                    [Z((p, n)), HC, Z((p, mf)), -g * np.eye(p)]])
-                k = M.shape[0]
-                cons.append(0.5 * (M + M.T) << -EPS * np.eye(k))
-                for Lr, Mr in spec.region:
-                    RM = _region_lmi(Lr, Mr, P2, PAcl, n)
-                    cons.append(0.5 * (RM + RM.T) << -EPS * np.eye(RM.shape[0]))
-            cons += [P1 >> EPS * np.eye(n), P2 >> EPS * np.eye(n)]
-            self.prob = cp.Problem(cp.Minimize(g), cons)
-            return
+            self.prob = self._uncertain()
+        else:
+            self.prob = self._bounded_real()
+
+    def _closed_loop(self, P: Any, K: Any, A: np.ndarray) -> tuple[Any, Any]:
+        """``(P Acl, P L)`` at the state matrix ``A``: with the sensitivity constraint the gain
+        is ``(A - lam I) V (CV)^+ + P^-1 K Pi`` (4.37), otherwise ``P^-1 K``."""
+        m, gd, lam = self.spec.model, self.gd, self.lam
+        V, CVp, Pi, C = gd.V, gd.CVp, gd.Pi, m.C
+        if self.sc:
+            PAcl = P @ (A - A @ V @ CVp @ C) + lam * (P @ (V @ CVp @ C)) - K @ (Pi @ C)
+            PL = P @ (A @ V @ CVp) - lam * (P @ (V @ CVp)) + K @ Pi
+            return PAcl, PL
+        return P @ A - K @ C, K
+
+    def _region(self, P: Any, PAcl: Any) -> list[Any]:
+        """The pole-region LMIs (4.66) of the spec at ``(P, P Acl)``."""
+        n = self.spec.model.n
+        out = []
+        for Lr, Mr in self.spec.region:
+            RM = _region_lmi(Lr, Mr, P, PAcl, n)
+            out.append(0.5 * (RM + RM.T) << -EPS * np.eye(RM.shape[0]))
+        return out
+
+    def _uncertain(self) -> Any:
+        """Thesis 5.30/5.45: ``diag(P1, P2)`` on the state ``[x; e]``, one bound ``g``."""
+        spec, gd = self.spec, self.gd
+        m = spec.model
+        n, p = m.n, m.C.shape[0]
+        HC = gd.H @ m.C
+        P1 = cp.Variable((n, n), symmetric=True)
+        P2 = cp.Variable((n, n), symmetric=True)
+        K = cp.Variable((n, p))
+        g = cp.Variable(nonneg=True)
+        self.P1, self.P2, self.K, self.g = P1, P2, K, g
+        A0 = m.A0
+        PAcl = self._closed_loop(P2, K, A0)[0]
+        mf = gd.Fhat.shape[1]
+        cons: list[Any] = []
+        Z = np.zeros
+        for v in vertices(m.rho_min, m.rho_max):
+            Av = m.A(v)
+            M = cp.bmat([
+                [Av.T @ P1 + P1 @ Av, (Av - A0).T @ P2, P1 @ gd.Fhat, Z((n, p))],
+                [P2 @ (Av - A0), PAcl + PAcl.T, P2 @ gd.Fhat, HC.T],
+                [gd.Fhat.T @ P1, gd.Fhat.T @ P2, -g * np.eye(mf), Z((mf, p))],
+                [Z((p, n)), HC, Z((p, mf)), -g * np.eye(p)]])
+            k = M.shape[0]
+            cons.append(0.5 * (M + M.T) << -EPS * np.eye(k))
+            cons += self._region(P2, PAcl)
+        cons += [P1 >> EPS * np.eye(n), P2 >> EPS * np.eye(n)]
+        return cp.Problem(cp.Minimize(g), cons)
+
+    def _bounded_real(self) -> Any:
+        """Thesis 4.20/4.23 (LTI), 6.40 (LPV, affine gain) and 6.66 (affine P(rho)): one
+        bounded-real LMI per vertex (and rate vertex) with a bound per input group."""
+        spec, gd = self.spec, self.gd
+        m = spec.model
+        n, p = m.n, m.C.shape[0]
+        HC = gd.H @ m.C
         d = m.d if spec.kind == "lpv" else 0
         P = cp.Variable((n, n), symmetric=True)
         Ks = [cp.Variable((n, p)) for _ in range(d + 1)]
-        affine = sc and spec.lyapunov == "affine" and d > 0
+        affine = self.sc and spec.lyapunov == "affine" and d > 0
         Pj = [cp.Variable((n, n), symmetric=True) for _ in range(d)] if affine else []
         self.Pj = Pj
         rates = (vertices(m.rate_min, m.rate_max)
@@ -567,22 +590,16 @@ class _Problem:
         self.P, self.Ks, self.gv = P, Ks, gv
         W = np.hstack([gd.Fhat, spec.Dw, np.zeros((n, spec.Dn.shape[1]))])
         Wout = np.hstack([np.zeros((p, gd.Fhat.shape[1])), spec.Ew, spec.Dn])
-        HW = H @ Wout
+        HW = gd.H @ Wout
         diag_parts = [cp.multiply(gv[k], np.ones(c)) for k, c in groups.items() if c > 0]
         if diag_parts:
             Gam = cp.diag(cp.hstack(diag_parts))
         ncol = W.shape[1]
-        for v in verts:
-            Av = m.A(v)
+        cons: list[Any] = []
+        for v in vertices(m.rho_min, m.rho_max):
             Kv = Ks[0] + sum(float(v[j]) * Ks[j + 1] for j in range(d)) if d else Ks[0]
             Pv = P + sum(float(v[j]) * Pj[j] for j in range(d)) if affine else P
-            if sc:
-                PAcl = Pv @ (Av - Av @ V @ CVp @ C) + lam * (Pv @ (V @ CVp @ C)) \
-                    - Kv @ (Pi @ C)
-                PL = Pv @ (Av @ V @ CVp) - lam * (Pv @ (V @ CVp)) + Kv @ Pi
-            else:
-                PAcl = P @ Av - Kv @ C
-                PL = Kv
+            PAcl, PL = self._closed_loop(Pv, Kv, m.A(v))
             for k in rates:
                 top = PAcl + PAcl.T + HC.T @ HC
                 if k is not None:
@@ -594,32 +611,36 @@ class _Problem:
                 else:
                     M = top
                 cons.append(0.5 * (M + M.T) << -EPS * np.eye(M.shape[0]))
-            for Lr, Mr in spec.region:
-                RM = _region_lmi(Lr, Mr, Pv, PAcl, n)
-                cons.append(0.5 * (RM + RM.T) << -EPS * np.eye(RM.shape[0]))
+            cons += self._region(Pv, PAcl)
             if affine:
                 cons.append(Pv >> EPS * np.eye(n))
         if affine:
-            # multi-convexity (6.63): the rho_j^2 coefficient of each LMI is PSD
-            for j in range(d):
-                Aj = m.A_rho[j]
-                X = Pj[j] @ (Aj - Aj @ V @ CVp @ C)
-                cons.append(0.5 * (X + X.T) >> 0)
-                if ncol and np.any(Wout):
-                    cons.append(Pj[j] @ (Aj @ V @ CVp @ Wout) == 0)
-                for Lr, Mr in spec.region:
-                    if np.allclose(np.diag(Mr), 0.0):
-                        # [[0, X], [X', 0]]-type blocks are PSD only for X = 0
-                        cons.append(X == 0)
-                    else:
-                        RX = _region_lmi(np.zeros_like(Lr), Mr, np.zeros((n, n)), X, n)
-                        cons.append(0.5 * (RX + RX.T) >> 0)
+            cons += self._multiconvexity(Wout if ncol else None)
         else:
             cons.append(P >> EPS * np.eye(n))
-        w = spec.weights
-        wk = {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
+        wk = self._weights()
         obj = sum(wk[k] * gv[k] for k in gv) if gv else cp.Constant(0.0)
-        self.prob = cp.Problem(cp.Minimize(obj), cons)
+        return cp.Problem(cp.Minimize(obj), cons)
+
+    def _multiconvexity(self, Wout: np.ndarray | None) -> list[Any]:
+        """Multi-convexity (6.63): the rho_j^2 coefficient of each LMI is PSD."""
+        m, gd, n = self.spec.model, self.gd, self.spec.model.n
+        V, CVp, C = gd.V, gd.CVp, m.C
+        cons: list[Any] = []
+        for j, Pj in enumerate(self.Pj):
+            Aj = m.A_rho[j]
+            X = Pj @ (Aj - Aj @ V @ CVp @ C)
+            cons.append(0.5 * (X + X.T) >> 0)
+            if Wout is not None and np.any(Wout):
+                cons.append(Pj @ (Aj @ V @ CVp @ Wout) == 0)
+            for Lr, Mr in self.spec.region:
+                if np.allclose(np.diag(Mr), 0.0):
+                    # [[0, X], [X', 0]]-type blocks are PSD only for X = 0
+                    cons.append(X == 0)
+                else:
+                    RX = _region_lmi(np.zeros_like(Lr), Mr, np.zeros((n, n)), X, n)
+                    cons.append(0.5 * (RX + RX.T) >> 0)
+        return cons
 
     def solve_at(self, lam: float) -> tuple[str, float]:
         """Solve for one lambda (ignored by the pure design); return (status, seconds)."""
@@ -634,9 +655,13 @@ class _Problem:
 
     def cost(self) -> float:
         """``a g + b g_w + c g_n`` (squared bounds) at the last solution."""
-        w = self.spec.weights
-        wk = {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
+        wk = self._weights()
         return sum(wk[k] * v for k, v in self.gamma2().items())
+
+    def _weights(self) -> dict[str, float]:
+        """Cost weight of each input group's squared bound: ``a``, ``b``, ``c``."""
+        w = self.spec.weights
+        return {"nuisance": w["a"], "disturbance": w["b"], "noise": w["c"]}
 
     def generator(self, lam: float) -> Generator:
         """The generator (L, P, bounds) of the last solution at ``lam``."""
@@ -692,6 +717,22 @@ def _detectable_at(spec: BankSpec, gd: _GenData, lam: float) -> bool:
     return True
 
 
+def _solve_verified(prob: _Problem, lam: float, gen_lam: float, failed: str,
+                    unverified: str) -> tuple[Generator, dict[str, Any], float]:
+    """Solve ``prob`` at ``lam``, build its generator (lambda ``gen_lam``) and verify it with
+    the loader's check: (generator, certificate, solve seconds); ``DesignError`` saying
+    ``failed`` (status not optimal) or ``unverified`` (certificate fails) otherwise."""
+    name = prob.gd.fault.name
+    st, dt = prob.solve_at(lam)
+    if st != cp.OPTIMAL:
+        raise DesignError(f"hinf_sc: generator {name!r}: {failed} {st!r}")
+    gen = prob.generator(gen_lam)
+    try:
+        return gen, check_generator(prob.spec.model, gen), dt
+    except GainFileError as exc:
+        raise DesignError(f"hinf_sc: generator {name!r}: {unverified}: {exc}") from None
+
+
 def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
     """Grid over lambda, pick the smallest mu, re-solve and verify one generator."""
     gd = _gen_data(spec, i)
@@ -724,16 +765,8 @@ def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
                           f"{sorted(set(stats))})")
     best = int(np.nanargmin(mu_arr))
     lam = float(grid[best])
-    st, dt = prob.solve_at(lam)
-    if st != cp.OPTIMAL:
-        raise DesignError(f"hinf_sc: generator {name!r}: re-solve at lambda = {lam} returned "
-                          f"{st!r}")
-    gen = prob.generator(lam)
-    try:
-        cert = check_generator(spec.model, gen)
-    except GainFileError as exc:
-        raise DesignError(f"hinf_sc: generator {name!r}: the solver's answer at lambda = "
-                          f"{lam} does not verify: {exc}") from None
+    gen, cert, dt = _solve_verified(prob, lam, lam, f"re-solve at lambda = {lam} returned",
+                                    f"the solver's answer at lambda = {lam} does not verify")
     out: dict[str, Any] = {
         "gen": gen, "cert": cert, "lambda": lam, "mu": float(mu_arr[best]),
         "gamma2": gen.gamma2, "k": gd.fault.k, "sensitivity": gd.sens,
@@ -741,17 +774,9 @@ def design_generator(spec: BankSpec, i: int) -> dict[str, Any]:
         "solve_s": solve_s + dt, "build_s": build_s,
     }
     if spec.compare_pure:
-        pp = _Problem(spec, gd, sc=False)
-        st, _ = pp.solve_at(0.0)
-        if st != cp.OPTIMAL:
-            raise DesignError(f"hinf_sc: generator {name!r}: pure attenuation design (4.24) "
-                              f"returned {st!r}")
-        pg = pp.generator(float("nan"))
-        try:
-            pcert = check_generator(spec.model, pg)
-        except GainFileError as exc:
-            raise DesignError(f"hinf_sc: generator {name!r}: the pure attenuation design "
-                              f"(4.24) does not verify: {exc}") from None
+        pg, pcert, _ = _solve_verified(_Problem(spec, gd, sc=False), 0.0, float("nan"),
+                                       "pure attenuation design (4.24) returned",
+                                       "the pure attenuation design (4.24) does not verify")
         out["pure"] = {"gen": pg, "cert": pcert, "gamma2": pg.gamma2}
     return out
 
@@ -773,8 +798,6 @@ def _gen_to_plain(g: Generator) -> dict[str, Any]:
 def dc_gains(model: AffineModel, gen: Generator, faults: Sequence[FaultDir],
              rho: np.ndarray | None = None) -> dict[str, float]:
     """Zero-frequency gains ``S_{f_j r_i}(0) = ||G(0)||^2`` (4.76) for every fault j."""
-    from fd_monitor.core.residual_bank import generator_ss
-
     out = {}
     for f in faults:
         if f.kind == "sensor_bias":
@@ -864,10 +887,6 @@ def _thresholds(system: System, spec: BankSpec, results: dict[str, Any]
         levels = {k: ctx.number(f"levels.{k}", v, nonneg=True) for k, v in lv.items()}
         J = bound_thresholds(results, levels, margin)
         return J.tolist(), {"method": "bound", "levels": levels, "margin": margin}
-    from fd_monitor.core.simulator import simulate_batch
-    from fd_monitor.model.errors import ScenarioError
-    from fd_monitor.model.scenario import load_scenario
-
     sc_name = th.get("scenario")
     if not isinstance(sc_name, str):
         ctx.fail("scenario", "a fault-free scenario name or path", sc_name)

@@ -44,8 +44,11 @@ from typing import Any
 
 import cvxpy as cp
 import numpy as np
+from scipy.linalg import solve_discrete_lyapunov
+from scipy.optimize import minimize
+from scipy.signal import cont2discrete, tf2ss
 
-from fd_monitor.core.freq import sigma
+from fd_monitor.core.freq import freq_response, sigma
 from fd_monitor.core.generalized_observer import check_certificate, residual_ss
 from fd_monitor.model.errors import DesignError, GainFileError
 from fd_monitor.model.system import System
@@ -218,20 +221,12 @@ def _filter(filt: tuple[float, float, int], p: int, dt: float) -> dict[str, Any]
     is kept, so the two no longer cancel at low frequency (|F_H| at 0.1 rad/s became 47
     instead of 2.1 with the Sec. V data). The realisation is balanced (entries <= 1e2).
     """
-    from scipy.linalg import solve_discrete_lyapunov
-    from scipy.signal import cont2discrete, tf2ss
-
     w1, w2, m = filt
     num = np.poly1d([1.0 / w1, 1.0]) ** m
     den = np.poly1d([1.0 / w2, 1.0]) ** m
     Ac, Bc, Cc, Dc = tf2ss(num.coeffs, den.coeffs)
     Ad, Bd, Cd, Dd, _ = cont2discrete((Ac, Bc, Cc, Dc), dt, method="bilinear")
-    Wc = solve_discrete_lyapunov(Ad, Bd @ Bd.T)
-    Wo = solve_discrete_lyapunov(Ad.T, Cd.T @ Cd)
-    Lc, Lo = np.linalg.cholesky(Wc), np.linalg.cholesky(Wo)
-    U, s, Vt = np.linalg.svd(Lo.T @ Lc)
-    Tm = Lc @ Vt.T @ np.diag(s ** -0.5)
-    Ti = np.diag(s ** -0.5) @ U.T @ Lo.T
+    Tm, Ti = _balancing(Ad, Bd, Cd)
     k = np.eye(p)
     return {"A": np.kron(k, Ti @ Ad @ Tm), "B": np.kron(k, Ti @ Bd), "C": np.kron(k, Cd @ Tm),
             "D": np.kron(k, np.atleast_2d(Dd)), "omega1": w1, "omega2": w2, "order": m,
@@ -308,10 +303,28 @@ def _hminus(st: dict[str, Any], spec: dict[str, Any], filt: dict[str, Any], Lt0:
     beta^2 f'f < 0`` with ``V = x' X_{alpha(k-1)} x`` sums to ``||r'||^2 >= beta^2 ||f||^2``
     from ``x_0 = 0`` because the switched error converges (26) and the filter is Schur.
     """
-    from scipy.optimize import minimize
+    t0 = time.perf_counter()
+    Lt, P = _search_gains(st, spec, filt, Lt0, origin)
+    # (b) certified H-minus index per mode: (44a) in non-Schur (KYP) form, X_i indefinite.
+    # The mode-coupled version (X_i next to X_j, i != j) is infeasible for these gains
+    # (beta^2 < 0): the H-minus bound is certified for each mode, not under arbitrary
+    # switching (the error's convergence under arbitrary switching is, by (26)).
+    Xa, b2s = [], []
+    status = cp.OPTIMAL
+    for i in range(len(st["modes"])):
+        b2, X, status = _certify_mode(st, spec, filt, i, Lt[i], origin)
+        b2s.append(b2)
+        Xa.append(X)
+    beta2 = min(b2s) * (1 - 1e-4)
+    return Lt, P, Xa, beta2, status, time.perf_counter() - t0
 
-    from fd_monitor.core.freq import freq_response
 
+def _search_gains(st: dict[str, Any], spec: dict[str, Any], filt: dict[str, Any],
+                  Lt0: list[np.ndarray], origin: str
+                  ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """(a) of :func:`_hminus`: the gains ``L_i`` (q, r) maximising the loop-shaped index
+    (Nelder-Mead from ``Lt0``) subject to LMI (26) with decay rate ``rho``, and the ``P_i``
+    of (26) at the gains found; ``DesignError`` when they do not satisfy (26)."""
     N = len(st["modes"])
     q, r = st["q"], st["r"]
     dt = spec["dt"]
@@ -351,7 +364,6 @@ def _hminus(st: dict[str, Any], spec: dict[str, Any], filt: dict[str, Any], Lt0:
         t = stab_t(Lt)
         return -v + (1e3 * (t + 1e-3) if t > -1e-3 else 0.0)
 
-    t0 = time.perf_counter()
     x0 = np.concatenate([L.ravel() for L in Lt0])
     res = minimize(cost, x0, method="Nelder-Mead",
                    options={"maxiter": 1200, "xatol": 1e-7, "fatol": 1e-10})
@@ -359,42 +371,47 @@ def _hminus(st: dict[str, Any], spec: dict[str, Any], filt: dict[str, Any], Lt0:
     if not (stab_t(Lt) < -1e-4 and prob.status == cp.OPTIMAL):
         raise DesignError(f"{origin}: hminus_switched: the H-minus search ended on gains that "
                           f"do not satisfy LMI (26) with decay rate {rho}")
-    P = [np.asarray(Pv.value) for Pv in Ps]
-    # (b) certified H-minus index per mode: (44a) in non-Schur (KYP) form, X_i indefinite,
-    # in balanced coordinates of each mode's augmented system, output scaled by ||D_a||.
-    # The mode-coupled version (X_i next to X_j, i != j) is infeasible for these gains
-    # (beta^2 < 0): the H-minus bound is certified for each mode, not under arbitrary
-    # switching (the error's convergence under arbitrary switching is, by (26)).
-    from scipy.linalg import solve_discrete_lyapunov
+    return Lt, [np.asarray(Pv.value) for Pv in Ps]
 
-    Xa, b2s = [], []
-    status = cp.OPTIMAL
-    for i in range(N):
-        Acl, Bcl, Ca, Da = _augmented(*_error_system(st, spec, i, Lt[i]), filt, Dadd)
-        na, nf = Acl.shape[0], Bcl.shape[1]
-        sc = float(np.linalg.norm(Da))
-        Wc = solve_discrete_lyapunov(Acl, Bcl @ Bcl.T + 1e-9 * np.eye(na))
-        Wo = solve_discrete_lyapunov(Acl.T, Ca.T @ Ca / sc ** 2 + 1e-9 * np.eye(na))
-        Lc, Lo = np.linalg.cholesky(Wc), np.linalg.cholesky(Wo)
-        U, sv, Vt = np.linalg.svd(Lo.T @ Lc)
-        Tm = Lc @ Vt.T @ np.diag(sv ** -0.5)
-        Ti = np.diag(sv ** -0.5) @ U.T @ Lo.T
-        AB = np.hstack([Ti @ Acl @ Tm, Ti @ Bcl])
-        CD = np.hstack([Ca @ Tm, Da]) / sc
-        X = cp.Variable((na, na), symmetric=True)
-        b = cp.Variable()
-        Zf = np.zeros((na, nf))
-        M = AB.T @ X @ AB - cp.bmat([[X, Zf], [Zf.T, -b * np.eye(nf)]]) - CD.T @ CD
-        hprob = cp.Problem(cp.Maximize(b), [0.5 * (M + M.T) << -EPS * np.eye(na + nf)])
-        status, _ = solve(hprob, f"{origin}: hminus_switched: H-minus certificate (44a), "
-                                 f"mode {st['modes'][i]['name']}")
-        if b.value is None or float(b.value) <= 0:
-            raise DesignError(f"{origin}: hminus_switched: H-minus certificate (44a) gives "
-                              f"beta^2 = {b.value} <= 0 in mode {st['modes'][i]['name']}")
-        b2s.append(float(b.value) * sc ** 2)
-        Xa.append(Ti.T @ np.asarray(X.value) @ Ti * sc ** 2)
-    beta2 = min(b2s) * (1 - 1e-4)
-    return Lt, P, Xa, beta2, status, time.perf_counter() - t0
+
+def _balancing(A: np.ndarray, B: np.ndarray, C: np.ndarray, scale: float = 1.0,
+               reg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(Tm, Ti): balancing transformation ``x = Tm z``, ``z = Ti x`` of a stable discrete
+    system (A, B, C / scale), from its Gramians (each plus ``reg I`` when ``reg > 0``)."""
+    QB, QC = B @ B.T, C.T @ C / scale ** 2
+    if reg > 0:
+        QB, QC = QB + reg * np.eye(A.shape[0]), QC + reg * np.eye(A.shape[0])
+    Wc = solve_discrete_lyapunov(A, QB)
+    Wo = solve_discrete_lyapunov(A.T, QC)
+    Lc, Lo = np.linalg.cholesky(Wc), np.linalg.cholesky(Wo)
+    U, sv, Vt = np.linalg.svd(Lo.T @ Lc)
+    return Lc @ Vt.T @ np.diag(sv ** -0.5), np.diag(sv ** -0.5) @ U.T @ Lo.T
+
+
+def _certify_mode(st: dict[str, Any], spec: dict[str, Any], filt: dict[str, Any], i: int,
+                  Li: np.ndarray, origin: str) -> tuple[float, np.ndarray, str]:
+    """(b) of :func:`_hminus` for mode ``i``: the largest beta^2 of (44a) in non-Schur (KYP)
+    form with X indefinite, solved in balanced coordinates of the mode's augmented system
+    with the output scaled by ``||D_a||``; returns (beta^2, X in original coordinates,
+    solver status)."""
+    Acl, Bcl, Ca, Da = _augmented(*_error_system(st, spec, i, Li), filt, spec["Dadd"])
+    na, nf = Acl.shape[0], Bcl.shape[1]
+    sc = float(np.linalg.norm(Da))
+    Tm, Ti = _balancing(Acl, Bcl, Ca, sc, 1e-9)
+    AB = np.hstack([Ti @ Acl @ Tm, Ti @ Bcl])
+    CD = np.hstack([Ca @ Tm, Da]) / sc
+    X = cp.Variable((na, na), symmetric=True)
+    b = cp.Variable()
+    Zf = np.zeros((na, nf))
+    M = AB.T @ X @ AB - cp.bmat([[X, Zf], [Zf.T, -b * np.eye(nf)]]) - CD.T @ CD
+    hprob = cp.Problem(cp.Maximize(b), [0.5 * (M + M.T) << -EPS * np.eye(na + nf)])
+    name = st["modes"][i]["name"]
+    status, _ = solve(hprob, f"{origin}: hminus_switched: H-minus certificate (44a), "
+                             f"mode {name}")
+    if b.value is None or float(b.value) <= 0:
+        raise DesignError(f"{origin}: hminus_switched: H-minus certificate (44a) gives "
+                          f"beta^2 = {b.value} <= 0 in mode {name}")
+    return float(b.value) * sc ** 2, Ti.T @ np.asarray(X.value) @ Ti * sc ** 2, status
 
 
 def design(system: System, sec: Mapping[str, Any], origin: str = "<dict>", sha: str = ""

@@ -70,12 +70,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from fd_monitor.core.filters import (
+    FilterSpec,
     first_order,
     impulse_response,
     moving_average,
@@ -204,6 +205,282 @@ def _noise(rng: np.random.Generator, v_bar: np.ndarray, M: int) -> np.ndarray:
     return np.where(rng.random((M, 1)) < 0.5, vert, unif) * v_bar
 
 
+@dataclass(frozen=True)
+class _Sampling:
+    """What the Monte Carlo bounds sample from: the operating region (``reg``: states ``x``,
+    inputs ``u``, modes ``q`` of the design runs or of the declared boxes), its widening
+    ``tube`` (state units), the noise box ``v_bar`` and the one generator every draw uses (so
+    the order of the draws below is part of the design's reproducibility)."""
+
+    system: System
+    plant: SampledPlant
+    reg: dict[str, Any]
+    rng: np.random.Generator
+    tube: float
+    v_bar: np.ndarray
+    samples: int
+    margin: float
+    envelope: str
+
+    def states(self, q: int, M: int, tube: float | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """(M, n) states and (M, nu) inputs of mode q (see :func:`_sample`)."""
+        return _sample(self.rng, self.reg, self.system, q, M,
+                       self.tube if tube is None else tube)
+
+    def noise(self, M: int) -> np.ndarray:
+        """(M, ny) noise in the box, half of it at its vertices."""
+        return _noise(self.rng, self.v_bar, M)
+
+    def step(self, q: int, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """``f(q, x, u)`` of a batch (M, n), (M, nu) all in mode q."""
+        return np.asarray(self.plant.step(np.full(x.shape[0], q), x, u))
+
+
+def _measured_noise(system: System) -> np.ndarray:
+    """(ny,) noise bound v_bar; ``DesignError`` unless the plant is full-state measured."""
+    n = system.n
+    if system.ny != n or not all(np.allclose(m.C, np.eye(n)) for m in system.modes):
+        raise DesignError(f"{system.name}: the sensor-bias chain (Heracleous et al.) needs "
+                          f"full-state measurements y = x + v (C = I in every mode)")
+    v_bar = np.asarray(system.measurement_noise, dtype=float)
+    if not np.all(v_bar > 0):
+        raise DesignError(f"{system.name}: bounds.measurement_noise must be > 0 for every output")
+    return v_bar
+
+
+def _operating_region(system: System, envelope: str, scenarios: Sequence[str] | None,
+                      seeds: int, tube: float | None, v_bar: np.ndarray,
+                      rng: np.random.Generator, mc_samples: int
+                      ) -> tuple[dict[str, Any], float]:
+    """(region samples, tube) of ``--envelope scenarios`` or ``declared`` (Assumption 1)."""
+    if envelope == "declared":
+        if system.envelope is None:
+            raise DesignError(f"{system.source}: --envelope declared needs an 'envelope:' "
+                              f"section in the plant file (state and input ranges)")
+        return _declared_region(system, rng, min(mc_samples, 50000)), 0.0
+    if envelope == "scenarios":
+        scen = list(scenarios) if scenarios else default_scenarios(system)
+        return (_region(system, scen, seeds),
+                float(20.0 * v_bar.max() if tube is None else tube))
+    raise DesignError(f"--envelope: expected scenarios or declared, got {envelope!r}")
+
+
+def _remainders(smp: _Sampling, region: dict[str, Any], box_width: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+    """Linear parts and remainder bounds per mode (Monte Carlo, Assumption 4).
+
+    Returns
+    -------
+    A : (s, n, n) linear part A_q; rho_bar, sep_bar : (s, ny) bounds of the remainder and of
+    the whole noise response ``f(x + v) - f(x)`` (eq. 19 term by term); how : per mode, how
+    rho_bar was bounded.
+    """
+    system, plant = smp.system, smp.plant
+    s, n, ny = len(system.modes), system.n, system.ny
+    M, margin = smp.samples, smp.margin
+    A = np.zeros((s, n, n))
+    rho_bar = np.zeros((s, ny))
+    sep_bar = np.zeros((s, ny))
+    for q in range(s):
+        x, u = smp.states(q, M)
+        A[q] = _jacobian(plant, q, x.mean(axis=0), u.mean(axis=0))
+        v = smp.noise(M)
+        d = smp.step(q, x + v, u) - smp.step(q, x, u)
+        rho_bar[q] = (1.0 + margin) * np.abs(d - v @ A[q].T).max(axis=0)
+        sep_bar[q] = (1.0 + margin) * np.abs(d).max(axis=0)
+    how: list[dict[str, Any]] = [{"method": "sampled", "samples": M, "margin": margin}] * s
+    if smp.envelope == "declared":
+        # a bound over the declared boxes; A_q the centre of the hull of the Jacobian
+        # enclosures (minimises max |J - A_q| entrywise), the mode's own matrix if linear
+        how = []
+        for q in range(s):
+            lo, hi = region["state_lo"][q], region["state_hi"][q]
+            ulo, uhi = region["input_lo"][q], region["input_hi"][q]
+            A[q] = jacobian_centre(system, plant, q, lo, hi, ulo, uhi, smp.v_bar, box_width,
+                                   A[q])
+            rho_bar[q], h_q = remainder_bound(system, plant, q, A[q], lo, hi, ulo, uhi,
+                                              smp.v_bar, box_width=box_width, samples=M,
+                                              margin=margin, rng=smp.rng)
+            how.append({"mode": system.modes[q].name, **h_q})
+    return A, rho_bar, sep_bar, how
+
+
+def _residual_filter(system: System, filter_kind: str, length: int | None,
+                     pole: float | None, kappa: float, max_window: float, v_bar: np.ndarray,
+                     b: np.ndarray) -> tuple[FilterSpec, int | None, float | None]:
+    """(filter, length, pole): the moving average of the automatic length rule (module doc)
+    or of ``length``, or the first-order filter of ``pole``; ``b`` (s, ny) is
+    ``eta_bar + rho_bar``."""
+    if filter_kind == "fir":
+        if length is None:
+            # no model error at all (an exact linear model): only the window limits L
+            L_noise = (math.floor(kappa * 2.0 * v_bar.min() / b.max()) if b.max() > 0
+                       else 2**31)
+            L_time = round(max_window / system.sample_time)
+            length = max(1, min(L_noise, L_time))
+        return moving_average(int(length)), length, pole
+    if filter_kind == "iir":
+        if pole is None:
+            L = round(max_window / system.sample_time)
+            pole = 1.0 - 2.0 / (L + 1.0)   # same noise bandwidth as a window of L samples
+        return first_order(float(pole)), length, pole
+    raise DesignError(f"--filter: expected fir or iir, got {filter_kind!r}")
+
+
+def _agei_row(smp: _Sampling, j: int, A: np.ndarray, r_bar: np.ndarray, spec: FilterSpec,
+              l1_hpbar: float, delta: float) -> dict[str, Any]:
+    """The AGEI row (eq. 20-22) of autonomous guard ``j``: affected residuals, band and
+    ``r_bar*`` from the mode mismatch sampled past the guard."""
+    system, rng, tube = smp.system, smp.rng, smp.tube
+    ny = system.ny
+    g = system.guards[j]
+    if len(g.conditions) != 1:
+        raise DesignError(f"guard {g.name!r}: AGEI supports one enabling condition per "
+                          f"autonomous guard")
+    c = g.conditions[0]
+    qh, qs = g.source, g.target
+    rb = np.maximum(r_bar[qh], r_bar[qs])
+    side = 1.0 if c.op in (">", ">=") else -1.0
+    x, u = smp.states(qh, smp.samples)
+
+    def mism(dist: np.ndarray, x: np.ndarray = x, u: np.ndarray = u) -> np.ndarray:
+        xx = x.copy()
+        xx[:, c.index] = c.value + side * dist
+        return smp.step(qs, xx, u) - smp.step(qh, xx, u)
+
+    # affected residuals: where the mismatch is not negligible 1 mm.. 10 cm past the guard
+    sub = slice(0, min(5000, x.shape[0]))
+    probe = np.abs(mism(np.full(x.shape[0], 0.1 * tube)))
+    scale = probe.max(axis=0)
+    if scale.max() <= 1e-3 * float(rb.min()):
+        # the two modes' models agree past the guard: no mismatch, nothing to override;
+        # AGEI executes the event when the filtered measurement satisfies the condition
+        affected = np.arange(0)
+        d_band = 0.0
+        mu_bar_aff = np.zeros(ny)
+    else:
+        affected = np.nonzero(scale > 0.01 * scale.max())[0]
+        d_rec = None
+        for dist in np.geomspace(1e-4, 10.0, 200):
+            mu = np.abs(mism(np.full(x.shape[0], dist)[sub], x[sub], u[sub]))[:, affected]
+            if np.all(np.any(mu >= 2.0 * rb[affected], axis=1)):
+                d_rec = float(dist)
+                break
+        if d_rec is None and smp.envelope == "declared":
+            # the event never stands out of the noise in the envelope: AGEI stays in
+            # its expecting phase past the guard, r_bar_star covers the whole reach
+            d_rec = math.inf
+        if d_rec is None:
+            raise DesignError(f"guard {g.name!r}: the mode mismatch never exceeds twice "
+                              f"the nominal threshold within 10 state units")
+        # never wider than the operating region reaches past the guard (Assumption 1)
+        beyond = side * (smp.reg["x"][:, c.index] - c.value)
+        reach = float(max(beyond.max(), 0.0)) + tube
+        d_band = min(1.5 * d_rec, reach)
+        mu = np.abs(mism(rng.uniform(0.0, d_band, x.shape[0])))
+        v = smp.noise(x.shape[0])
+        xx = x.copy()
+        xx[:, c.index] = c.value + side * rng.uniform(0.0, d_band, x.shape[0])
+        mu_n = np.abs(smp.step(qs, xx, u) - smp.step(qh, xx + v, u) + v @ A[qh].T)
+        mu_bar = (1.0 + smp.margin) * np.maximum(mu.max(axis=0), mu_n.max(axis=0))
+        mu_bar_aff = np.zeros(ny)
+        mu_bar_aff[affected] = mu_bar[affected]
+    star = rb + l1_hpbar * mu_bar_aff
+    dc = spec.dc_gain
+    return {
+        "guard": j, "name": g.name, "enabling_mode": system.modes[qh].name,
+        "target_mode": system.modes[qs].name, "state": system.states[c.index],
+        "op": c.op, "value": c.value, "output": system.outputs[c.index],
+        "affected": [system.outputs[i] for i in affected],
+        "xi_minus": (1.0 - delta) * abs(dc * c.value),
+        "xi_plus": (1.0 + delta) * abs(dc * c.value),
+        "band": d_band, "mismatch_bar": mu_bar_aff, "r_bar_star": star,
+    }
+
+
+def _estimator_jacobians(smp: _Sampling) -> np.ndarray:
+    """(s, n, n) Jacobians the estimator is certified on: at the mean sampled state and input
+    of each mode; ``declared``: the mean Jacobian over the envelope (its centre, three equal
+    levels, is where the Torricelli flows are singular)."""
+    s = len(smp.system.modes)
+    if smp.envelope == "declared":
+        return np.array([np.mean([_jacobian(smp.plant, q, x, u) for x, u in
+                                  zip(*smp.states(q, 200, 0.0))], axis=0)
+                         for q in range(s)])
+    return np.array([_jacobian(smp.plant, q, *[a.mean(axis=0) for a in smp.states(q, 2000)])
+                     for q in range(s)])
+
+
+def _presmoother_error_bound(Js: np.ndarray, alpha: float, v_bar: np.ndarray, D: int
+                             ) -> np.ndarray:
+    """(n,) error bound of the presmoother's state at K_d, worst mode: l1 of its noise map
+    and the D-step open-loop propagation."""
+    n = Js.shape[1]
+    x0_bar = np.zeros(n)
+    for J in Js:
+        Ez = (1.0 - alpha) * J
+        acc = np.zeros(n)
+        Ek = np.eye(n)
+        for _ in range(20000):
+            acc += np.abs(Ek * alpha) @ v_bar
+            Ek = Ek @ Ez
+            if np.abs(Ek).max() < 1e-12:
+                break
+        Jd = np.linalg.matrix_power(J, D)
+        x0_bar = np.maximum(x0_bar, np.abs(Jd) @ acc)
+    return x0_bar
+
+
+def _estimator_bounds(system: System, Js: np.ndarray, Lam: np.ndarray, Gam: np.ndarray,
+                      v_bar: np.ndarray, eta_bar: np.ndarray, x0_bar: np.ndarray
+                      ) -> tuple[list[float], np.ndarray, np.ndarray, int]:
+    """Certify the estimator (eq. 23-26) on every mode's Jacobian and bound sigma~.
+
+    Returns
+    -------
+    radii : per mode, the spectral radius of the error dynamics (``DesignError`` unless < 1);
+    iso_bound : (ny,) l1 bound of (v) -> sigma~ plus the peak response to ``x0_bar``;
+    eta_drift : (ny,) l1 bound of eta -> sigma~; settle : samples for the response of
+    sigma~ to a unit bias to fall below 5 % (worst mode).
+    """
+    n, ny = system.n, system.ny
+    radii = []
+    iso_bound = np.zeros(ny)
+    eta_drift = np.zeros(ny)
+    settle = 0
+    Bv = np.vstack([Lam, Gam])
+    Be = np.vstack([-np.eye(n), np.zeros((n, n))])
+    for q, J in enumerate(Js):
+        E = estimator_error_matrix(J, Lam, Gam)
+        sr = float(np.max(np.abs(np.linalg.eigvals(E))))
+        radii.append(sr)
+        if not sr < 1.0:
+            raise DesignError(f"estimator error dynamics not Schur in mode "
+                              f"{system.modes[q].name} (spectral radius {sr})")
+        # l1 norm of (v, eta) -> sigma~ and the response to the initial state error
+        acc = np.zeros(ny)
+        acc_eta = np.zeros(ny)
+        peak = np.zeros(ny)
+        Ek = np.eye(2 * n)
+        t_settle = 0
+        for t in range(200000):
+            acc += np.abs((Ek @ Bv)[n:]) @ v_bar
+            acc_eta += np.abs((Ek @ Be)[n:]) @ eta_bar[q]
+            peak = np.maximum(peak, np.abs(Ek[n:, :n]) @ x0_bar)
+            # response of sigma~ to sigma~_0 = -e_i (unit bias), worst component
+            resp = np.abs(Ek[n:, n:]).max(axis=0)
+            if resp.max() > 0.05:
+                t_settle = t + 1
+            if t > t_settle + 64 and np.abs(Ek).max() < 1e-9:
+                break
+            Ek = E @ Ek
+        iso_bound = np.maximum(iso_bound, acc + peak)
+        eta_drift = np.maximum(eta_drift, acc_eta)
+        settle = max(settle, t_settle)
+    return radii, iso_bound, eta_drift, settle
+
+
 def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
                       seeds: int = 4, tube: float | None = None, mc_samples: int = 200000,
                       mc_margin: float = 0.25, mc_seed: int = 0, filter_kind: str = "fir",
@@ -252,222 +529,45 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         ``declared``: side of the grid boxes of the interval bound, state units.
     """
     t0 = time.perf_counter()
-    n, ny, s = system.n, system.ny, len(system.modes)
-    if ny != n or not all(np.allclose(m.C, np.eye(n)) for m in system.modes):
-        raise DesignError(f"{system.name}: the sensor-bias chain (Heracleous et al.) needs "
-                          f"full-state measurements y = x + v (C = I in every mode)")
+    s = len(system.modes)
+    v_bar = _measured_noise(system)
     plant = SampledPlant(system)
-    v_bar = np.asarray(system.measurement_noise, dtype=float)
-    if not np.all(v_bar > 0):
-        raise DesignError(f"{system.name}: bounds.measurement_noise must be > 0 for every output")
     eta_bar = np.array([m.uncertainty for m in system.modes], dtype=float)
     rng = np.random.default_rng(mc_seed)
-    if envelope == "declared":
-        if system.envelope is None:
-            raise DesignError(f"{system.source}: --envelope declared needs an 'envelope:' "
-                              f"section in the plant file (state and input ranges)")
-        tube = 0.0
-        reg = _declared_region(system, rng, min(mc_samples, 50000))
-    elif envelope == "scenarios":
-        tube = float(20.0 * v_bar.max() if tube is None else tube)
-        scen = list(scenarios) if scenarios else default_scenarios(system)
-        reg = _region(system, scen, seeds)
-    else:
-        raise DesignError(f"--envelope: expected scenarios or declared, got {envelope!r}")
+    reg, tube = _operating_region(system, envelope, scenarios, seeds, tube, v_bar, rng,
+                                  mc_samples)
     region = _certified_region(system, reg, tube, envelope)
-
-    # ---- linear parts and remainders per mode (Monte Carlo, Assumption 4)
-    A = np.zeros((s, n, n))
-    rho_bar = np.zeros((s, ny))
-    sep_bar = np.zeros((s, ny))
-    for q in range(s):
-        x, u = _sample(rng, reg, system, q, mc_samples, tube)
-        A[q] = _jacobian(plant, q, x.mean(axis=0), u.mean(axis=0))
-        v = _noise(rng, v_bar, mc_samples)
-        qq = np.full(mc_samples, q)
-        d = plant.step(qq, x + v, u) - plant.step(qq, x, u)
-        rho_bar[q] = (1.0 + mc_margin) * np.abs(d - v @ A[q].T).max(axis=0)
-        sep_bar[q] = (1.0 + mc_margin) * np.abs(d).max(axis=0)
-    how: list[dict[str, Any]] = [{"method": "sampled", "samples": mc_samples,
-                                  "margin": mc_margin}] * s
-    if envelope == "declared":
-        # a bound over the declared boxes; A_q the centre of the hull of the Jacobian
-        # enclosures (minimises max |J - A_q| entrywise), the mode's own matrix if linear
-        how = []
-        for q in range(s):
-            lo, hi = region["state_lo"][q], region["state_hi"][q]
-            ulo, uhi = region["input_lo"][q], region["input_hi"][q]
-            A[q] = jacobian_centre(system, plant, q, lo, hi, ulo, uhi, v_bar, box_width,
-                                   A[q])
-            rho_bar[q], h_q = remainder_bound(system, plant, q, A[q], lo, hi, ulo, uhi,
-                                              v_bar, box_width=box_width,
-                                              samples=mc_samples, margin=mc_margin, rng=rng)
-            how.append({"mode": system.modes[q].name, **h_q})
+    smp = _Sampling(system, plant, reg, rng, tube, v_bar, mc_samples, mc_margin, envelope)
+    A, rho_bar, sep_bar, how = _remainders(smp, region, box_width)
     b = eta_bar + rho_bar
 
-    # ---- filter
-    if filter_kind == "fir":
-        if length is None:
-            # no model error at all (an exact linear model): only the window limits L
-            L_noise = (math.floor(kappa * 2.0 * v_bar.min() / b.max()) if b.max() > 0
-                       else 2**31)
-            L_time = round(max_window / system.sample_time)
-            length = max(1, min(L_noise, L_time))
-        spec = moving_average(int(length))
-    elif filter_kind == "iir":
-        if pole is None:
-            L = round(max_window / system.sample_time)
-            pole = 1.0 - 2.0 / (L + 1.0)   # same noise bandwidth as a window of L samples
-        spec = first_order(float(pole))
-    else:
-        raise DesignError(f"--filter: expected fir or iir, got {filter_kind!r}")
+    # ---- filter and residual bounds (module doc)
+    spec, length, pole = _residual_filter(system, filter_kind, length, pole, kappa,
+                                          max_window, v_bar, b)
     K_h = settling_length(spec, 1e-12) + 1
     h = impulse_response(spec, K_h)
     h_p = np.concatenate([[0.0], h[:-1]])
     h_p_bar = np.abs(h_p)
     hold = settling_length(spec, 1e-6)
     l1_hpbar = float(h_p_bar.sum())
-
     noise_l1 = np.array([noise_l1_bound(h, A[q], v_bar) for q in range(s)])
-    noise_term = noise_l1.max(axis=0)
-    r_bar = noise_term[None, :] + l1_hpbar * b
+    r_bar = noise_l1.max(axis=0)[None, :] + l1_hpbar * b
     v_F = float(np.abs(h).sum()) * v_bar
     r_sep = v_F[None, :] + float(np.abs(h_p).sum()) * (sep_bar + eta_bar)
 
-    # ---- AGEI matrix
-    rows = []
-    for j, g in enumerate(system.guards):
-        if g.kind != "autonomous":
-            continue
-        if len(g.conditions) != 1:
-            raise DesignError(f"guard {g.name!r}: AGEI supports one enabling condition per "
-                              f"autonomous guard")
-        c = g.conditions[0]
-        qh, qs = g.source, g.target
-        rb = np.maximum(r_bar[qh], r_bar[qs])
-        side = 1.0 if c.op in (">", ">=") else -1.0
-        x, u = _sample(rng, reg, system, qh, mc_samples, tube)
-
-        def mism(dist: np.ndarray, x: np.ndarray = x, u: np.ndarray = u, c: Any = c,
-                 side: float = side, qh: int = qh, qs: int = qs) -> np.ndarray:
-            xx = x.copy()
-            xx[:, c.index] = c.value + side * dist
-            M = xx.shape[0]
-            return np.asarray(plant.step(np.full(M, qs), xx, u)
-                              - plant.step(np.full(M, qh), xx, u))
-
-        # affected residuals: where the mismatch is not negligible 1 mm.. 10 cm past the guard
-        sub = slice(0, min(5000, x.shape[0]))
-        probe = np.abs(mism(np.full(x.shape[0], 0.1 * tube)))
-        scale = probe.max(axis=0)
-        if scale.max() <= 1e-3 * float(rb.min()):
-            # the two modes' models agree past the guard: no mismatch, nothing to override;
-            # AGEI executes the event when the filtered measurement satisfies the condition
-            affected = np.arange(0)
-            d_band = 0.0
-            mu_bar_aff = np.zeros(ny)
-        else:
-            affected = np.nonzero(scale > 0.01 * scale.max())[0]
-            d_rec = None
-            for dist in np.geomspace(1e-4, 10.0, 200):
-                mu = np.abs(mism(np.full(x.shape[0], dist)[sub], x[sub], u[sub]))[:, affected]
-                if np.all(np.any(mu >= 2.0 * rb[affected], axis=1)):
-                    d_rec = float(dist)
-                    break
-            if d_rec is None and envelope == "declared":
-                # the event never stands out of the noise in the envelope: AGEI stays in
-                # its expecting phase past the guard, r_bar_star covers the whole reach
-                d_rec = math.inf
-            if d_rec is None:
-                raise DesignError(f"guard {g.name!r}: the mode mismatch never exceeds twice "
-                                  f"the nominal threshold within 10 state units")
-            # never wider than the operating region reaches past the guard (Assumption 1)
-            beyond = side * (reg["x"][:, c.index] - c.value)
-            reach = float(max(beyond.max(), 0.0)) + tube
-            d_band = min(1.5 * d_rec, reach)
-            mu = np.abs(mism(rng.uniform(0.0, d_band, x.shape[0])))
-            v = _noise(rng, v_bar, x.shape[0])
-            xx = x.copy()
-            xx[:, c.index] = c.value + side * rng.uniform(0.0, d_band, x.shape[0])
-            mu_n = np.abs(plant.step(np.full(x.shape[0], qs), xx, u)
-                          - plant.step(np.full(x.shape[0], qh), xx + v, u)
-                          + v @ A[qh].T)
-            mu_bar = (1.0 + mc_margin) * np.maximum(mu.max(axis=0), mu_n.max(axis=0))
-            mu_bar_aff = np.zeros(ny)
-            mu_bar_aff[affected] = mu_bar[affected]
-        star = rb + l1_hpbar * mu_bar_aff
-        dc = spec.dc_gain
-        rows.append({
-            "guard": j, "name": g.name, "enabling_mode": system.modes[qh].name,
-            "target_mode": system.modes[qs].name, "state": system.states[c.index],
-            "op": c.op, "value": c.value, "output": system.outputs[c.index],
-            "affected": [system.outputs[i] for i in affected],
-            "xi_minus": (1.0 - delta) * abs(dc * c.value),
-            "xi_plus": (1.0 + delta) * abs(dc * c.value),
-            "band": d_band, "mismatch_bar": mu_bar_aff, "r_bar_star": star,
-        })
+    rows = [_agei_row(smp, j, A, r_bar, spec, l1_hpbar, delta)
+            for j, g in enumerate(system.guards) if g.kind == "autonomous"]
 
     # ---- estimator (eq. 23-26): diagonal gains, certified on every mode's Jacobian
-    # declared: the mean Jacobian over the envelope (its centre, three equal levels, is where
-    # the Torricelli flows are singular)
-    Js = np.array([np.mean([_jacobian(plant, q, x, u) for x, u in
-                            zip(*_sample(rng, reg, system, q, 200, 0.0))], axis=0)
-                   for q in range(s)]) if envelope == "declared" else np.array(
-        [_jacobian(plant, q, *[a.mean(axis=0) for a in _sample(rng, reg, system, q, 2000, tube)])
-         for q in range(s)])
-    Lam = lam * np.eye(n)
-    Gam = gamma * np.eye(n)
+    Js = _estimator_jacobians(smp)
+    Lam = lam * np.eye(system.n)
+    Gam = gamma * np.eye(system.n)
     D = int(2 * hold + 2)
-    # error bound of the presmoother's state at K_d (l1 of its noise/uncertainty maps and the
-    # D-step open-loop propagation), worst mode
-    x0_bar = np.zeros(n)
-    for q in range(s):
-        Ez = (1.0 - alpha) * Js[q]
-        acc = np.zeros(n)
-        Ek = np.eye(n)
-        for _ in range(20000):
-            acc += np.abs(Ek * alpha) @ v_bar
-            Ek = Ek @ Ez
-            if np.abs(Ek).max() < 1e-12:
-                break
-        Jd = np.linalg.matrix_power(Js[q], D)
-        x0_bar = np.maximum(x0_bar, np.abs(Jd) @ acc)
-    if init == "measurement":
-        x0_bar = np.zeros(n)   # x~_{K_d} = sigma + v: the bias itself, not a noise term
-    radii = []
-    iso_bound = np.zeros(ny)
-    eta_drift = np.zeros(ny)
-    settle = 0
-    for q in range(s):
-        E = estimator_error_matrix(Js[q], Lam, Gam)
-        sr = float(np.max(np.abs(np.linalg.eigvals(E))))
-        radii.append(sr)
-        if not sr < 1.0:
-            raise DesignError(f"estimator error dynamics not Schur in mode "
-                              f"{system.modes[q].name} (spectral radius {sr})")
-        # l1 norm of (v, eta) -> sigma~ and the response to the initial state error
-        Bv = np.vstack([Lam, Gam])
-        Be = np.vstack([-np.eye(n), np.zeros((n, n))])
-        acc = np.zeros(ny)
-        acc_eta = np.zeros(ny)
-        peak = np.zeros(ny)
-        Ek = np.eye(2 * n)
-        resp = np.zeros(ny)
-        t_settle = 0
-        for t in range(200000):
-            acc += np.abs((Ek @ Bv)[n:]) @ v_bar
-            acc_eta += np.abs((Ek @ Be)[n:]) @ eta_bar[q]
-            peak = np.maximum(peak, np.abs(Ek[n:, :n]) @ x0_bar)
-            # response of sigma~ to sigma~_0 = -e_i (unit bias), worst component
-            resp = np.abs(Ek[n:, n:]).max(axis=0)
-            if resp.max() > 0.05:
-                t_settle = t + 1
-            if t > t_settle + 64 and np.abs(Ek).max() < 1e-9:
-                break
-            Ek = E @ Ek
-        iso_bound = np.maximum(iso_bound, acc + peak)
-        eta_drift = np.maximum(eta_drift, acc_eta)
-        settle = max(settle, t_settle)
+    # x~_{K_d} = sigma + v with init "measurement": the bias itself, not a noise term
+    x0_bar = (np.zeros(system.n) if init == "measurement"
+              else _presmoother_error_bound(Js, alpha, v_bar, D))
+    radii, iso_bound, eta_drift, settle = _estimator_bounds(system, Js, Lam, Gam, v_bar,
+                                                           eta_bar, x0_bar)
     M_sig = float(100.0 * v_bar.max() if M_sigma is None else M_sigma)
 
     results: dict[str, Any] = {
@@ -511,21 +611,35 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
         "isolation_factor": isolation_factor,
     }
     elapsed = time.perf_counter() - t0
-    summary = {
-        "plant": system.name, "filter": f"{spec.kind} b[{spec.b.size}] a[{spec.a.size}]",
-        "hold_steps": int(hold), "v_F_bar": v_F.tolist(),
-        "r_bar": {m: r_bar[q].tolist() for q, m in enumerate(system.mode_names)},
-        "r_bar_separate_eq19": {m: r_sep[q].tolist() for q, m in enumerate(system.mode_names)},
-        "agei": [{"guard": r["name"], "affected": r["affected"], "band": r["band"],
-                  "r_bar_star": np.asarray(r["r_bar_star"]).tolist()} for r in rows],
-        "isolation_threshold": (isolation_factor * iso_bound).tolist(),
-        "isolation_delay": int(settle), "estimator_spectral_radius": max(radii),
-        "uncertainty_drift_bound": eta_drift.tolist(),
-        "envelope": envelope,
-        "remainder_bar": {m: rho_bar[q].tolist() for q, m in enumerate(system.mode_names)},
-        "remainder_method": sorted({h["method"] for h in how}),
-        "design_time_s": elapsed,
-    }
+    summary = _summary(system, results, certificate, envelope, elapsed)
     return {"parameters": parameters, "results": results, "certificate": certificate,
             "summary": summary, "solver": {"name": "numpy/scipy (DARE, Monte Carlo)",
                                            "status": "optimal", "time_s": elapsed}}
+
+
+def _summary(system: System, results: dict[str, Any], certificate: dict[str, Any],
+             envelope: str, elapsed: float) -> dict[str, Any]:
+    """The designer's printed summary, read from the gain-file contents (lists, per mode)."""
+    names = system.mode_names
+    flt, est = results["filter"], results["estimator"]
+
+    def per_mode(a: np.ndarray) -> dict[str, list[float]]:
+        return {m: a[q].tolist() for q, m in enumerate(names)}
+
+    return {
+        "plant": system.name, "filter": f"{flt['kind']} b[{flt['b'].size}] a[{flt['a'].size}]",
+        "hold_steps": results["hold_steps"], "v_F_bar": results["v_F_bar"].tolist(),
+        "r_bar": per_mode(results["r_bar"]),
+        "r_bar_separate_eq19": per_mode(results["r_bar_separate"]),
+        "agei": [{"guard": r["name"], "affected": r["affected"], "band": r["band"],
+                  "r_bar_star": np.asarray(r["r_bar_star"]).tolist()}
+                 for r in results["agei"]["rows"]],
+        "isolation_threshold": est["isolation_threshold"].tolist(),
+        "isolation_delay": est["isolation_delay"],
+        "estimator_spectral_radius": max(certificate["estimator_spectral_radius"]),
+        "uncertainty_drift_bound": est["uncertainty_drift_bound"].tolist(),
+        "envelope": envelope,
+        "remainder_bar": per_mode(results["remainder_bar"]),
+        "remainder_method": sorted({h["method"] for h in results["envelope"]["remainder"]}),
+        "design_time_s": elapsed,
+    }

@@ -52,7 +52,7 @@ FORMAT_VERSION = 1
 CERTIFICATE_CHECKS: dict[str, str] = {
     "qb": "fd_monitor.core.qb_certificate:check_certificate",
     "thresholds": "fd_monitor.core.thresholds:check_certificate",
-    "hinf_sc": "fd_monitor.core.residual_bank:check_certificate",
+    "hinf_sc": "fd_monitor.core.hinf_certificate:check_certificate",
     "hminus_switched": "fd_monitor.core.generalized_observer:check_certificate",
 }
 
