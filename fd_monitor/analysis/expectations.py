@@ -28,6 +28,11 @@ from fd_monitor.analysis.summary import (
     true_biases,
     truth_facts,
 )
+from fd_monitor.core.generalized_observer import GeneralizedObserver
+from fd_monitor.core.residual_bank import ResidualBank
+from fd_monitor.model.gains import load_gains, to_plain
+from fd_monitor.model.system import load_system
+from fd_monitor.wire.bags import read_bag
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y
 
 __all__ = ["analyze_summary", "check_expected", "check_truth", "core_summary",
@@ -155,7 +160,6 @@ def propose_expected(spec: BagSpec, summary: Mapping[str, Any], system: Any, *,
     input errors are the analysis'; :func:`check_truth` then asserts they agree with the truth
     (no alarm before the onset, the faulty sensor isolated).
     """
-    from fd_monitor.model.gains import load_gains
 
     facts = truth_facts(read_bag_truth(spec.folder), system)
     # fault-model states estimated with a guaranteed band (qb): looser alarm tolerance
@@ -218,9 +222,6 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
         switched observer), ``samples``, ``input_errors`` and ``restarts`` (empty: library
         bags of these methods carry no corruption).
     """
-    from fd_monitor.model.gains import load_gains
-    from fd_monitor.model.system import load_system
-    from fd_monitor.wire.bags import read_bag
 
     if system is None:
         system = load_system(load_gains(spec.gains, verify=False).system_name)
@@ -230,16 +231,12 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
     u, y, tr = b[t_u], b[t_y], b[t_tr]
     k = np.asarray(y.stamps)
     if gf.method == "hinf_sc":
-        from fd_monitor.core.residual_bank import ResidualBank
-
         bank = ResidualBank(system, gf)
         sig = bank.run(u.values, y.values)
         alarm = sig > bank.thresholds
         channels = list(bank.faults)
         modes = np.full(len(k), system.initial_mode)    # a bank has one (LTI / LPV) mode
     elif gf.method == "hminus_switched":
-        from fd_monitor.core.generalized_observer import GeneralizedObserver
-
         obs = GeneralizedObserver(system, gf)
         modes = tr.column("mode").astype(int)
         _, r = obs.run(u.values, y.values, modes)
@@ -260,8 +257,6 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
 def write_expected(path: str | Path, doc: Mapping[str, Any], header: str = "") -> Path:
     """Write an ``expected.yaml`` (flow style for short lists and mappings)."""
     import yaml
-
-    from fd_monitor.model.gains import to_plain
 
     lines = [f"# {h}" if h else "#" for h in header.splitlines()]
     body = yaml.safe_dump(to_plain(dict(doc)), sort_keys=False, default_flow_style=None,

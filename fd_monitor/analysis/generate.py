@@ -22,6 +22,9 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.analysis.library import BagSpec, Corruption, Library, LibraryError
+from fd_monitor.core.simulator import measured_signals, simulate, truth_values
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.wire.adapters import write_adapted
 from fd_monitor.wire.bags import BagWriter, write_messages
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
@@ -52,11 +55,6 @@ def simulated_messages(scenario: Any, seed: int | None, n_samples: int) -> list[
         None: the scenario's.
     n_samples : int
     """
-    from fd_monitor.core.simulator import (
-        measured_signals,
-        simulate,
-        truth_values,
-    )
 
     sys_ = scenario.system
     dt = sys_.sample_time
@@ -77,7 +75,6 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
     (list, Scenario)
         Messages (:func:`simulated_messages`), and the scenario.
     """
-    from fd_monitor.model.scenario import load_scenario
 
     sc = load_scenario(spec.scenario)
     K = max(1, round(spec.duration / sc.system.sample_time))
@@ -142,7 +139,6 @@ def simulate_bag(path: str | Path, scenario: Any, seed: int | None, n_samples: i
     msgs = simulated_messages(scenario, seed, n_samples)
     if adapter is None:
         return _write(path, msgs), tuple(dict.fromkeys(m.topic for m in msgs))
-    from fd_monitor.wire.adapters import write_adapted
 
     t_u, t_y = PLANT_U.absolute, PLANT_Y.absolute
     ys = [m for m in msgs if m.topic == t_y]
@@ -210,6 +206,4 @@ def generate_library(library: Library, names: Sequence[str] | None = None,
 
 
 def _sample_time(spec: BagSpec) -> float:
-    from fd_monitor.model.scenario import load_scenario
-
     return float(load_scenario(spec.scenario).system.sample_time)

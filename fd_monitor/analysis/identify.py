@@ -52,6 +52,7 @@ from fd_monitor.core.identify import (
 )
 from fd_monitor.model.errors import BagError, FdMonitorWarning
 from fd_monitor.model.system import System, parse_system
+from fd_monitor.wire.adapters import read_adapted
 from fd_monitor.wire.bags import read_bag
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
@@ -194,8 +195,6 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
     if not path.exists():
         raise BagError(f"{bag}: no such bag")
     if adapter is not None:
-        from fd_monitor.wire.adapters import read_adapted  # J's module (issue 14 item 2)
-
         s = read_adapted(path, adapter, sample_time=sample_time)
         if s.errors:
             warnings.warn(f"{bag}: {len(s.errors)} message(s) skipped; the first: "

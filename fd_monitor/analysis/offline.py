@@ -44,6 +44,11 @@ from fd_monitor.model.errors import (
     NonFiniteError,
     WrongLengthError,
 )
+from fd_monitor.model.gains import GainFile, load_gains
+from fd_monitor.model.system import load_system
+from fd_monitor.wire.adapters import read_adapted
+from fd_monitor.wire.bags import arrays_from_raw, messages_from_raw, read_raw
+from fd_monitor.wire.conversions import decode
 from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY, PLANT_TRUTH, PLANT_U, PLANT_Y
 from fd_monitor.wire.topics import side_topic as _side_topic
 
@@ -118,7 +123,6 @@ class BagScan:
     def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         """``(topic, timestamp_ns, message)`` of ``topics`` in file order (as
         :func:`fd_monitor.wire.bags.read_messages`)."""
-        from fd_monitor.wire.bags import messages_from_raw
 
         want = set(topics)
         yield from messages_from_raw(self.bag, (r for r in self.records if r[0] in want))
@@ -137,7 +141,6 @@ class BagScan:
     def truth(self) -> Any:
         """``/plant/truth`` as :class:`~fd_monitor.wire.bags.TopicArrays`, or None (absent or
         unreadable)."""
-        from fd_monitor.wire.bags import arrays_from_raw
 
         truth = PLANT_TRUTH.absolute
         if self.present.get(truth, ("", 0))[0] != FLOAT64_MULTI_ARRAY:
@@ -158,7 +161,6 @@ def scan_bag(bag: str | Path) -> BagScan:
     BagError
         Missing bag, not a bag, unreadable data (the bag named).
     """
-    from fd_monitor.wire.bags import read_raw
 
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
@@ -248,7 +250,6 @@ def _read_streams(messages: Any, labels: dict[str, tuple[str, ...]],
                   streams: dict[str, dict[int, np.ndarray]], top: dict[str, int],
                   rep: InputReport) -> None:
     """The message loop of :func:`read_inputs`."""
-    from fd_monitor.wire.conversions import decode
 
     for topic, _t, msg in messages:
         raw_stamp: int | None = None
@@ -421,8 +422,6 @@ class BagRun:
 
 def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, Any]:
     """The gain file and its plant (the plant file named by the gain file)."""
-    from fd_monitor.model.gains import load_gains
-    from fd_monitor.model.system import load_system
 
     raw = load_gains(gains_source, None, verify=False)
     system = load_system(raw.system_name)
@@ -466,15 +465,12 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     GainFileError
         Unknown or invalid gain file.
     """
-    from fd_monitor.model.gains import GainFile, load_gains
 
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     if isinstance(gains, GainFile):
         gf = gains
         if system is None:
-            from fd_monitor.model.system import load_system
-
             system = load_system(gf.system_name)
     elif system is None:
         system, gf = _load_system_for(bag, gains)
@@ -505,7 +501,6 @@ def _adapted_streams(bag: str | Path, adapter: Any, system: Any
                                 dict[str, dict[int, np.ndarray]], InputReport]:
     """:func:`read_streams` of a robot's bag through an adapter (its errors and holes in the
     report as the /plant/* ones are)."""
-    from fd_monitor.wire.adapters import read_adapted
 
     s = read_adapted(bag, adapter, system=system)
     ks = s.k.tolist()

@@ -32,8 +32,11 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.analysis.expectations import check_expected
+from fd_monitor.analysis.library import expected_path, load_expected
+from fd_monitor.analysis.offline import run_bag
 from fd_monitor.analysis.summary import episodes, summarize_run, truth_at, truth_facts
-from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.model.errors import BagError, FdMonitorError
 
 __all__ = ["bag_report", "campaign_report", "figure_residuals", "figure_modes", "figure_bias",
            "figure_qb_bound"]
@@ -292,10 +295,6 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
         ``summary`` (the analysis summary), ``figures`` (paths), ``summary_md`` (path),
         ``expected_failures`` (list, or None without expectations).
     """
-    from fd_monitor.analysis.expectations import check_expected
-    from fd_monitor.analysis.library import expected_path, load_expected
-    from fd_monitor.analysis.offline import run_bag
-    from fd_monitor.model.errors import BagError
 
     bagp = Path(bag)
     if not bagp.exists():

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.envelope import describe_excess
+from fd_monitor.wire.bags import read_bag
 from fd_monitor.wire.topics import ALARM, BIAS_ESTIMATE, PLANT_TRUTH, STATE_ESTIMATE
 
 __all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "mode_tracking",
@@ -327,7 +328,6 @@ def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
 
 def read_bag_truth(bag: str | Path) -> Any:
     """``/plant/truth`` of a bag as :class:`~fd_monitor.wire.bags.TopicArrays`."""
-    from fd_monitor.wire.bags import read_bag
 
     return read_bag(bag, [PLANT_TRUTH.absolute])[PLANT_TRUTH.absolute]
 

@@ -77,6 +77,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.model.errors import ScenarioError, SystemFileError
+from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.system import System, load_system, parse_system
 from fd_monitor.model.validate import Checker
@@ -560,8 +561,6 @@ def _with_fault_channels(ck: Checker, system: System, raw: Any) -> System:
 
 
 def _scheduling(ck: Checker, system: System, raw: Any, x0: np.ndarray) -> Scheduling | None:
-    from fd_monitor.model.nonlinear import SCHEDULING_MAPS
-
     lpv = {p.name: p for p in system.lpv}
     needs = any(m.A_rho is not None or m.B_rho is not None for m in system.modes)
     if raw is None:

@@ -27,7 +27,7 @@ from fd_monitor.nodes.common import (
     sub_events,
 )
 from fd_monitor.wire.adapters import ADAPTER_TYPES
-from fd_monitor.wire.bags import BagWriter, read_raw
+from fd_monitor.wire.bags import BagWriter, bag_topics, read_raw
 from fd_monitor.wire.topics import CHAIN_DATA, DIAGNOSTIC_ARRAY, DIAGNOSTICS, FLOAT64_MULTI_ARRAY
 
 __all__ = ["KNOWN_TYPES", "RecorderNode", "ReplayNode", "message_class"]
@@ -142,7 +142,6 @@ class ReplayNode(Node):
                  depth: int = DEFAULT_DEPTH, ack_window: int = 100,
                  node_name: str = "replay") -> None:
         super().__init__(node_name)
-        from fd_monitor.wire.bags import bag_topics
 
         available = bag_topics(bag)
         if topics is None:

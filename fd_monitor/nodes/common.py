@@ -49,6 +49,7 @@ from rclpy.qos import (
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.model.paths import config_dirs
 from fd_monitor.nodes.ros_args import init_ros, shown_params_file
 from fd_monitor.wire.topics import DIAGNOSTICS, Topic
 
@@ -474,7 +475,6 @@ def use_dds_profile() -> str | None:
     for var in _PROFILE_VARS:
         if os.environ.get(var):
             return os.environ[var]
-    from fd_monitor.model.paths import config_dirs
 
     for d in config_dirs():
         xml = d / "fastdds.xml"

@@ -28,6 +28,7 @@ from fd_monitor.core.qb import QBDetector
 from fd_monitor.core.qb_model import qb_model
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, MessageError
+from fd_monitor.nodes import agei, bias_estimator, observer
 from fd_monitor.nodes.common import (
     ERROR,
     OK,
@@ -232,9 +233,6 @@ def make_nodes(**kwargs: Any) -> list:
     det = DetectorNode(**kwargs)
     if det.params.layout != "standalone":
         return [det]
-    from fd_monitor.nodes.agei import AgeiNode
-    from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
-    from fd_monitor.nodes.observer import ObserverNode
 
     gains = str(det.gain_file.path) if det.configured else det.params.gains
     same = [Parameter("system", value=det.params.system), Parameter("gains", value=gains),
@@ -242,9 +240,9 @@ def make_nodes(**kwargs: Any) -> list:
     extra = {**kwargs, "parameter_overrides": [*kwargs.get("parameter_overrides", []), *same]}
     # The observer (the chain's entry) last: the others then subscribe before a source
     # waiting for plant/y subscribers starts, and before the first estimate goes out.
-    classes = ([AgeiNode, BiasEstimatorNode]
+    classes = ([agei.AgeiNode, bias_estimator.BiasEstimatorNode]
                if not det.configured or det.gain_file.method == "thresholds" else [])
-    classes.append(ObserverNode)
+    classes.append(observer.ObserverNode)
     nodes = [det]
     try:
         for cls in classes:
@@ -258,8 +256,6 @@ def make_nodes(**kwargs: Any) -> list:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the detector (standalone: with observer, agei, bias_estimator in-process)."""
-    from fd_monitor.nodes import agei, bias_estimator, observer
-
     return run_node(make_nodes, args, prog="detector",
                     usage=[USAGE, *(m.USAGE for m in (observer, agei, bias_estimator))])
 

@@ -44,6 +44,7 @@ from std_msgs.msg import Float64MultiArray
 from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile, load_gains
 from fd_monitor.model.system import System, load_system
+from fd_monitor.nodes.adapter_input import AdapterInput
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
     OK,
@@ -466,8 +467,6 @@ class FdNode(LifecycleNode):
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
         self.adapter_input = None
         if getattr(self.params, "adapter", ""):
-            from fd_monitor.nodes.adapter_input import AdapterInput
-
             self.adapter_input = AdapterInput(self, self.params.adapter, HOLD_WAIT)
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:

@@ -34,7 +34,8 @@ import numpy as np
 
 from fd_monitor.core.runtime import RUNTIMES, runtime_for
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
-from fd_monitor.model.gains import GainFile
+from fd_monitor.model.gains import GainFile, load_gains
+from fd_monitor.model.system import load_system
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.common import ERROR, OK, WARN, NodeUsage
 from fd_monitor.nodes.detector import ResidualReport
@@ -189,10 +190,6 @@ def gain_method(node_name: str = "monitor", **kwargs: Any) -> str | None:
     """
     from rclpy.node import Node
     from rclpy.parameter import Parameter
-
-    from fd_monitor.model.gains import load_gains
-    from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.fd_node import COMMON_PARAMS
 
     defaults = {p.name: p.default for p in COMMON_PARAMS}
     peek = Node(node_name, allow_undeclared_parameters=True,

@@ -57,6 +57,8 @@ import numpy as np
 
 from fd_monitor.model.errors import BagError, FdMonitorError, MessageError
 from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.system import read_yaml
+from fd_monitor.wire.bags import _typestore, messages_from_raw, read_raw
 
 __all__ = ["ADAPTER_TYPES", "Adapter", "AdapterError", "AdapterJoin", "AdaptedMessageError",
            "AdaptedSample", "AdaptedStreams", "Channel", "Reading", "decode_message", "encode",
@@ -212,7 +214,6 @@ def load_adapter(source: str | Path) -> Adapter:
     AdapterError
         One line naming the file, the key path and what was expected.
     """
-    from fd_monitor.model.system import read_yaml
 
     path = find_config_file(source, "adapters", AdapterError, "adapter")
     return parse_adapter(read_yaml(path, AdapterError), str(path))
@@ -653,7 +654,6 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
     AdapterError
         Bad adapter file, or channels that are not the plant's.
     """
-    from fd_monitor.wire.bags import messages_from_raw, read_raw
 
     ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
     if system is not None:
@@ -806,7 +806,6 @@ def _build(ty: str, chans: Sequence[Channel], vals: Mapping[str, float], stamp_n
 
 def rosbags_make(msgtype: str, **fields: Any) -> Any:
     """:func:`encode`'s ``make`` for bags: the ``rosbags`` ROS 2 Jazzy dataclass."""
-    from fd_monitor.wire.bags import _typestore  # the one type store of the bags
 
     return _typestore().types[msgtype](**fields)
 
@@ -829,7 +828,6 @@ def write_adapted(writer: Any, adapter: Adapter, k: Sequence[int], u: np.ndarray
     stamps_ns : sequence of int
         (K,) ns.
     """
-    from fd_monitor.wire.bags import _typestore
 
     store = _typestore()
     for topic, ty in adapter.topics.items():
