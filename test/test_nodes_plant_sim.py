@@ -82,6 +82,36 @@ def test_plant_sim_in_process_paced_with_diagnostics():
 
 
 
+def test_plant_sim_start_delay_holds_the_first_sample():
+    """With start_delay the first sample goes out that long after the subscribers are
+    matched, not before (time for them to match the writer too)."""
+    import time
+
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.core.simulator import PlantSimulator
+    from fd_monitor.nodes.plant_sim import PlantSimNode
+
+    sc = load_scenario("three_tank_bias_h1")
+    with ros_context() as ctx:
+        col = Collector(ctx, ["/plant/y"])
+        node = PlantSimNode(PlantSimulator(sc, [2]), context=ctx, parameter_overrides=[
+            Parameter("rate_factor", value=0.0), Parameter("duration", value=0.5),
+            Parameter("min_subscribers_y", value=1), Parameter("start_delay", value=1.0)])
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(col.node)
+        ex.add_node(node)
+        assert spin_until(ex, lambda: node.pub_y.get_subscription_count() >= 1, 10.0)
+        matched = time.monotonic()
+        assert spin_until(ex, lambda: len(col.msgs["/plant/y"]) >= 1, 30.0)
+        assert time.monotonic() - matched >= 1.0 - 0.3   # a 0.1 s tick of slack, and more
+        assert spin_until(ex, lambda: node.done.done(), 30.0) and node.published == 5
+        ex.shutdown()
+        node.destroy_node()
+        col.node.destroy_node()
+
+
 @pytest.mark.parametrize("rate_factor, period", [(5.0, 0.02), (0.0, 0.001), (1.0e6, 0.001)])
 def test_plant_sim_timer_ticks_once_per_sample(rate_factor, period):
     """Paced: one timer tick per sample (not a 1 ms poll); flat out keeps the 1 ms tick."""

@@ -64,7 +64,8 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
         with rec, Proc(["run", "plant_sim", "--ros-args", "-p", "scenario:=dc_motor_actuator",
                         "-p", "adapter:=dc_motor", "-p", "rate_factor:=4.0", "-p",
                         "duration:=32.0", "-p", "min_subscribers_y:=2", "-p",
-                        "min_subscribers_u:=2", "-p", "publish_truth:=false"]) as sim:
+                        "min_subscribers_u:=2", "-p", "publish_truth:=false",
+                        "-p", "start_delay:=0.5"]) as sim:
             assert spin_until(ex, lambda: len(col.msgs["/fd/alarm"]) >= 3200, 240.0,
                               [monitor, sim]), (len(col.msgs["/fd/alarm"]), sim.output(),
                                                 monitor.output())
@@ -83,7 +84,8 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
                      "--adapter", "dc_motor", "--json"])
         assert r.returncode == 0, r.stderr
         doc = json.loads(r.stdout)
-        assert doc["samples"] == 3200 and doc["input_errors"] == []
+        assert doc["samples"] == 3200 and doc["input_errors"] == [], \
+            (doc["samples"], doc["input_errors"])
         assert doc["detection"]["sample"] == first
 
 

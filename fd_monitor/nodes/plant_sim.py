@@ -84,6 +84,10 @@ PARAMS = (
           high=1000),
     Param("min_subscribers_truth", 0, "wait for this many subscriptions on plant/truth",
           low=0, high=1000),
+    Param("start_delay", 0.0, "s to wait once the subscribers are matched before the first "
+          "sample: time for them to match this node's writers too (DDS discovery is not "
+          "symmetric; a reliable subscriber that has not matched a writer yet misses its "
+          "first samples)", low=0.0, high=60.0),
     Param("subscriber_timeout", 30.0, "s to wait for the subscribers, then exit with an "
           "error; 0.0 = wait forever", low=0.0, high=1.0e6),
     Param("qos_depth", DEFAULT_DEPTH, "history depth of the publishers", low=10,
@@ -173,6 +177,7 @@ class PlantSimNode(Node):
         self.published = 0
         self._t0: float | None = None
         self._wait_start = time.monotonic()
+        self._matched_at: float | None = None
         self.diag = Diagnostics(self, sys_.name, p.diagnostics_period)
         self.diag.add("simulation")
         self.diag.update("simulation", OK, "waiting for subscribers",
@@ -198,6 +203,13 @@ class PlantSimNode(Node):
                                        for pub, n in self._wanted)
                     self._finish(1, f"timed out after {self.params.subscriber_timeout:g} s "
                                     f"waiting for subscribers ({counts})")
+                self._matched_at = None
+                return
+            # DDS discovery is not symmetric: a subscriber this writer has matched may not
+            # have matched the writer yet, and would miss the first samples
+            if self._matched_at is None:
+                self._matched_at = now
+            if now - self._matched_at < self.params.start_delay:
                 return
             self._t0 = now
             self.diag.update("simulation", OK, "running")
