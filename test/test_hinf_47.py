@@ -15,7 +15,7 @@ pytest.importorskip("cvxpy")
 from fd_monitor.core.hinf_certificate import check_certificate
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
-from fd_monitor.design import hinf_sc
+from fd_monitor.design import hinf_sc, hinf_spec
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.errors import DesignError, GainFileError
 from fd_monitor.model.gains import load_gains, save_gains, write_gain_doc
@@ -167,7 +167,7 @@ def test_k_greater_than_zero():
     Al = [[-1, 1, 0], [0, -2, 1], [0, 0, -3]]
     s = _sys(Al, [[0, 0], [0, 0], [1, 0]], [[1, 0, 0], [0, 0, 1]],
              [{"name": "a", "kind": "process", "F": [0, 1, 0]}])
-    spec = hinf_sc.parse_spec(s, {}, "<dict>", "")
+    spec = hinf_spec.parse_spec(s, {}, "<dict>", "")
     assert spec.faults[0].k == 1
     np.testing.assert_allclose(spec.faults[0].V[:, 0], [1, -2, 0])
     with pytest.raises(DesignError, match=r"A-4\.3\.5"):

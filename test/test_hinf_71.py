@@ -12,7 +12,7 @@ pytest.importorskip("cvxpy")
 
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
-from fd_monitor.design import hinf_sc
+from fd_monitor.design import hinf_spec
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
@@ -27,7 +27,7 @@ def system():
 
 
 def test_pseudo_actuator_direction_eq_7_3(system):
-    spec = hinf_sc.parse_spec(system, load_design_section(system, "hinf_sc")[0], "<f>", "")
+    spec = hinf_spec.parse_spec(system, load_design_section(system, "hinf_sc")[0], "<f>", "")
     th = {f.name: f for f in spec.faults}["f_theta"]
     # F_theta = [[0, -0.5587], [0, -0.0299], [0, 0], [1, 0]] (7.3) = [e4, A e4]
     np.testing.assert_allclose(th.F, [[0, -0.5587], [0, -0.0299], [0, 0], [1, 0]],
