@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from fd_monitor.analysis.identify import Dataset, identify_bags, load_dataset, write_plant
 from fd_monitor.analysis.offline import run_bag
@@ -37,21 +36,14 @@ from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import read_bag
 
 REPO = Path(__file__).resolve().parents[1]
-GUARDS = ["h3 > 0.35", "v13 >= 0.5"]
+# the acceptance test's bias scenarios and guards: the same runs, more of them
+sys.path.insert(0, str(REPO / "test"))
+from test_identify_three_tank import GUARDS, bias_scenario  # noqa: E402
+
 #: identified mode -> shipped mode
 MODES = {"h3_le_0p35__v13_lt_0p5": "closed_dry", "h3_gt_0p35__v13_lt_0p5": "closed_wet",
          "h3_le_0p35__v13_ge_0p5": "open_dry"}
 SCENARIOS = ("bag_three_tank_nominal", "bag_three_tank_valve")
-
-
-def _bias_scenario(tmp: Path, sensor: str, magnitude: float) -> Path:
-    doc = yaml.safe_load((REPO / "config/scenarios/bag_three_tank_bias_h1.yaml").read_text())
-    doc["name"] = f"bias_{sensor}_{magnitude:g}"
-    doc["faults"] = [{"channel": f"bias_{sensor}", "profile": "abrupt", "time": 100.0,
-                      "magnitude": magnitude}]
-    path = tmp / f"{doc['name']}.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
 
 
 def _jacobians(plant: SampledPlant, q: int, x: np.ndarray, u: np.ndarray,
@@ -188,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     ff = {sc: [simulate_to_bag(sc, tmp / f"ff_{sc}_{sd}", seed=sd)["bag"] for sd in seeds]
           for sc in SCENARIOS}
     mags = (0.002, 0.003, 0.005)
-    bias = {(sen, m): [simulate_to_bag(str(_bias_scenario(tmp, sen, m)),
+    bias = {(sen, m): [simulate_to_bag(str(bias_scenario(tmp, sen, m)),
                                        tmp / f"b_{sen}_{m:g}_{sd}", seed=sd)["bag"]
                        for sd in seeds] for sen in ("h1", "h2", "h3") for m in mags}
     print(f"\nfault free, {args.runs} unseen runs per scenario: runs with an alarm")

@@ -28,7 +28,7 @@ FAULT_SAMPLE = 1000          # bag_three_tank_bias_*: the bias starts at 100 s
 pytestmark = pytest.mark.slow
 
 
-def _bias_scenario(tmp: Path, sensor: str, magnitude: float) -> Path:
+def bias_scenario(tmp: Path, sensor: str, magnitude: float) -> Path:
     """bag_three_tank_bias_h1 with the bias moved to ``sensor`` and set to ``magnitude`` m."""
     doc = yaml.safe_load((REPO / "config/scenarios/bag_three_tank_bias_h1.yaml").read_text())
     doc["name"] = f"bias_{sensor}_{magnitude:g}"
@@ -47,7 +47,7 @@ def pipeline(tmp_path_factory):
         for seed in (101, 102, 103):
             runs[scen, seed] = simulate_to_bag(scen, tmp / f"{scen}_{seed}", seed=seed)["bag"]
     for sensor in ("h1", "h2", "h3"):
-        runs["bias", sensor] = simulate_to_bag(str(_bias_scenario(tmp, sensor, 0.005)),
+        runs["bias", sensor] = simulate_to_bag(str(bias_scenario(tmp, sensor, 0.005)),
                                                tmp / f"bias5_{sensor}", seed=201)["bag"]
     res = identify_bags([REPO / "bags/three_tank_nominal", REPO / "bags/three_tank_valve"],
                         holdout=[runs["bag_three_tank_nominal", 101],
