@@ -70,9 +70,10 @@ def test_record_stops_on_sigint_with_a_readable_bag(tmp_path):
         ex.add_node(col.node)
         with Proc(["record", "/plant/y", "-o", str(tmp_path / "rec")]) as rec, \
                 Proc(["run", "plant_sim", "--ros-args", "-p", "rate_factor:=100.0",
-                      "-p", "keep_going:=true", "-p", "min_subscribers_y:=2"]) as sim:
-            # Both the recorder and the collector are matched before sample 0; stop the
-            # recorder with SIGINT mid-stream.
+                      "-p", "keep_going:=true", "-p", "min_subscribers_y:=2",
+                      "-p", "start_delay:=0.5"]) as sim:
+            # Both the recorder and the collector are matched before sample 0 (both ways:
+            # start_delay); stop the recorder with SIGINT mid-stream.
             assert spin_until(ex, lambda: len(col.msgs["/plant/y"]) >= 30, 30.0, [rec, sim])
             rec.signal(signal.SIGINT)
             assert rec.wait(20) == 0, rec.output()
@@ -144,3 +145,40 @@ def test_record_killed_with_sigkill_loses_at_most_the_last_second(tmp_path):
     np.testing.assert_array_equal(fixed.values, y.values)
     assert (tmp_path / "rec_recovered" / "metadata.yaml").is_file()
     print(f"SIGKILL after {len(y)} samples in the bag; last one {gap:.2f} s before the kill")
+
+
+def test_record_meets_a_best_effort_driver(tmp_path):
+    """A driver publishing best effort (sensor-data QoS): `record` switches that topic's
+    subscription to best effort (one log line) and records its messages in order."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import qos_profile_sensor_data
+    from ros_util import ros_context, spin_until
+    from std_msgs.msg import Float64MultiArray
+
+    from fd_monitor.nodes.bag_nodes import RecorderNode
+    from fd_monitor.wire.bags import BagWriter
+    from fd_monitor.wire.conversions import to_msg
+
+    out = tmp_path / "be"
+    with ros_context() as ctx, BagWriter(out) as writer:
+        rec = RecorderNode(writer, {"/plant/y": "std_msgs/msg/Float64MultiArray"},
+                           context=ctx)
+        drv = Node("best_effort_driver", context=ctx)
+        pub = drv.create_publisher(Float64MultiArray, "/plant/y", qos_profile_sensor_data)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(rec)
+        ex.add_node(drv)
+        assert spin_until(ex, lambda: not rec.inputs["/plant/y"].reliable, 15.0)
+        assert spin_until(ex, lambda: pub.get_subscription_count() >= 1, 15.0)
+        k = 0
+        while writer.counts.get("/plant/y", 0) < 20 and k < 2000:   # best effort: keep sending
+            pub.publish(to_msg(("h1", "h2", "h3"), k, [0.1, 0.2, 0.3]))
+            ex.spin_once(timeout_sec=0.01)
+            k += 1
+        assert writer.counts.get("/plant/y", 0) >= 20, k
+        ex.shutdown()
+        rec.destroy_node()
+        drv.destroy_node()
+    got = read_bag(out, ["/plant/y"])["/plant/y"]
+    assert len(got) >= 20 and list(got.stamps) == sorted(got.stamps)

@@ -20,8 +20,8 @@ from fd_monitor.model.errors import BagError
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
     AckPacer,
+    DataInput,
     data_pub_qos,
-    data_sub_qos,
     diagnostics_qos,
     pub_events,
     sub_events,
@@ -47,12 +47,10 @@ def message_class(msgtype: str) -> Any:
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
-def _sub_qos(msgtype: str) -> QoSProfile:
-    if msgtype == DIAGNOSTIC_ARRAY:
-        return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.VOLATILE)
-    return data_sub_qos()
+def _diagnostics_sub_qos() -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
 
 
 class RecorderNode(Node):
@@ -77,18 +75,25 @@ class RecorderNode(Node):
 
     def __init__(self, writer: BagWriter, topics: Mapping[str, str],
                  until: Mapping[str, int] | None = None, max_messages: int | None = None,
-                 duration: float | None = None, node_name: str = "record") -> None:
-        super().__init__(node_name)
+                 duration: float | None = None, node_name: str = "record",
+                 **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)       # kwargs: rclpy Node's (context, ...)
         self.writer = writer
         self.until = dict(until or {})
         self.max_messages = max_messages
         self.total = 0
         self.done = Future()
         self.exit_code = 0
+        #: The data subscriptions (they meet reliable and best-effort publishers alike).
+        self.inputs: dict[str, DataInput] = {}
         for topic, msgtype in topics.items():
             writer.add_topic(topic, msgtype)
-            self.create_subscription(message_class(msgtype), topic, self._callback(topic),
-                                     _sub_qos(msgtype), raw=True, **sub_events())
+            if msgtype == DIAGNOSTIC_ARRAY:
+                self.create_subscription(message_class(msgtype), topic, self._callback(topic),
+                                         _diagnostics_sub_qos(), raw=True, **sub_events())
+            else:
+                self.inputs[topic] = DataInput(self, message_class(msgtype), topic,
+                                               self._callback(topic), self._report, raw=True)
         if duration is not None:
             self.create_timer(float(duration), self._stop)
         if writer.flush_seconds is not None:
@@ -104,6 +109,10 @@ class RecorderNode(Node):
             if self._finished():
                 self._stop()
         return cb
+
+    def _report(self, line: str) -> None:
+        """A QoS incompatibility or the switch to best effort: one log line each."""
+        self.get_logger().warning(line)
 
     def _finished(self) -> bool:
         if self.max_messages is not None and self.total >= self.max_messages:
