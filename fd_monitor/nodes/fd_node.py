@@ -222,6 +222,8 @@ class FdNode(LifecycleNode):
         self._error: FdMonitorError | None = None
         self._autostarting = False
         self._entities: list[Any] = []
+        #: The robot's topics giving u and y, when the node has an adapter file (at start).
+        self.adapter_input: AdapterInput | None = None
         from std_srvs.srv import Trigger
 
         self.create_service(Trigger, "~/reset", self._on_reset)
@@ -344,17 +346,17 @@ class FdNode(LifecycleNode):
 
     def _topic_names(self, inputs: bool) -> list[str]:
         topics = [i.topic for i in self._subscribed()] if inputs else [t.name for t in self.outputs]
-        extra = getattr(self, "adapter_input", None)
+        extra = self.adapter_input
         return [self.resolve_topic_name(t) for t in topics] + (
             extra.topics if inputs and extra is not None else [])
 
     def _subscribed(self) -> list[Input]:
         """The inputs subscribed as fd_monitor topics (not those an adapter replaces)."""
-        adapted = getattr(self, "adapter_input", None) is not None
+        adapted = self.adapter_input is not None
         return [i for i in self.inputs if not (adapted and i.name in ("u", "y"))]
 
     def _waits_for(self) -> list[str]:
-        extra = getattr(self, "adapter_input", None)
+        extra = self.adapter_input
         return [self.resolve_topic_name(i.topic) for i in self._subscribed()
                 if i.initial is None] + (extra.topics if extra is not None else [])
 
