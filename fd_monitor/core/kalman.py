@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_discrete_are
 
 from fd_monitor.core.plant import zoh
 from fd_monitor.core.qb_model import default_fault_states, qb_model
@@ -92,6 +91,8 @@ def kalman_gains(system: System, q_fault: float = DEFAULT_Q_FAULT,
         Q[idx, idx] += q_fault
         R = w_var * E @ E.T + r_floor * np.eye(system.ny)
         S = w_var * Dd @ E.T
+        from scipy.linalg import solve_discrete_are  # not at import: see plant.zoh
+
         X = solve_discrete_are(Ad.T, C.T, Q, R, s=S)
         K = (Ad @ X @ C.T + S) @ np.linalg.inv(C @ X @ C.T + R)
         Ks.append(K)

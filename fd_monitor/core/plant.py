@@ -20,7 +20,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from fd_monitor.model.nonlinear import get_model
 from fd_monitor.model.plant_parts import Mode
@@ -33,7 +32,8 @@ LPV_SUBSTEPS = 10
 
 
 def zoh(A: np.ndarray, G: np.ndarray, dt: float,
-        exp: Callable[[np.ndarray], np.ndarray] = expm) -> tuple[np.ndarray, np.ndarray]:
+        exp: Callable[[np.ndarray], np.ndarray] | None = None
+        ) -> tuple[np.ndarray, np.ndarray]:
     """Exact zero-order-hold discretisation of ``dx/dt = A x + G v`` over ``dt``.
 
     Parameters
@@ -55,6 +55,12 @@ def zoh(A: np.ndarray, G: np.ndarray, dt: float,
     Gd : numpy.ndarray
         (n, m) ``int_0^dt e^{A s} ds G``.
     """
+    if exp is None:
+        # imported here: scipy.linalg costs ~0.1-0.2 s to import, and a run that never
+        # discretises a linear mode (analyze on three_tank) should not pay it
+        from scipy.linalg import expm
+
+        exp = expm
     n, m = G.shape
     M = np.zeros((n + m, n + m))
     M[:n, :n] = A

@@ -29,7 +29,6 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 
 from fd_monitor.core.hinf_model import Generator, bank_results, parse_bank
 from fd_monitor.core.plant import zoh
@@ -112,13 +111,13 @@ class ResidualBank:
         nu = B.shape[1]
         fast = rho is not None  # LPV: re-discretised at every sample
         if self._disc_mode in ("auto", "exact"):
-            Ad, G = zoh(A, np.hstack([B, L]), self.dt, _expm_small if fast else expm)
+            Ad, G = zoh(A, np.hstack([B, L]), self.dt, _expm_small if fast else None)
             Bd, Ld = G[:, :nu], G[:, nu:]
             if self._disc_mode == "exact" or \
                     np.abs(np.linalg.eigvals(Ad - Ld @ C)).max() < 1.0 - 1e-9:
                 return Ad - Ld @ C, Bd, Ld, "exact"
         Ad, G = zoh(A - L @ C, np.hstack([B, L]), self.dt,
-                    _expm_small if fast else expm)
+                    _expm_small if fast else None)
         return Ad, G[:, :nu], G[:, nu:], "hold"
 
     def reset(self, xhat0: np.ndarray | None = None) -> None:

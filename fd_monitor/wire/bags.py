@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from functools import cache
 from io import BytesIO
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 import yaml
@@ -96,6 +96,86 @@ def _typestore() -> Any:
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
+
+
+class _Dimension(NamedTuple):
+    """``std_msgs/msg/MultiArrayDimension`` as :func:`_decode_f64ma` returns it."""
+
+    label: str
+    size: int
+    stride: int
+
+
+class _Layout(NamedTuple):
+    """``std_msgs/msg/MultiArrayLayout`` as :func:`_decode_f64ma` returns it."""
+
+    dim: list[_Dimension]
+    data_offset: int
+
+
+class _Float64MultiArray(NamedTuple):
+    """``std_msgs/msg/Float64MultiArray`` as :func:`_decode_f64ma` returns it (the fields of
+    the rosbags dataclass; ``data`` a read-only float64 view of the bytes, as rosbags')."""
+
+    layout: _Layout
+    data: np.ndarray
+
+
+_U32 = struct.Struct("<I").unpack_from
+
+
+def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
+    """Little-endian CDR bytes of a Float64MultiArray -> its fields, without the type store.
+
+    The rosbags Jazzy deserialiser's steps and checks, written out for this one type: the
+    offline reader decodes thousands of these per bag, and loading the type store costs more
+    than reading a bag. None for anything that is not a well-formed little-endian message
+    (big-endian, truncated, a bad count or string, more than 3 trailing bytes):
+    :func:`_deserialize` then asks rosbags, which gives the canonical error.
+    """
+    if raw[:2] != b"\x00\x01":
+        return None
+    buf = bytes(raw[4:])
+    n = len(buf)
+    try:
+        count, = _U32(buf, 0)
+        pos = 4
+        if pos + count > n:                        # rosbags: check_sequence(minimum 1)
+            return None
+        dims = []
+        for _ in range(count):
+            pos = (pos + 3) & -4
+            length, = _U32(buf, pos)
+            end = pos + 4 + length
+            if length < 1 or end > n or buf[end - 1] != 0:      # rosbags: check_string
+                return None
+            label = buf[pos + 4:end - 1].decode()
+            pos = (end + 3) & -4
+            size, stride = struct.unpack_from("<II", buf, pos)
+            pos += 8
+            dims.append(_Dimension(label, size, stride))
+        offset, size = struct.unpack_from("<II", buf, pos)
+        pos += 8
+        if pos + 8 * size > n:                     # rosbags: check_sequence(minimum 8)
+            return None
+        if size:
+            pos = (pos + 7) & -8
+        data = np.frombuffer(buf, dtype=np.float64, count=size, offset=pos)
+    except (struct.error, UnicodeDecodeError, ValueError):
+        return None
+    if pos + 8 * size + 7 < len(raw):               # rosbags: "CDR message size mismatch"
+        return None
+    return _Float64MultiArray(_Layout(dims, offset), data)
+
+
+def _deserialize(raw: bytes, msgtype: str) -> Any:
+    """One CDR message -> its fields (a rosbags dataclass, or :class:`_Float64MultiArray`
+    with the same fields and values); rosbags' error on bytes that do not decode."""
+    if msgtype == FLOAT64_MULTI_ARRAY:
+        msg = _decode_f64ma(raw)
+        if msg is not None:
+            return msg
+    return _typestore().deserialize_cdr(raw, msgtype)
 
 
 @dataclass(frozen=True)
@@ -861,10 +941,9 @@ def messages_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, b
                       ) -> Iterator[tuple[str, int, Any]]:
     """:func:`read_messages` of records already read with :func:`read_raw` (``path`` names
     the bag in errors)."""
-    store = _typestore()
     for topic, ty, t, raw in records:
         try:
-            msg = store.deserialize_cdr(raw, ty)
+            msg = _deserialize(raw, ty)
         except Exception as exc:  # rosbags raises assorted errors on CDR of another type
             raise BagError(f"{path}: {topic} at {t * 1e-9:.3f} s: not a valid {ty} "
                            f"({type(exc).__name__})") from None
@@ -899,7 +978,6 @@ def arrays_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, byt
     acc: dict[str, tuple[list[int], list[np.ndarray], list[int]]] = {}
     labels: dict[str, tuple[str, ...]] = {}
     stampers: dict[str, ArrivalStamper] = {}
-    store = _typestore()
     order: list[str] = []
     for topic, ty, t, raw in records:
         if ty != FLOAT64_MULTI_ARRAY:
@@ -910,7 +988,7 @@ def arrays_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, byt
         first = labels.get(topic)
         try:
             d = stampers.setdefault(topic, ArrivalStamper()).stamp(
-                decode(store.deserialize_cdr(raw, ty), topic, labels=first, allow_nan=True,
+                decode(_deserialize(raw, ty), topic, labels=first, allow_nan=True,
                        allow_inf=True))
         except MessageError as exc:
             raise BagError(f"{path}: {exc}") from None
