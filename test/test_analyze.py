@@ -106,3 +106,28 @@ def test_analyze_arrays_reports_bad_sample():
         analyze_arrays(sys_, g, tr.k, tr.u[0], y)
     doc = analyze_arrays(sys_, g, tr.k, tr.u[0], tr.y[0], tr.mode[0])
     assert doc["alarms"] == [] and doc["isolated"] == [] and doc["mode_agreement"] == 1.0
+
+
+def test_analyze_loads_no_scipy_rosbags_rclpy_cvxpy_or_matplotlib(repo):
+    """`analyze` on a bundled three_tank bag with the thresholds gain file runs without
+    scipy (imported where a linear mode is discretised), the rosbags type store (its
+    Float64MultiArrays are read by bags._decode_f64ma), rclpy, cvxpy or matplotlib: the
+    import budget behind its start-up time (benchmarks/bench_replay.py) cannot regress
+    silently."""
+    import subprocess
+    import sys
+
+    code = ("import json, sys\n"
+            "from fd_monitor.commands.cli import main\n"
+            "rc = main(['analyze', 'bags/three_tank_bias_h1', '--gains', "
+            "'three_tank_thresholds', '--json'])\n"
+            "heavy = ('scipy', 'rosbags', 'rclpy', 'cvxpy', 'matplotlib')\n"
+            "print(json.dumps({'rc': rc, 'loaded': sorted({m.split('.')[0] for m in "
+            "sys.modules if m.split('.')[0] in heavy})}))\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=repo, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    doc, _, budget = out.stdout.rstrip("\n").rpartition("\n")   # analyze's JSON, then ours
+    result, imports = json.loads(doc), json.loads(budget)
+    assert imports == {"rc": 0, "loaded": []}
+    assert result["detection"]["sample"] == 1000 and result["isolated"] == ["h1"]
