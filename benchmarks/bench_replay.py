@@ -1,6 +1,7 @@
 """Replay throughput into the live monitor (no lost sample) against raw rclpy, one run.
 
-Run: .venv/bin/python benchmarks/bench_replay.py [--bag bags/three_tank_bias_h1]
+Run: .venv/bin/python benchmarks/bench_replay.py [--bag bags/three_tank_bias_h1] [--runs 7]
+     [--analyze-only]
 
 1. **Live monitor**: ``python -m fd_monitor run monitor`` (the fused node: one join, one
    ``Monitor.step`` per sample) and ``record /fd/alarm`` are started, then
@@ -15,6 +16,14 @@ Run: .venv/bin/python benchmarks/bench_replay.py [--bag bags/three_tank_bias_h1]
 
 Both use the same DDS (Fast DDS, loopback, the project's config/fastdds.xml) and run in one
 invocation, so the ratio compares like with like on this machine.
+
+3. **analyze wall time** (first, before any ROS process runs; ``--analyze-only`` stops there):
+   ``python -m fd_monitor analyze BAG --gains three_tank_thresholds`` as a user types it, a
+   fresh interpreter per run (imports included), median of ``--runs`` runs (target < 0.5 s),
+   with the load average. Two ways: with the Python bytecode of fd_monitor cached, as an
+   installed package has it (a private ``PYTHONPYCACHEPREFIX``, warmed by one run), and in
+   the environment the script was started in (where ``PYTHONDONTWRITEBYTECODE=1``, as on this
+   development machine, fd_monitor's own modules are compiled from source at every run).
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ import argparse
 import json
 import os
 import random
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -165,16 +175,59 @@ def raw_rclpy(bag: Path, env: dict[str, str]) -> dict[str, float]:
             "rate": (doc["received"] / 2 - 1) / span}
 
 
+def analyze_wall(bag: Path, gains: str, env: dict[str, str], runs: int
+                 ) -> dict[str, list[float]]:
+    """Wall time of ``analyze BAG --gains GAINS`` (a new interpreter each run), s."""
+    cmd = [sys.executable, "-m", "fd_monitor", "analyze", str(bag), "--gains", gains]
+    out: dict[str, list[float]] = {}
+    with tempfile.TemporaryDirectory() as cache:
+        cached = {k: v for k, v in env.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        cached["PYTHONPYCACHEPREFIX"] = cache
+        dont = "PYTHONDONTWRITEBYTECODE" in env
+        modes = {"bytecode cached (as installed)": cached,
+                 "this shell's environment" + (" (PYTHONDONTWRITEBYTECODE=1)" if dont
+                                               else ""): env}
+        for name, e in modes.items():
+            subprocess.run(cmd, cwd=REPO, env=e, capture_output=True, check=True,
+                           timeout=120)          # warm-up: the cache, the page cache
+            walls = []
+            for _ in range(runs):
+                t0 = time.perf_counter()
+                subprocess.run(cmd, cwd=REPO, env=e, capture_output=True, check=True,
+                               timeout=120)
+                walls.append(time.perf_counter() - t0)
+            out[name] = walls
+    return out
+
+
+def _load() -> str:
+    return "load average " + " ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bag", default=str(REPO / "bags" / "three_tank_bias_h1"))
     ap.add_argument("--raw-sub", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--gains", default="three_tank_thresholds",
+                    help="gain file of the analyze timing")
+    ap.add_argument("--runs", type=int, default=7, help="analyze runs (median printed)")
+    ap.add_argument("--analyze-only", action="store_true",
+                    help="only the analyze wall time (no ROS)")
     args = ap.parse_args()
     if args.raw_sub is not None:
         raw_subscriber(args.raw_sub)
         return
     env = _env()
     bag = Path(args.bag)
+    before = _load()
+    walls = analyze_wall(bag, args.gains, env, args.runs)
+    print(f"analyze {bag} --gains {args.gains}: wall time, median of {args.runs} runs "
+          f"(min-max), target < 0.5 s")
+    for name, w in walls.items():
+        print(f"  {name:<52} {statistics.median(w):.3f} s ({min(w):.3f}-{max(w):.3f})")
+    print(f"  {before} before, {_load()} after")
+    if args.analyze_only:
+        return
     with tempfile.TemporaryDirectory() as d:
         live = live_monitor(bag, env, Path(d))
     raw = raw_rclpy(bag, env)

@@ -202,3 +202,41 @@ def test_messages_from_raw_big_endian_and_bad_bytes_go_through_rosbags():
     with pytest.raises(BagError, match=r"bag: /y at 3\.000 s: not a valid "
                                        r"std_msgs/msg/Float64MultiArray \(SerdeError\)"):
         list(messages_from_raw("bag", [("/y", ty, 3_000_000_000, le[:-9])]))
+
+
+def test_message_index_check_accepts_only_what_the_strict_parser_accepts(repo):
+    """Reading skips the strict round trip of MessageIndex records (bags._message_index_ok,
+    the index is never used): over the bundled bag's index records and 20,000 seeded
+    mutations of them, every record the check accepts is one bags._parse accepts."""
+    import random
+    import struct
+
+    from mcap.opcode import Opcode
+
+    from fd_monitor.wire.bags import _message_index_ok, _parse, mcap_file
+
+    buf = mcap_file(repo / "bags" / "three_tank_bias_h1").read_bytes()
+    records, pos = [], 8
+    while pos + 9 <= len(buf) and buf[pos] != Opcode.DATA_END:
+        end = pos + 9 + struct.unpack_from("<Q", buf, pos + 1)[0]
+        if buf[pos] == Opcode.MESSAGE_INDEX:
+            records.append(buf[pos:end])
+        pos = end
+    assert len(records) > 10
+    rng = random.Random(11)
+    accepted = 0
+    for i in range(20000):
+        rec = bytearray(records[i % len(records)])
+        if i >= len(records):
+            for _ in range(rng.randint(1, 2)):
+                rec[rng.randrange(9, len(rec))] ^= 1 << rng.randrange(8)
+            if rng.random() < 0.2:
+                del rec[rng.randrange(9, len(rec)):]
+                rec[1:9] = struct.pack("<Q", len(rec) - 9)
+        if _message_index_ok(bytes(rec), 0, len(rec)):
+            accepted += 1
+            assert _parse(bytes(rec), 0, len(rec)).channel_id >= 0
+        else:
+            with pytest.raises(Exception):  # noqa: B017  (mcap's assorted errors)
+                _parse(bytes(rec), 0, len(rec))
+    assert accepted > 10000

@@ -107,9 +107,10 @@ class _Dimension(NamedTuple):
 
 
 class _Layout(NamedTuple):
-    """``std_msgs/msg/MultiArrayLayout`` as :func:`_decode_f64ma` returns it."""
+    """``std_msgs/msg/MultiArrayLayout`` as :func:`_decode_f64ma` returns it (``dim`` a
+    tuple: one layout is shared by the messages that have the same bytes before the data)."""
 
-    dim: list[_Dimension]
+    dim: tuple[_Dimension, ...]
     data_offset: int
 
 
@@ -122,6 +123,12 @@ class _Float64MultiArray(NamedTuple):
 
 
 _U32 = struct.Struct("<I").unpack_from
+_U32X2 = struct.Struct("<II").unpack_from
+#: Message length -> (the bytes before the data, layout, data start, data size) of messages
+#: of that length decoded last: a message of the same length with the same bytes before its
+#: data parses the same way, so only its data is read (the messages of a topic share their
+#: header bytes: labels, sizes, offset; /plant/u and /plant/y of three_tank share a length).
+_F64MA_SHAPES: dict[int, list[tuple[bytes, _Layout, int, int]]] = {}
 
 
 def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
@@ -131,41 +138,53 @@ def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
     offline reader decodes thousands of these per bag, and loading the type store costs more
     than reading a bag. None for anything that is not a well-formed little-endian message
     (big-endian, truncated, a bad count or string, more than 3 trailing bytes):
-    :func:`_deserialize` then asks rosbags, which gives the canonical error.
+    :func:`_deserialize` then asks rosbags, which gives the canonical error. Positions are
+    counted from the end of the 4-byte encapsulation header, as CDR aligns them.
     """
+    raw = bytes(raw)
+    n = len(raw)
+    for head, layout, start, size in _F64MA_SHAPES.get(n, ()):
+        if raw.startswith(head):
+            return _Float64MultiArray(layout, np.frombuffer(raw, np.float64, size, start))
     if raw[:2] != b"\x00\x01":
         return None
-    buf = bytes(raw[4:])
-    n = len(buf)
+    n -= 4
     try:
-        count, = _U32(buf, 0)
+        count, = _U32(raw, 4)
         pos = 4
         if pos + count > n:                        # rosbags: check_sequence(minimum 1)
             return None
         dims = []
         for _ in range(count):
             pos = (pos + 3) & -4
-            length, = _U32(buf, pos)
+            length, = _U32(raw, 4 + pos)
             end = pos + 4 + length
-            if length < 1 or end > n or buf[end - 1] != 0:      # rosbags: check_string
+            if length < 1 or end > n or raw[3 + end] != 0:      # rosbags: check_string
                 return None
-            label = buf[pos + 4:end - 1].decode()
+            label = raw[8 + pos:3 + end].decode()
             pos = (end + 3) & -4
-            size, stride = struct.unpack_from("<II", buf, pos)
+            size, stride = _U32X2(raw, 4 + pos)
             pos += 8
             dims.append(_Dimension(label, size, stride))
-        offset, size = struct.unpack_from("<II", buf, pos)
+        offset, size = _U32X2(raw, 4 + pos)
         pos += 8
         if pos + 8 * size > n:                     # rosbags: check_sequence(minimum 8)
             return None
         if size:
             pos = (pos + 7) & -8
-        data = np.frombuffer(buf, dtype=np.float64, count=size, offset=pos)
+        data = np.frombuffer(raw, np.float64, size, 4 + pos)
     except (struct.error, UnicodeDecodeError, ValueError):
         return None
-    if pos + 8 * size + 7 < len(raw):               # rosbags: "CDR message size mismatch"
+    if pos + 8 * size + 7 < n + 4:                 # rosbags: "CDR message size mismatch"
         return None
-    return _Float64MultiArray(_Layout(dims, offset), data)
+    layout = _Layout(tuple(dims), offset)
+    if len(_F64MA_SHAPES) >= 256:     # bounded: ever new layouts only parse every message
+        _F64MA_SHAPES.clear()
+    shapes = _F64MA_SHAPES.setdefault(n + 4, [])
+    if len(shapes) >= 8:
+        del shapes[0]
+    shapes.append((raw[:4 + pos], layout, 4 + pos, size))
+    return _Float64MultiArray(layout, data)
 
 
 def _deserialize(raw: bytes, msgtype: str) -> Any:
@@ -607,15 +626,13 @@ def _parse(buf: Any, pos: int, end: int) -> Any:
 _MESSAGE_HEAD = struct.Struct("<HIQQ")   # channel_id, sequence, log_time, publish_time
 
 
-def _message_record(buf: Any, pos: int, end: int) -> Message:
-    """A Message record at ``buf[pos:end]`` (fixed fields, then the data to the end): the
-    hot path of reading a bag, without the generic parser's round trip (a message with its
-    fixed fields is always consistent with its length)."""
-    if end - pos < 9 + _MESSAGE_HEAD.size:
-        raise ValueError("message record shorter than its fixed fields")
-    channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(buf, pos + 9)
-    return Message(channel_id=channel_id, sequence=sequence, log_time=log_time,
-                   publish_time=publish_time, data=bytes(buf[pos + 9 + _MESSAGE_HEAD.size:end]))
+def _message_index_ok(buf: Any, pos: int, end: int) -> bool:
+    """The MessageIndex record at ``buf[pos:end]`` is one :func:`_parse` accepts: its
+    records length is the rest of its content, a whole number of (time, offset) pairs (any
+    numbers). Reading uses no index, so the check is all it needs; a record failing it goes
+    to :func:`_parse` for the error to report."""
+    n = end - pos - 9
+    return n >= 6 and (n - 6) % 16 == 0 and struct.unpack_from("<I", buf, pos + 11)[0] == n - 6
 
 
 def _decompress(chunk: Chunk) -> bytes:
@@ -741,7 +758,11 @@ class _Scan:
                 except _PARSE_ERRORS as exc:
                     pos = self._resync(buf, pos, f"malformed message record ({exc})")
                     continue
-                yield from self._message(m, pos)
+                conn = self._channel(m.channel_id, pos)
+                if conn is not None:
+                    yield conn, m.log_time, m.data
+            elif op == Opcode.MESSAGE_INDEX and _message_index_ok(buf, pos, end):
+                pass
             elif op in _RECORDS:
                 try:
                     rec = _parse(buf, pos, end)
@@ -811,13 +832,14 @@ class _Scan:
             name, msgdef = self.schemas[rec.schema_id]
             self.channels[rec.id] = _Conn(rec.topic, name, msgdef)
 
-    def _message(self, m: Message, where: int) -> Iterator[tuple[_Conn, int, bytes]]:
-        conn = self.channels.get(m.channel_id)
+    def _channel(self, channel_id: int, where: int) -> _Conn | None:
+        """The channel of a message (counted), or None (reported: the message is skipped)."""
+        conn = self.channels.get(channel_id)
         if conn is None:
-            self.report(where, f"message of undeclared channel {m.channel_id} skipped")
-            return
+            self.report(where, f"message of undeclared channel {channel_id} skipped")
+            return None
         self.messages += 1
-        yield conn, m.log_time, m.data
+        return conn
 
     def _chunk(self, buf: Any, pos: int, end: int) -> Iterator[tuple[_Conn, int, bytes]]:
         try:
@@ -841,27 +863,32 @@ class _Scan:
         elif zlib.crc32(data) != chunk.uncompressed_crc:
             self.report(pos, f"{span}: CRC mismatch (corrupted): its messages skipped")
             return
-        out: list[Message] = []
+        out: list[tuple[int, int, bytes]] = []     # (channel id, log time, data)
         i = 0
+        size, message = _MESSAGE_HEAD.size, Opcode.MESSAGE
         try:
             while i < len(data):
                 j = i + 9 + struct.unpack_from("<Q", data, i + 1)[0]
                 if j > len(data):
                     raise ValueError("record runs past the chunk")
-                if data[i] == Opcode.MESSAGE:
-                    rec = _message_record(data, i, j)
-                else:
-                    rec = _parse(data, i, j) if data[i] in _RECORDS else None
-                if isinstance(rec, Message):
-                    out.append(rec)
-                elif isinstance(rec, (Schema, Channel)):
-                    self._declare(rec)
+                op = data[i]
+                if op == message:       # the hot path: fixed fields, then the data
+                    if j - i - 9 < size:
+                        raise ValueError("message record shorter than its fixed fields")
+                    channel_id, _seq, log_time, _pub = _MESSAGE_HEAD.unpack_from(data, i + 9)
+                    out.append((channel_id, log_time, data[i + 9 + size:j]))
+                elif op in _RECORDS:
+                    rec = _parse(data, i, j)
+                    if isinstance(rec, (Schema, Channel)):
+                        self._declare(rec)
                 i = j
         except _PARSE_ERRORS as exc:
             self.report(pos, f"{span}: malformed record at byte {i} of its content ({exc}): "
                              f"the rest of the chunk skipped")
-        for m in out:
-            yield from self._message(m, pos)
+        for channel_id, log_time, payload in out:
+            conn = self._channel(channel_id, pos)
+            if conn is not None:
+                yield conn, log_time, payload
 
 
 def _scan(path: str | Path, damage: list[BagDamage] | None

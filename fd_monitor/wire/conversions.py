@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,7 @@ def join_labels(labels: Sequence[str]) -> str:
     return ",".join(labels)
 
 
+@lru_cache(maxsize=256)   # every message of a topic carries the same labels
 def split_labels(text: str) -> tuple[str, ...]:
     """``"h1,h2"`` -> ``("h1", "h2")``; ``""`` -> ``()``."""
     return tuple(s.strip() for s in text.split(",")) if text.strip() else ()
