@@ -240,3 +240,46 @@ def test_message_index_check_accepts_only_what_the_strict_parser_accepts(repo):
             with pytest.raises(Exception):  # noqa: B017  (mcap's assorted errors)
                 _parse(bytes(rec), 0, len(rec))
     assert accepted > 10000
+
+
+def test_arrays_of_one_layout_equal_the_message_by_message_reading(repo):
+    """read_bag reads the topics whose messages share their layout bytes as one array
+    (bags._arrays_of_one_layout); on the bundled bag, an unstamped topic and NaN/inf values
+    it gives exactly what decoding message by message gives, and it leaves any bag with a
+    stamp decode() refuses (NaN, negative, 1.5, 2**53) to that loop, which names it."""
+    from fd_monitor.wire.bags import (
+        _arrays_message_by_message,
+        _arrays_of_one_layout,
+        _typestore,
+        read_raw,
+        serialize_array,
+    )
+
+    ty = "std_msgs/msg/Float64MultiArray"
+    st = _typestore()
+    bundled = list(read_raw(repo / "bags" / "three_tank_bias_h1"))
+    labelled = [("/l", ty, 10 * k, serialize_array(("a", "b"), k, [k, -k])) for k in range(5)]
+    special = [("/s", ty, k, serialize_array(("x",), k, [v]))
+               for k, v in enumerate([np.nan, np.inf, -np.inf, 0.0])]
+    plain = [("/plain", ty, k, bytes(st.serialize_cdr(st.types[ty](   # a driver's: no stamp
+        layout=st.types["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0),
+        data=np.array([k, 2.0 * k])), ty))) for k in range(4)]
+    for recs in (bundled, labelled + special + plain):
+        fast = _arrays_of_one_layout(recs)
+        slow = _arrays_message_by_message("bag", recs)
+        assert fast is not None and list(fast) == list(slow)
+        for topic, a in slow.items():
+            b = fast[topic]
+            assert (b.topic, b.labels) == (a.topic, a.labels)
+            for f in ("stamps", "values", "receive_ns"):
+                x, y = getattr(a, f), getattr(b, f)
+                assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    assert fast["/plain"].labels == ("0", "1")
+    np.testing.assert_array_equal(fast["/plain"].stamps, np.arange(4))
+    for bad in (np.nan, -1.0, 1.5, 2.0**53):
+        data = serialize_array(("x",), 0, [1.0])
+        raw = data[:-16] + np.array([bad, 1.0]).tobytes()
+        recs = [*special[:2], ("/s", ty, 9, raw)]
+        assert _arrays_of_one_layout(recs) is None
+        with pytest.raises(BagError, match=r"bag: /s: stamp data\[0\] = "):
+            _arrays_message_by_message("bag", recs)

@@ -57,7 +57,13 @@ from mcap.records import (
 )
 
 from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError, WrongLengthError
-from fd_monitor.wire.conversions import ArrivalStamper, decode, encode_data, join_labels
+from fd_monitor.wire.conversions import (
+    MAX_STAMP,
+    ArrivalStamper,
+    decode,
+    encode_data,
+    join_labels,
+)
 from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY
 
 __all__ = [
@@ -131,8 +137,9 @@ _U32X2 = struct.Struct("<II").unpack_from
 _F64MA_SHAPES: dict[int, list[tuple[bytes, _Layout, int, int]]] = {}
 
 
-def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
-    """Little-endian CDR bytes of a Float64MultiArray -> its fields, without the type store.
+def _f64ma_shape(raw: bytes) -> tuple[bytes, _Layout, int, int] | None:
+    """Little-endian CDR bytes of a Float64MultiArray -> (the bytes before its data, its
+    layout, where its data starts, how many float64 it has), without the type store.
 
     The rosbags Jazzy deserialiser's steps and checks, written out for this one type: the
     offline reader decodes thousands of these per bag, and loading the type store costs more
@@ -141,11 +148,10 @@ def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
     :func:`_deserialize` then asks rosbags, which gives the canonical error. Positions are
     counted from the end of the 4-byte encapsulation header, as CDR aligns them.
     """
-    raw = bytes(raw)
     n = len(raw)
-    for head, layout, start, size in _F64MA_SHAPES.get(n, ()):
-        if raw.startswith(head):
-            return _Float64MultiArray(layout, np.frombuffer(raw, np.float64, size, start))
+    for shape in _F64MA_SHAPES.get(n, ()):
+        if raw.startswith(shape[0]):
+            return shape
     if raw[:2] != b"\x00\x01":
         return None
     n -= 4
@@ -172,19 +178,29 @@ def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
             return None
         if size:
             pos = (pos + 7) & -8
-        data = np.frombuffer(raw, np.float64, size, 4 + pos)
-    except (struct.error, UnicodeDecodeError, ValueError):
+            if pos + 8 * size > n:                 # rosbags: numpy.frombuffer's ValueError
+                return None
+    except (struct.error, UnicodeDecodeError):
         return None
     if pos + 8 * size + 7 < n + 4:                 # rosbags: "CDR message size mismatch"
         return None
-    layout = _Layout(tuple(dims), offset)
+    shape = (raw[:4 + pos], _Layout(tuple(dims), offset), 4 + pos, size)
     if len(_F64MA_SHAPES) >= 256:     # bounded: ever new layouts only parse every message
         _F64MA_SHAPES.clear()
     shapes = _F64MA_SHAPES.setdefault(n + 4, [])
     if len(shapes) >= 8:
         del shapes[0]
-    shapes.append((raw[:4 + pos], layout, 4 + pos, size))
-    return _Float64MultiArray(layout, data)
+    shapes.append(shape)
+    return shape
+
+
+def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
+    """:func:`_f64ma_shape` and the data: the message's fields (None: see there)."""
+    raw = bytes(raw)
+    shape = _f64ma_shape(raw)
+    if shape is None:
+        return None
+    return _Float64MultiArray(shape[1], np.frombuffer(raw, "<f8", shape[3], shape[2]))
 
 
 def _deserialize(raw: bytes, msgtype: str) -> Any:
@@ -1002,13 +1018,21 @@ def arrays_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, byt
                     ) -> dict[str, TopicArrays]:
     """:func:`read_bag` of records already read with :func:`read_raw` (``path`` names the
     bag in errors); records of other types than Float64MultiArray are skipped."""
+    recs = [r for r in records if r[1] == FLOAT64_MULTI_ARRAY]
+    same = _arrays_of_one_layout(recs)
+    return same if same is not None else _arrays_message_by_message(path, recs)
+
+
+def _arrays_message_by_message(path: str | Path,
+                               records: Sequence[tuple[str, str, int, bytes]]
+                               ) -> dict[str, TopicArrays]:
+    """:func:`arrays_from_raw` of Float64MultiArray records, each message decoded and
+    checked on its own (a bad one named in the BagError)."""
     acc: dict[str, tuple[list[int], list[np.ndarray], list[int]]] = {}
     labels: dict[str, tuple[str, ...]] = {}
     stampers: dict[str, ArrivalStamper] = {}
     order: list[str] = []
     for topic, ty, t, raw in records:
-        if ty != FLOAT64_MULTI_ARRAY:
-            continue
         if topic not in acc:
             order.append(topic)
         ks, vs, ts = acc.setdefault(topic, ([], [], []))
@@ -1030,6 +1054,47 @@ def arrays_from_raw(path: str | Path, records: Iterable[tuple[str, str, int, byt
         ks, vs, ts = acc[topic]
         out[topic] = TopicArrays(topic, labels[topic], np.asarray(ks, dtype=np.int64),
                                  np.vstack(vs), np.asarray(ts, dtype=np.int64))
+    return out
+
+
+def _arrays_of_one_layout(records: Sequence[tuple[str, str, int, bytes]]
+                          ) -> dict[str, TopicArrays] | None:
+    """:func:`arrays_from_raw` of Float64MultiArray records when, per topic, every message
+    has the length and the bytes before its data (labels, sizes, offset) of the topic's
+    first message -- a bag fd_monitor wrote: the first message is decoded (and checked) as
+    usual, the data of all as one array, the stamps checked as :func:`decode` checks them.
+    None otherwise (the message-by-message loop then reads the bag and names the bad
+    message)."""
+    topics: dict[str, list[tuple[int, bytes]]] = {}
+    for topic, _ty, t, raw in records:
+        topics.setdefault(topic, []).append((t, bytes(raw)))
+    out: dict[str, TopicArrays] = {}
+    for topic, msgs in topics.items():
+        raw0 = msgs[0][1]
+        shape = _f64ma_shape(raw0)
+        if shape is None:
+            return None
+        head, layout, start, size = shape
+        if any(len(raw) != len(raw0) or not raw.startswith(head) for _t, raw in msgs):
+            return None
+        try:
+            first = decode(_decode_f64ma(raw0), topic, allow_nan=True, allow_inf=True)
+        except MessageError:
+            return None
+        block = np.frombuffer(b"".join(raw for _t, raw in msgs), np.uint8)
+        data = block.reshape(len(msgs), -1)[:, start:start + 8 * size].copy().view("<f8")
+        offset = layout.data_offset         # 0 or 1: the first message decoded
+        if offset:
+            s = data[:, 0]
+            if not np.all((s >= 0) & (s < MAX_STAMP) & (s == np.floor(s))):  # NaN: False
+                return None
+            stamps = s.astype(np.int64)
+        else:
+            stamps = np.arange(len(msgs), dtype=np.int64)     # ArrivalStamper's numbers
+        out[topic] = TopicArrays(
+            topic, first.labels or tuple(str(i) for i in range(size - offset)), stamps,
+            np.ascontiguousarray(data[:, offset:], np.float64),
+            np.array([t for t, _r in msgs], np.int64))
     return out
 
 
