@@ -87,6 +87,11 @@ def live_monitor(bag: Path, env: dict[str, str], tmp: Path) -> dict[str, float]:
               env, tmp / "record.log")
     try:
         t0 = time.perf_counter()
+        # replay waits only for the monitor's subscriptions: without this the recorder
+        # could still be matching /fd/alarm when the first alarms go out, miss hundreds of
+        # them and wait for them until its timeout (seen in 4 of 5 runs at load 1-4)
+        subprocess.run([sys.executable, __file__, "--wait-graph", t_alarm], cwd=REPO, env=env,
+                       check=True, timeout=120)
         rep = subprocess.run([sys.executable, "-m", "fd_monitor", "replay", str(bag),
                               "--topics", t_u, t_y, "--rate", "0",
                               "--wait-subscribers", "1"], cwd=REPO, env=env,
@@ -128,6 +133,25 @@ def raw_subscriber(n_msgs: int) -> None:
                       "last": times[-1] if times else 0.0}), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
+
+
+def wait_graph(topic: str) -> None:
+    """Child process: return once ``topic`` has a publisher and a subscriber in the graph
+    (both endpoints announced; exit status 1 after 60 s)."""
+    import rclpy
+    from rclpy.node import Node
+
+    rclpy.init()
+    node = Node("bench_wait_graph")
+    deadline = time.monotonic() + 60
+    try:
+        while node.count_publishers(topic) < 1 or node.count_subscribers(topic) < 1:
+            if time.monotonic() > deadline:
+                raise SystemExit(f"{topic}: no publisher and subscriber after 60 s")
+            rclpy.spin_once(node, timeout_sec=0.05)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 def raw_rclpy(bag: Path, env: dict[str, str]) -> dict[str, float]:
@@ -217,6 +241,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bag", default=str(REPO / "bags" / "three_tank_bias_h1"))
     ap.add_argument("--raw-sub", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--wait-graph", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--gains", default="three_tank_thresholds",
                     help="gain file of the analyze timing")
     ap.add_argument("--runs", type=int, default=7, help="analyze runs (median printed)")
@@ -225,6 +250,9 @@ def main() -> None:
     args = ap.parse_args()
     if args.raw_sub is not None:
         raw_subscriber(args.raw_sub)
+        return
+    if args.wait_graph is not None:
+        wait_graph(args.wait_graph)
         return
     env = _env()
     bag = Path(args.bag)
