@@ -34,11 +34,13 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
@@ -52,12 +54,13 @@ from fd_monitor.nodes.common import (
     DataInput,
     Diagnostics,
     Param,
+    SerializedArray,
     data_pub_qos,
     declare_parameters,
     incompatible_text,
     pub_events,
 )
-from fd_monitor.wire.conversions import ArrivalStamper, decode, readable_stamp, to_msg
+from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.topics import Layout, Topic
 
@@ -198,13 +201,9 @@ class FdNode(LifecycleNode):
     """
 
     inputs: Sequence[Input] = ()
-    #: Subscription callbacks take the MessageInfo (the DDS source timestamp orders plain
-    #: messages for sample-and-hold). False: message only, plain messages ordered by their
-    #: arrival here -- what rclpy's EventsExecutor can call in these wheels (``monitor``).
-    message_info = True
-    #: Set at configure: every callback is message-only, so ``run_node`` may use the
-    #: EventsExecutor.
-    events_executor = False
+    #: ``run_node`` runs the node on rclpy's EventsExecutor (plain inputs still get their
+    #: source timestamps: :func:`~fd_monitor.nodes.common.with_message_info`).
+    events_executor = True
     #: Gain-file method -> name of the method building the node's runtime for it.
     runtimes: Mapping[str, str] = {}
     #: Output topics, for the start line and the second-publisher check.
@@ -222,6 +221,8 @@ class FdNode(LifecycleNode):
         self._error: FdMonitorError | None = None
         self._autostarting = False
         self._entities: list[Any] = []
+        #: labels -> serialized layout of publish_array
+        self._serialized: dict[tuple[str, ...], SerializedArray] = {}
         #: The robot's topics giving u and y, when the node has an adapter file (at start).
         self.adapter_input: AdapterInput | None = None
         from std_srvs.srv import Trigger
@@ -438,9 +439,12 @@ class FdNode(LifecycleNode):
         self._pubs.append(pub)
         return pub
 
-    def subscribe(self, topic: str, callback: Callable[..., None]) -> DataInput:
-        """A data-path subscription of Float64MultiArray (relative topic name)."""
-        sub = DataInput(self, Float64MultiArray, topic, callback, self._graph_note)
+    def subscribe(self, topic: str, callback: Callable[..., None],
+                  with_info: bool = False, raw: bool = False) -> DataInput:
+        """A data-path subscription of Float64MultiArray (relative topic name); with
+        ``with_info`` the callback gets ``(msg, info)``; ``raw``: serialized messages."""
+        sub = DataInput(self, Float64MultiArray, topic, callback, self._graph_note,
+                        raw=raw, with_info=with_info)
         self._entities.append(sub)
         return sub
 
@@ -463,8 +467,6 @@ class FdNode(LifecycleNode):
         self._stamper = ArrivalStamper()
         self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
-        info = self.message_info
-        self.events_executor = not info
         self._data_inputs = {}
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
         self.adapter_input = None
@@ -473,8 +475,8 @@ class FdNode(LifecycleNode):
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
             cb = self._callback(inp)
-            self._data_inputs[inp.name] = self.subscribe(
-                inp.topic, cb if info else lambda msg, cb=cb: cb(msg, None))
+            self._data_inputs[inp.name] = self.subscribe(inp.topic, cb, inp.plain_ok,
+                                                         raw=True)
         self._open_loop: set[str] = set()
         if self._held:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
@@ -500,23 +502,26 @@ class FdNode(LifecycleNode):
                                        f"feedback (its initial value) until one appears")
         return there
 
-    def _callback(self, inp: Input) -> Callable[[Any, Any], None]:
+    def _callback(self, inp: Input) -> Callable[..., None]:
         stamper = self._stamper
         topic = self.resolve_topic_name(inp.topic)
         order = _TopicOrder(topic)
         # the restart flag of the sequence input, by field (resolved once)
         i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
+        # serialized messages in, decoded without a message object when the layout is known
+        dec = RawDecoder(partial(deserialize_message, message_type=Float64MultiArray), topic,
+                         labels=inp.labels, size=inp.size, require_stamp=not inp.plain_ok,
+                         allow_nan=inp.allow_nan)
 
-        def cb(msg: Any, info: Any) -> None:
+        def cb(raw: bytes, info: Any = None) -> None:
             if not self.active:
                 self.inactive_dropped += 1
                 return
             try:
-                d = decode(msg, topic, labels=inp.labels, size=inp.size,
-                           require_stamp=not inp.plain_ok, allow_nan=inp.allow_nan)
+                d = dec.decode(raw)
             except MessageError as exc:
                 self.bad_input(str(exc))
-                k = readable_stamp(msg) if inp.initial is None else None
+                k = readable_stamp(dec.message(raw)) if inp.initial is None else None
                 if k is not None and k + inp.stamp_offset >= 0:
                     self.join.reject(k + inp.stamp_offset)
                     self._drain()
@@ -687,8 +692,13 @@ class FdNode(LifecycleNode):
         raise NotImplementedError
 
     def publish_array(self, pub: Any, labels: Sequence[str], stamp: int, values: Any) -> None:
-        """Publish one stamped, labelled message."""
-        pub.publish(to_msg(labels, stamp, values))
+        """Publish one stamped, labelled message (serialized directly:
+        :class:`~fd_monitor.nodes.common.SerializedArray`, one per layout)."""
+        key = tuple(labels)
+        ser = self._serialized.get(key)
+        if ser is None:
+            ser = self._serialized[key] = SerializedArray(key)
+        pub.publish(ser.encode(stamp, values))
 
     def gain_values(self) -> dict[str, str]:
         """Gain-file id and certificate status, for /diagnostics (per sample: cached)."""

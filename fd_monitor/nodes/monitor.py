@@ -26,12 +26,9 @@ nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
 
 from __future__ import annotations
 
-import struct
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
-
-from rclpy.serialization import serialize_message
 
 from fd_monitor.core.monitor import Monitor, MonitorOutput
 from fd_monitor.model.errors import FdMonitorError
@@ -39,7 +36,7 @@ from fd_monitor.nodes import agei, bias_estimator, detector, observer, runtime_n
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
-from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
+from fd_monitor.nodes.common import OK, NodeUsage, Param, SerializedArray, run_node
 from fd_monitor.nodes.detector import DetectorNode, ResidualReport
 from fd_monitor.nodes.fd_node import (
     COMMON_PARAMS,
@@ -50,7 +47,6 @@ from fd_monitor.nodes.fd_node import (
 )
 from fd_monitor.nodes.observer import EstimateReport, ObserverNode
 from fd_monitor.nodes.runtime_node import RuntimeNode, gain_method
-from fd_monitor.wire.conversions import to_msg
 from fd_monitor.wire.topics import (
     ALARM,
     BIAS_ESTIMATE,
@@ -113,8 +109,6 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
     runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds"}
     outputs = CHAIN_OUTPUTS
     bias_channel = "bias estimate"
-    # message-only callbacks: runs under the EventsExecutor (run_node)
-    message_info = False
 
     def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
                  **kwargs: Any) -> None:
@@ -133,21 +127,14 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         """Publishers, runtime, diagnostics and inputs (at configure)."""
         s = self.system
         o = s.outputs
-        # Each topic's message is serialised once (CDR, little endian); ``data`` is its last
-        # field, so a sample's message is that prefix (layout, data length) followed by the
-        # k and values as float64: published as serialised bytes, no message object per
-        # sample (the tests compare every published value with Monitor's). The values are
-        # the runtime's payloads by field name (the layouts, built once).
-        self._out = []
-        for t in self.outputs:
-            lay = t.layout(s)
-            n = len(lay.labels) + 1
-            cdr = serialize_message(to_msg(lay.labels, 0, [0.0] * len(lay.labels)))
-            self._out.append((self.publisher(t), cdr[:-8 * n], struct.Struct(f"<{n}d"),
-                              lay, t.next_sample))
-        #: per topic: publisher, prefix, packer, which payload holds each field, k or k + 1
+        # Each topic's message is serialized directly (SerializedArray: no message object
+        # per sample); its values are the runtime's payloads by field name (the layouts,
+        # built once).
+        self._out = [(self.publisher(t), SerializedArray(t.layout(s).labels), t.layout(s),
+                      t.next_sample) for t in self.outputs]
+        #: per topic: publisher, serializer, which payload holds each field, k or k + 1
         #: (resolved at the first sample from the runtime's payloads)
-        self._plan: list[tuple[Any, bytes, struct.Struct, Any, bool]] | None = None
+        self._plan: list[tuple[Any, SerializedArray, Any, bool]] | None = None
         self.sigma_hat = [0.0] * s.ny
         self._alarmed: set[str] = set()
         self._episode = 0
@@ -199,18 +186,17 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         pays = (ob.payload(), det.payload(), ag.payload(), est.payload(),
                 {"restart": self.restarting})
         if self._plan is None:
-            self._plan = [(pub, prefix, cdr, lay.sources(pays), nxt)
-                          for pub, prefix, cdr, lay, nxt in self._out]
-        for pub, prefix, cdr, src, nxt in self._plan:
-            # [k, *values] as Python numbers (bools and ints pack exactly as float64)
-            data: list[Any] = [stamps[nxt]]
+            self._plan = [(pub, ser, lay.sources(pays), nxt) for pub, ser, lay, nxt in self._out]
+        for pub, ser, src, nxt in self._plan:
+            # values as Python numbers (bools and ints pack exactly as float64)
+            data: list[Any] = []
             for i, name, scalar in src:
                 v = pays[i][name]
                 if scalar:
                     data.append(v)
                 else:
                     data.extend(v.tolist())
-            pub.publish(prefix + cdr.pack(*data))
+            pub.publish(ser.encode(stamps[nxt], data))
         alarm = det.alarm.tolist()
         # Diagnostics: a full report when a status can change (alarms, mode, AGEI phase,
         # estimator, certified region) and at least every DIAG_REFRESH s; else the channels
@@ -263,8 +249,7 @@ def main(args: Sequence[str] | None = None) -> int:
     """Run the fused monitor node (or, with ``layout:=chain``, the four chain nodes)."""
     return run_node(make_nodes, args, prog="monitor",
                     usage=[USAGE, runtime_node.USAGE,
-                           *(m.USAGE for m in (observer, detector, agei, bias_estimator))],
-                    events=True)
+                           *(m.USAGE for m in (observer, detector, agei, bias_estimator))])
 
 
 if __name__ == "__main__":
