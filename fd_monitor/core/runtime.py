@@ -173,6 +173,9 @@ class Runtime:
     BATCH_OPTIONS : tuple of str
         Keyword options :meth:`run_batch` takes (class attribute; default: the
         constructor's).
+    CHAIN : bool
+        :meth:`payloads` are the diagnosis chain's (observer, detector, AGEI, estimator), so
+        a live node publishes the four chain nodes' topics (class attribute; ``thresholds``).
     channels : tuple of str
         (m,) alarm channel names.
     units : tuple of str
@@ -192,6 +195,7 @@ class Runtime:
     ESTIMATE_KIND: ClassVar[str] = "none"
     SIGNED: ClassVar[bool] = False
     BATCH_OPTIONS: ClassVar[tuple[str, ...] | None] = None
+    CHAIN: ClassVar[bool] = False
 
     channels: tuple[str, ...]
     units: tuple[str, ...]
@@ -234,6 +238,15 @@ class Runtime:
             one); no state has changed.
         """
         raise NotImplementedError
+
+    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+        """What a live node publishes of ``out``, by field name: ``residual``,
+        ``threshold``, ``alarm`` (m,), ``mode``, ``x_hat`` (flattened; zero-length when the
+        method has none)."""
+        x_hat = out.estimates.get("x_hat")
+        return ({"residual": out.residual, "threshold": out.threshold, "alarm": out.alarm,
+                 "mode": out.mode,
+                 "x_hat": np.zeros(0) if x_hat is None else np.ravel(x_hat)},)
 
     @property
     def side_labels(self) -> dict[str, tuple[str, ...]]:
@@ -423,6 +436,7 @@ class ThresholdsRuntime(Runtime):
     ESTIMATE_KIND = "sensor_bias"
     SIGNED = True
     BATCH_OPTIONS = ("agei", "keep")
+    CHAIN = True
 
     def __init__(self, system: System, gains: Any, agei: bool = True) -> None:
         super().__init__(system, gains)
@@ -445,6 +459,12 @@ class ThresholdsRuntime(Runtime):
         return RuntimeOutput(o.k, d.residual, d.threshold, d.alarm, o.outside, o.mode,
                              {"x_hat": o.observer.x_hat, "sigma_hat": o.estimator.sigma_hat,
                               "isolated": o.estimator.isolated}, o)
+
+    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+        """The chain's payloads: observer, detector, AGEI, estimator (``out.core``)."""
+        o = out.core
+        return (o.observer.payload(), o.detector.payload(), o.agei.payload(),
+                o.estimator.payload())
 
     def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """sigma^ per output."""
