@@ -5,17 +5,26 @@ simulations alarm on the right channel within a stated delay (the runtime of
 :func:`fd_monitor.core.runtime.runtime_for` on simulated runs, as nodes and ``analyze`` run it).
 
 Delays measured on these runs: thesis 5.3 r1 0.01 s after f1 (30 s), r2 0.03 s after f2
-(60 s); thesis 6.5 0.01 s for both; Farhat & Koenig the fault sample itself (300)."""
+(60 s); thesis 6.5 0.01 s for both; Farhat & Koenig the fault sample itself (300).
+
+Last, thesis 5.3, 6.5, 7.1 and Farhat & Koenig go through ``simulate`` -> bag -> ``analyze``
+-> ``report`` with the CLI, as the other plants do."""
 
 from __future__ import annotations
 
+import json
+import shutil
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 pytest.importorskip("cvxpy")
 
+from fd_monitor.analysis.library import load_expected, load_library
 from fd_monitor.core.runtime import runtime_for
 from fd_monitor.core.simulator import simulate, simulate_batch
 from fd_monitor.design import hinf_sc, hminus_switched
@@ -26,6 +35,7 @@ from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 
+LIB = load_library()
 #: stated detection delays (s): the first alarm of the faulty generator is at most this late
 DELAY_S = 0.1
 
@@ -178,3 +188,43 @@ def test_hminus_threshold_section_errors_are_one_line():
                                "settle": 100.0})
     with pytest.raises(DesignError, match=r"threshold\.settle: expected less than"):
         hminus_switched.design(s, bad, origin, sha)
+
+
+# --------------------------------------------------------------------------------------
+# simulate -> bag -> analyze -> report, as for the other plants (issue 10, item 5)
+
+
+def _cli(*args):
+    out = subprocess.run([sys.executable, "-m", "fd_monitor", *args], capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+@pytest.mark.parametrize("name", ["thesis_5_3_overlap", "thesis_6_5_overlap", "f16xl_overlap",
+                                  "farhat_koenig_fault"])
+def test_thesis_and_switched_plants_through_simulate_analyze_report(tmp_path, name):
+    """Thesis 5.3, 6.5, 7.1 (F16XL) and Farhat & Koenig with the commands a user runs:
+    `simulate` writes the library bag's bytes, `analyze` alarms on every faulty channel after
+    its onset, `report` writes its figures and finds the library's expectations hold."""
+    spec = LIB[name]
+    bag = tmp_path / "bag"
+    doc = _cli("simulate", spec.scenario, "--seed", str(spec.seed), "--duration",
+               str(spec.duration), "-o", str(bag), "--json")
+    assert doc["samples"] == round(spec.duration / doc["sample_time"])
+    assert (bag / "bag.mcap").read_bytes() == (spec.folder / f"{name}.mcap").read_bytes()
+    exp = load_expected(spec.expected_file)
+    an = _cli("analyze", str(bag), "--gains", spec.gains, "--json")
+    first = {}
+    for ep in an["alarms"]:
+        first.setdefault(ep["channel"], ep["first_sample"])
+    assert sorted(first) == sorted(exp["alarms"])
+    for ch, a in exp["alarms"].items():
+        assert exp["fault_onset_sample"] <= first[ch] <= a["first_sample"] + a["tolerance"]
+    shutil.copy(spec.expected_file, bag / "expected.yaml")
+    rep = _cli("report", str(bag), "-o", str(tmp_path / "rep"), "--json")
+    assert rep["expected"] == "ok"
+    assert {"residuals", "modes"} <= set(rep["figures"])
+    for p in rep["figures"].values():
+        assert Path(p).stat().st_size > 10_000
+    assert "All expectations hold." in (tmp_path / "rep" / "summary.md").read_text()
