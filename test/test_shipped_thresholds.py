@@ -228,3 +228,17 @@ def test_thesis_and_switched_plants_through_simulate_analyze_report(tmp_path, na
     for p in rep["figures"].values():
         assert Path(p).stat().st_size > 10_000
     assert "All expectations hold." in (tmp_path / "rep" / "summary.md").read_text()
+
+
+def test_design_cli_prints_the_thresholds_and_their_method(tmp_path):
+    doc = _cli("design", "hinf_sc", "thesis_6_5", "-o", str(tmp_path / "g.yaml"), "--json")
+    assert doc["threshold_method"] == {"method": "bound", "levels": {"nuisance": 1.0},
+                                       "margin": 3.0}
+    shipped = load_gains("thesis_6_5_hinf_sc", load_system("thesis_6_5"))
+    np.testing.assert_allclose(doc["thresholds"], shipped.results["thresholds"], rtol=1e-6)
+    out = subprocess.run([sys.executable, "-m", "fd_monitor", "design", "hinf_sc", "thesis_6_5",
+                          "-o", str(tmp_path / "g2.yaml")], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "threshold (bound)" in out.stdout
+    assert f"{shipped.results['thresholds'][0]:.4g}" in out.stdout
