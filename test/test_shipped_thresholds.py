@@ -72,8 +72,9 @@ def test_thesis_6_5_thresholds_are_the_bound_4_17_of_its_design_file():
     np.testing.assert_allclose(J, 3.0 * np.asarray(g), rtol=1e-12)
 
 
-@pytest.mark.parametrize("name, method", [("thesis_5_3", "hinf_sc"),
-                                          ("farhat_koenig", "hminus_switched")])
+@pytest.mark.parametrize("name, method", [
+    ("thesis_5_3", "hinf_sc"),
+    pytest.param("farhat_koenig", "hminus_switched", marks=pytest.mark.slow)])  # ~20 s
 def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method):
     """Re-designing from the design file gives the shipped thresholds (the runs are seeded;
     the gains agree to solver accuracy, so the thresholds to 1e-6)."""
@@ -145,19 +146,21 @@ def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name):
 
 
 def test_farhat_koenig_fault_free_random_switching_no_alarm_after_settling():
-    """Twenty runs the threshold design did not see (seeds 200-219; it used 100-119):
-    random switching, no alarm once armed (20 s after the start)."""
+    """Fifty runs the threshold design did not see (seeds 1000-1049; it used 100-299):
+    random switching, no alarm once armed (25 s after the start). (`evaluate` on 2,000
+    such runs, seeds 1000-2999: 0 false alarms; see the README.)"""
     s = load_system("farhat_koenig")
     gf = load_gains("farhat_koenig_hminus_switched", s)
     sc = load_scenario("farhat_koenig_nominal")
-    assert gf.results["threshold_method"]["scenario"] == sc.name
-    assert sc.seed == 100 and gf.results["threshold_method"]["runs"] == 20
-    tr = simulate_batch(sc, list(range(200, 220)))
-    for i in range(20):
+    tm = gf.results["threshold_method"]
+    assert tm["scenario"] == sc.name and sc.seed == 100 and tm["runs"] == 200
+    assert tm["settle_s"] == 25.0
+    tr = simulate_batch(sc, list(range(1000, 1050)))
+    for i in range(50):
         out = _run(s, gf, tr, i)
         assert not out.alarm.any(), i
-        assert np.isinf(out.threshold[:200]).all()          # not armed during settling
-        assert np.isfinite(out.threshold[200:]).all()
+        assert np.isinf(out.threshold[:250]).all()          # not armed during settling
+        assert np.isfinite(out.threshold[250:]).all()
 
 
 def test_farhat_koenig_fault_alarms_at_its_onset():
