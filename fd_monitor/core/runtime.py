@@ -674,10 +674,11 @@ class HminusSwitchedRuntime(Runtime):
     """``hminus_switched``: :class:`~fd_monitor.core.generalized_observer.GeneralizedObserver`
     (Farhat & Koenig).
 
-    One channel ``r_norm``: ``||r_k||`` (output units) against ``results.threshold`` (+inf
-    when the gain file has none: the shipped file has none, its designer writes
-    ``threshold: {method: none}``), armed ``results.threshold_method.settle_s`` after every
-    (re)start as for ``hinf_sc``. Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
+    One channel ``r_norm``: ``||r_k||`` (output units) against the design's threshold
+    (``observers.<design>.threshold``, written by the designer's Monte Carlo ``threshold``
+    section; else ``results.threshold``; +inf when the gain file has none), armed
+    ``results.threshold_method.settle_s`` after every (re)start as for ``hinf_sc``.
+    Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
 
     The switching signal alpha(k), in order of precedence: the side signal ``mode`` when
     given; an input channel named ``mode``; the plant file's guards (controlled ones on u_k,
