@@ -263,3 +263,37 @@ def test_downstream_feedback_without_a_publisher_is_not_waited_for():
     j.put("est", 0, "e0", restart=True)
     j.put("est", 1, "e1")
     assert release(j) == [(0, True, None, FB0), (1, False, None, FB0)]
+
+
+def test_entry_refused_sample_keeps_the_stream_at_the_next_stamp():
+    """After :meth:`StampJoin.lost` (the core refused sample 1) the stream goes on at 2: a 2
+    that comes after 3 within the timeout is still joined (a restart, no feedback awaited),
+    and a 2 that never comes is a reported hole -- not skipped silently."""
+    j = entry()
+    feed(j, 0)
+    release(j)
+    feed(j, 1)
+    j.put("fb", 1, "fb1")
+    (s1,) = release(j)
+    j.lost(s1[0])
+    feed(j, 3, now=0.1)                                # 3 before 2
+    assert release(j, 0.1) == []                       # 2 is awaited, not skipped
+    feed(j, 2, now=0.2)
+    j.put("fb", 3, "fb3")
+    assert release(j, 0.2) == [(2, True, None, FB0), (3, False, None, "fb3")]
+    j.lost(3)
+    feed(j, 5, now=1.0)                                # 4 never comes
+    assert release(j, 1.5) == []
+    assert release(j, 2.0) == [(5, True, (4, 4), FB0)]
+
+
+def test_join_notes_carry_their_kind():
+    j = StampJoin(["u", "y"], gap_timeout=1.0, horizon=10)
+    feed(j, 0)
+    list(j.ready())
+    j.put("u", 1, "u1")
+    assert j.put("u", 1, "again").kind == "duplicate"
+    assert j.put("u", 50, "stray").kind == "held"
+    feed(j, 3, now=0.0)
+    list(j.ready(5.0))                                 # 1..2: a hole
+    assert j.put("y", 2, "late").kind == "late"
