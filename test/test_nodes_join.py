@@ -1,6 +1,7 @@
 """StampJoin's decisions (pure, time passed in): order, feedback, holes, restarts.
 
-The entry role must reproduce :func:`fd_monitor.analysis.offline.run_bag`: valid samples in stamp
+The entry role is the input policy of the nodes and of offline reading
+(:func:`fd_monitor.analysis.offline.run_bag`, test/test_offline_policy.py): valid samples in stamp
 order, a restart (feedback at initial values) at the first valid sample after a hole, a
 rejected message makes its stamp lost at once, a missing one is lost once a later stamp has
 been complete for ``gap_timeout`` s, out-of-order stamps within the timeout are processed in

@@ -15,8 +15,10 @@ initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray
 (:func:`~fd_monitor.wire.conversions.decode`), pairs plain (unstamped) messages by
 sample-and-hold (a plain ``plant/y`` gets the latest ``plant/u`` published before it, by
 the DDS source timestamps; no u yet: reported, sample not processed), joins inputs on the stamp
-(:class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond ``stamp_horizon``,
-a stream that restarts lower = a new run after ``restart_after`` s), and reports on
+through the input policy offline reading shares (:class:`~fd_monitor.wire.stream.InputStream`:
+per-topic order check, :class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond
+``stamp_horizon``, a stream that restarts lower = a new run after ``restart_after`` s),
+and reports on
 ``/diagnostics``: an ``input`` channel (OK; WARN with the de-duplicated reasons of the bad
 messages; STALE when no input came for ``stale_timeout`` s), a ``ros graph`` channel
 (incompatible QoS, a second publisher on this node's output topics) plus the node's own

@@ -8,7 +8,8 @@ same. At a *restart* (the first sample, and the first valid sample after a hole)
 takes its initial values (sigma^ = 0, no trigger, no override), as after
 :meth:`fd_monitor.core.monitor.Monitor.reset`.
 
-Two roles, matching the offline runner (:func:`fd_monitor.analysis.offline.run_bag`):
+Two roles (the entry role is the one input policy of the nodes and of offline bag reading,
+through :class:`fd_monitor.wire.stream.InputStream`):
 
 * the **entry** node (``sequence=None``: the observer) decides the holes. When its next stamp
   k is incomplete, k is lost if a message for it was rejected (:meth:`StampJoin.reject`) or
