@@ -57,12 +57,12 @@ def _timeline(tr) -> list[tuple[float, str, int, np.ndarray]]:
             out.append((t, y, 10, tr.y[0, 10]))
             continue
         if k == 40:
-            out.append((t, u, 40, tr.u[0, 40]))        # y40 comes 1.5 s late: a hole
+            out.append((t, u, 40, tr.u[0, 40]))        # y40 comes 1.8 s late: a hole
             continue
         sample(t, k)
         if k == 5:
             out.append((t, y, 5, tr.y[0, 5]))          # recorded twice
-        if k == 55:
+        if k == 58:
             out.append((t, y, 40, tr.y[0, 40]))        # the late y40
         if k == 60:
             out.append((t, y, STRAY, tr.y[0, 60]))     # a stray stamp
@@ -125,7 +125,7 @@ def test_offline_takes_the_live_nodes_decisions(plant, tmp_path):
     # what the reader reports: the live node's log, by kind
     kinds = rep.by_kind()
     assert kinds["duplicate"] == [5]
-    # y10 after y11; y40 after y55; y61 after the stray; u0 and y0 of the new run
+    # y10 after y11; y40 after y58; y61 after the stray; u0 and y0 of the new run
     assert kinds["out_of_order"] == [0, 0, 10, 40, 61]
     assert kinds["missing"] == [[20, 24], [28, 28], [40, 40]]
     assert kinds["late"] == [40]                       # y40 came after its hole was declared
@@ -172,6 +172,21 @@ def test_a_bag_read_twice_gives_the_same_run(plant, tmp_path):
     np.testing.assert_array_equal(a.estimate["h1"][:K], a.estimate["h1"][K:])
     assert a.inputs.restarts == [0]
     assert a.inputs.by_kind() == {"out_of_order": [0, 0], "held": [0]}
+
+
+def test_a_refused_sample_then_a_gap_is_a_reported_hole(plant, tmp_path):
+    """An implausible y at 50 (refused by the runtime), then no message for 51..53: the
+    stream goes on at 51, so 51..53 are a reported hole and 54 the restart."""
+    sys_, g, tr = plant
+    u, y = PLANT_U.absolute, PLANT_Y.absolute
+    bad = tr.y[0, 50].copy()
+    bad[0] = 1e300
+    tl = [m for k in range(80) if not 51 <= k <= 53
+          for m in ((k * TS, u, k, tr.u[0, k]), (k * TS, y, k, bad if k == 50 else tr.y[0, k]))]
+    run = run_bag(_bag(tmp_path, sys_, tl), g, system=sys_)
+    assert run.inputs.by_kind() == {"implausible": [50], "missing": [[51, 53]]}
+    assert run.inputs.restarts == [54]
+    assert list(run.k) == [*range(50), *range(54, 80)]
 
 
 @pytest.mark.ros
