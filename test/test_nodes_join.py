@@ -298,3 +298,8 @@ def test_join_notes_carry_their_kind():
     feed(j, 3, now=0.0)
     list(j.ready(5.0))                                 # 1..2: a hole
     assert j.put("y", 2, "late").kind == "late"
+    j = StampJoin(["u", "y"], max_pending=3)
+    for k in range(3):
+        assert j.put("u", k, "u") is None
+    note = j.put("u", 3, "u")                          # a 4th incomplete stamp: 0 dropped
+    assert (note.kind, note.stamp) == ("dropped", 0)

@@ -64,13 +64,16 @@ class Note(str):
         for a stamp inside a declared hole: ignored), ``held`` (the first stamp of an episode
         below the stream or beyond the horizon), ``dropped`` (more than ``max_pending``
         stamps buffered: the oldest dropped).
+    stamp : int or None
+        The stamp it is about when not the one put (``dropped``: the oldest).
     """
 
     kind: str
+    stamp: int | None
 
-    def __new__(cls, text: str, kind: str) -> Note:
+    def __new__(cls, text: str, kind: str, stamp: int | None = None) -> Note:
         self = super().__new__(cls, text)
-        self.kind = kind
+        self.kind, self.stamp = kind, stamp
         return self
 
 
@@ -215,7 +218,7 @@ class StampJoin:
             self._forget(oldest)
             self.dropped += 1
             return Note(f"more than {self.max_pending} samples pending: dropped stamp {oldest}",
-                        "dropped")
+                        "dropped", oldest)
         return None
 
     def _hold(self, name: str, stamp: int, value: Any, now: float,

@@ -120,7 +120,7 @@ class InputStream:
         what became ready; False when the join reported and did not join it."""
         line = self.join.put(name, stamp, values, now, restart)
         if line is not None:
-            self.note(line.kind, line, stamp)
+            self.note(line.kind, line, stamp if line.stamp is None else line.stamp)
             return False
         self.release(now)
         return True
