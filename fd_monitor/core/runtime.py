@@ -328,9 +328,11 @@ class Runtime:
                 continue
             outs.append(o)
             prev = kk
-        return self._stack(outs, restarts)
+        return self.stack(outs, restarts)
 
-    def _stack(self, outs: Sequence[RuntimeOutput], restarts: list[int]) -> RuntimeTrace:
+    def stack(self, outs: Sequence[RuntimeOutput], restarts: list[int]) -> RuntimeTrace:
+        """The :class:`RuntimeTrace` of outputs of :meth:`step` in processing order (a caller
+        that decides holes itself, e.g. the offline bag reader, steps and then stacks)."""
         m, K = len(self.channels), len(outs)
         res, thr = np.zeros((K, m)), np.zeros((K, m))
         alarm = np.zeros((K, m), bool)
