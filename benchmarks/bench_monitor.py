@@ -11,7 +11,8 @@ Prints samples per second of
   ``step1``);
 * beside it, the same single stream through the batch path with one run (``BatchMonitor``,
   numpy on 1-element arrays: what ``Monitor.step`` did before the float path; same bits);
-* ``run_batch`` over N runs in lock step (Monte Carlo; all per-sample arrays kept) for several N.
+* ``run_batch`` over N runs in lock step (Monte Carlo; all per-sample arrays kept) for several N;
+* every shipped gain file's runtime, single stream (``bench_runtimes.print_rates``).
 
 Single-stream figures are the best of ``--repeat`` passes (the machine is shared: the best
 pass is the one least disturbed), wall clock and, for ``Monitor.step``, CPU time of this
@@ -27,6 +28,7 @@ import os
 import time
 
 import numpy as np
+from bench_runtimes import print_rates
 
 from fd_monitor.core.monitor import BatchMonitor, Monitor, run_batch
 from fd_monitor.core.simulator import simulate_batch
@@ -83,6 +85,8 @@ def main() -> None:
         dt = time.perf_counter() - t0
         print(f"run_batch, N = {n:4d} runs:          {n * K / dt:12,.0f} samples/s "
               f"({dt:.2f} s)  {_load()}")
+    print("\nevery runtime of the registry, single stream (benchmarks/bench_runtimes.py):")
+    print_rates()
 
 
 if __name__ == "__main__":

@@ -23,6 +23,8 @@ alarm_k received (raw: message k). A rate **counts** only when
   median of all.
 
 A layout stops at its first rate that does not count (later rates would measure a backlog).
+``cpu us`` is the CPU time (user + system) all node processes spent per sample during the
+rate (from /proc): what a sample costs, whatever the load.
 The 1-minute load average is printed with each figure (the machine may be shared).
 
 Run: ``.venv/bin/python benchmarks/bench_pipeline.py [--rates 250 500 1000 2000 3000 4000]
@@ -127,6 +129,19 @@ def load() -> float:
     return os.getloadavg()[0]
 
 
+def cpu_seconds(procs: list[subprocess.Popen]) -> float:
+    """User + system CPU time (s) the node processes have used so far (/proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for p in procs:
+        try:
+            fields = Path(f"/proc/{p.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / tick   # utime, stime
+    return total
+
+
 class Receiver:
     """A subscriber in this process recording the arrival time of each stamp."""
 
@@ -228,6 +243,7 @@ def bench(layout: str, rates: list[float], seconds: float, e: dict[str, str]) ->
                 raise RuntimeError(f"{what}: warm-up samples did not come through in 60 s")
         for rate in rates:
             n = int(rate * seconds)
+            cpu0 = cpu_seconds(procs)
             drv.stdin.write(f"go {rate} {n}\n")
             drv.stdin.flush()
             line = _line(drv, rx, seconds * 3 + 30.0)
@@ -239,6 +255,8 @@ def bench(layout: str, rates: list[float], seconds: float, e: dict[str, str]) ->
             rx.spin_until(lambda ks=ks: all(k in rx.arrivals for k in ks),
                           max(0.0, burst["sent"][-1] + 2.0 - time.perf_counter()))
             out.append(stats(what, rate, burst["sent"], burst["first"], rx))
+            # CPU the node processes spent per sample (all of them together), us
+            out[-1]["node_cpu_us"] = (cpu_seconds(procs) - cpu0) / n * 1e6 if procs else None
             print(_fmt(out[-1]), flush=True)
             if not out[-1]["counts"]:
                 break
@@ -265,7 +283,8 @@ def _fmt(r: dict) -> str:
 
     return (f"{r['what']:34} {r['rate_hz']:7g} {r['samples']:7d} {r['missing']:5d} "
             f"{f(r['p50_ms']):>7} {f(r['p99_ms']):>7} {f(r['tail_p50_ms']):>8} "
-            f"{f(r['drain_s'], '.3f'):>7}  {r['counts']!s:5}  load {r['load']:.2f}")
+            f"{f(r['drain_s'], '.3f'):>7} {f(r.get('node_cpu_us'), '.0f'):>7}  "
+            f"{r['counts']!s:5}  load {r['load']:.2f}")
 
 
 def main() -> int:
@@ -284,7 +303,7 @@ def main() -> int:
     rows: list[dict] = []
     if not args.json:
         print(f"{'what':34} {'rate Hz':>7} {'samples':>7} {'miss':>5} {'p50 ms':>7} "
-              f"{'p99 ms':>7} {'tail p50':>8} {'drain s':>7}  counts")
+              f"{'p99 ms':>7} {'tail p50':>8} {'drain s':>7} {'cpu us':>7}  counts")
     try:
         for layout in args.layouts:
             rows += bench(layout, args.rates, args.seconds, e)

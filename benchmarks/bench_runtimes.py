@@ -43,11 +43,8 @@ def _stream(system, rt, K: int, rng: np.random.Generator):
     return np.zeros((K, system.nu)), 1e-3 * rng.standard_normal((K, system.ny)), side
 
 
-def main() -> None:
-    """Measure and print."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=2000)
-    args = ap.parse_args()
+def print_rates(samples: int = 2000) -> None:
+    """Print every shipped gain file's single-stream rate (samples per second)."""
     rng = np.random.default_rng(0)
     root = Path(__file__).resolve().parents[1] / "config" / "gains"
     print(f"load average {os.getloadavg()[0]:.2f}")
@@ -57,12 +54,19 @@ def main() -> None:
         system = load_system(raw.system_name)
         gf = load_gains(path, system)
         rt = runtime_for(system, gf)
-        u, y, side = _stream(system, rt, args.samples, rng)
-        k = np.arange(args.samples)
+        u, y, side = _stream(system, rt, samples, rng)
+        k = np.arange(samples)
         t = time.perf_counter()
         rt.run(k, u, y, side or None)
         dt = time.perf_counter() - t
-        print(f"{path.stem:34s} {gf.method:16s} {args.samples / dt:10,.0f}")
+        print(f"{path.stem:34s} {gf.method:16s} {samples / dt:10,.0f}")
+
+
+def main() -> None:
+    """Measure and print."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=2000)
+    print_rates(ap.parse_args().samples)
 
 
 if __name__ == "__main__":

@@ -105,9 +105,10 @@ def run_cli(args: Sequence[str], timeout: float = 120.0) -> subprocess.Completed
 
 
 def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[str],
-                   wait_subscribers: int, timeout: float = 180.0) -> None:
-    """Replay ``topics`` of ``bag`` flat out into running node processes and wait until the
-    recorder ``rec`` (started with ``--until``) has everything; stop all processes, always.
+                   wait_subscribers: int, timeout: float = 180.0, rate: float = 0.0) -> None:
+    """Replay ``topics`` of ``bag`` flat out (or at ``rate`` x the recorded pace) into
+    running node processes and wait until the recorder ``rec`` (started with ``--until``)
+    has everything; stop all processes, always.
 
     Fails if replay or record fail, or if a node printed a traceback.
     """
@@ -119,7 +120,7 @@ def replay_through(procs: Sequence[Proc], rec: Proc, bag: Any, topics: Sequence[
         nodes = [n for p in procs for n in p.node_names()]
         assert wait_graph(recorded, 60.0, nodes), \
             f"nodes {nodes} or publishers of {recorded} not in the graph"
-        rep = run_cli(["replay", str(bag), "--topics", *topics, "--rate", "0",
+        rep = run_cli(["replay", str(bag), "--topics", *topics, "--rate", f"{rate:g}",
                        "--wait-subscribers", str(wait_subscribers)], timeout=timeout)
         assert rep.returncode == 0, rep.stderr
         try:

@@ -19,19 +19,22 @@ from fd_monitor.wire.bags import read_bag
 
 LIB = load_library()
 NEW = ["three_tank_lpv_leaks_abrupt", "three_tank_lpv_leaks_incipient", "f16xl_overlap",
-       "farhat_koenig_fault"]
+       "farhat_koenig_fault", "thesis_5_3_overlap", "thesis_6_5_overlap"]
 #: fault -> onset sample (first non-zero truth sample), from the scenarios
 ONSETS = {"three_tank_lpv_leaks_abrupt": {"leak1": 1000, "leak2": 1500, "leak3": 2000},
           "three_tank_lpv_leaks_incipient": {"leak1": 1001, "leak2": 1501, "leak3": 2001},
           "f16xl_overlap": {"f_delta": 500, "f_wg": 1200, "f_theta": 2000},
-          "farhat_koenig_fault": {"f": 300}}
+          "farhat_koenig_fault": {"f": 300},
+          "thesis_5_3_overlap": {"f1": 700, "f2": 1200},
+          "thesis_6_5_overlap": {"f1": 700, "f2": 1200}}
 
 
 def test_library_holds_the_new_bags_with_their_methods():
     methods = {n: load_gains(LIB[n].gains, verify=False).method for n in NEW}
     assert methods == {"three_tank_lpv_leaks_abrupt": "hinf_sc",
                        "three_tank_lpv_leaks_incipient": "hinf_sc",
-                       "f16xl_overlap": "hinf_sc", "farhat_koenig_fault": "hminus_switched"}
+                       "f16xl_overlap": "hinf_sc", "farhat_koenig_fault": "hminus_switched",
+                       "thesis_5_3_overlap": "hinf_sc", "thesis_6_5_overlap": "hinf_sc"}
 
 
 @pytest.mark.parametrize("name", NEW)
@@ -115,7 +118,30 @@ def test_expected_agrees_with_the_core_runtime_and_the_truth(name):
     assert exp["fault_onset_sample"] == min(ONSETS[name].values())
     summary = core_summary(spec)
     assert check_expected(exp, summary) == []
-    if name != "farhat_koenig_fault":              # its gain file has no threshold
+    if name != "farhat_koenig_fault":
         assert sorted(exp["isolated"]) == sorted(ONSETS[name])
         for f, a in exp["alarms"].items():
             assert ONSETS[name][f] <= a["first_sample"] <= ONSETS[name][f] + 60
+    else:                                          # one detecting channel, no isolation
+        assert "isolated" not in exp
+        assert exp["alarms"] == {"r_norm": {"first_sample": ONSETS[name]["f"],
+                                            "tolerance": 10}}
+
+
+@pytest.mark.parametrize("name, measured", [("thesis_5_3_overlap", False),
+                                            ("thesis_6_5_overlap", True)])
+def test_thesis_bags_carry_rho_measured_only_for_the_lpv_plant(name, measured):
+    """5.3: rho is uncertain (truth only); 6.5: rho is measured, on /plant/rho as on the
+    truth; both noise free (y = C x exactly)."""
+    spec = LIB[name]
+    sc = load_scenario(spec.scenario)
+    b = read_bag(spec.folder)
+    tr, y = b["/plant/truth"], b["/plant/y"]
+    names = [p.name for p in sc.system.lpv]
+    rho = np.column_stack([tr.column(f"rho.{n}") for n in names])
+    assert ("/plant/rho" in b) == measured
+    if measured:
+        np.testing.assert_array_equal(b["/plant/rho"].values, rho)
+    assert np.abs(rho).max() <= 1.0 + 1e-12 and np.abs(rho).max() > 0.99
+    x = np.column_stack([tr.column(f"x.{s}") for s in sc.system.states])
+    np.testing.assert_allclose(y.values, x @ sc.system.modes[0].C.T, rtol=0, atol=1e-12)

@@ -1,6 +1,7 @@
 """StampJoin's decisions (pure, time passed in): order, feedback, holes, restarts.
 
-The entry role must reproduce :func:`fd_monitor.analysis.offline.run_bag`: valid samples in stamp
+The entry role is the input policy of the nodes and of offline reading
+(:func:`fd_monitor.analysis.offline.run_bag`, test/test_offline_policy.py): valid samples in stamp
 order, a restart (feedback at initial values) at the first valid sample after a hole, a
 rejected message makes its stamp lost at once, a missing one is lost once a later stamp has
 been complete for ``gap_timeout`` s, out-of-order stamps within the timeout are processed in
@@ -263,3 +264,42 @@ def test_downstream_feedback_without_a_publisher_is_not_waited_for():
     j.put("est", 0, "e0", restart=True)
     j.put("est", 1, "e1")
     assert release(j) == [(0, True, None, FB0), (1, False, None, FB0)]
+
+
+def test_entry_refused_sample_keeps_the_stream_at_the_next_stamp():
+    """After :meth:`StampJoin.lost` (the core refused sample 1) the stream goes on at 2: a 2
+    that comes after 3 within the timeout is still joined (a restart, no feedback awaited),
+    and a 2 that never comes is a reported hole -- not skipped silently."""
+    j = entry()
+    feed(j, 0)
+    release(j)
+    feed(j, 1)
+    j.put("fb", 1, "fb1")
+    (s1,) = release(j)
+    j.lost(s1[0])
+    feed(j, 3, now=0.1)                                # 3 before 2
+    assert release(j, 0.1) == []                       # 2 is awaited, not skipped
+    feed(j, 2, now=0.2)
+    j.put("fb", 3, "fb3")
+    assert release(j, 0.2) == [(2, True, None, FB0), (3, False, None, "fb3")]
+    j.lost(3)
+    feed(j, 5, now=1.0)                                # 4 never comes
+    assert release(j, 1.5) == []
+    assert release(j, 2.0) == [(5, True, (4, 4), FB0)]
+
+
+def test_join_notes_carry_their_kind():
+    j = StampJoin(["u", "y"], gap_timeout=1.0, horizon=10)
+    feed(j, 0)
+    list(j.ready())
+    j.put("u", 1, "u1")
+    assert j.put("u", 1, "again").kind == "duplicate"
+    assert j.put("u", 50, "stray").kind == "held"
+    feed(j, 3, now=0.0)
+    list(j.ready(5.0))                                 # 1..2: a hole
+    assert j.put("y", 2, "late").kind == "late"
+    j = StampJoin(["u", "y"], max_pending=3)
+    for k in range(3):
+        assert j.put("u", k, "u") is None
+    note = j.put("u", 3, "u")                          # a 4th incomplete stamp: 0 dropped
+    assert (note.kind, note.stamp) == ("dropped", 0)

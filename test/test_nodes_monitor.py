@@ -107,19 +107,22 @@ def test_layout_chain_gives_the_four_nodes_and_a_bad_layout_is_refused():
             make_nodes(context=ctx, parameter_overrides=[Parameter("layout", value="star")])
 
 
-def test_other_methods_run_in_the_runtime_node():
-    """A qb gain file (any method but thresholds) runs in the one fused RuntimeNode, the
-    registry's runtime (test_nodes_runtime.py checks its outputs against the offline run)."""
+def test_other_methods_run_in_the_one_fused_node():
+    """A qb gain file (any method) runs in the same fused MonitorNode, with the registry's
+    runtime (test_nodes_runtime.py checks its outputs against the offline run), also with
+    layout:=chain (the four-node chain is the thresholds method's)."""
     from rclpy.parameter import Parameter
 
-    from fd_monitor.nodes.monitor import make_nodes
-    from fd_monitor.nodes.runtime_node import RuntimeNode
+    from fd_monitor.nodes.monitor import MonitorNode, make_nodes
+    from fd_monitor.wire.topics import RUNTIME_OUTPUTS
 
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx, parameter_overrides=[
-            Parameter("system", value="pwa_cascade"),
-            Parameter("gains", value="pwa_cascade_qb")])
-        assert [type(n) for n in nodes] == [RuntimeNode]
-        assert nodes[0].get_name() == "monitor" and nodes[0].runtime.method == "qb"
-        for n in nodes:
-            n.destroy_node()
+        for layout in ("fused", "chain"):
+            nodes = make_nodes(context=ctx, parameter_overrides=[
+                Parameter("system", value="pwa_cascade"),
+                Parameter("gains", value="pwa_cascade_qb"), Parameter("layout", value=layout)])
+            assert [type(n) for n in nodes] == [MonitorNode]
+            assert nodes[0].get_name() == "monitor" and nodes[0].runtime.method == "qb"
+            assert nodes[0].outputs == RUNTIME_OUTPUTS
+            for n in nodes:
+                n.destroy_node()

@@ -1,4 +1,4 @@
-"""The fused monitor for any gain file (RuntimeNode): hinf_sc and hminus_switched live give
+"""The fused monitor for any gain file (MonitorNode): hinf_sc and hminus_switched live give
 what the offline runtime gives, bit for bit; outside the certified region it says so on
 /diagnostics; a bad side signal is reported and the node goes on. Real DDS, bounded waits."""
 
@@ -15,7 +15,7 @@ OUT = ("/fd/residual", "/fd/threshold", "/fd/alarm", "/fd/state_estimate")
 
 def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     """Publish the first n samples of a library bag (u, y and the side signals the runtime
-    needs) into a RuntimeNode; return (node, collector, decoded outputs, inputs)."""
+    needs) into a MonitorNode; return (node, collector, decoded outputs, inputs)."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
@@ -25,7 +25,7 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     from fd_monitor.model.gains import load_gains
     from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import data_pub_qos
-    from fd_monitor.nodes.runtime_node import RuntimeNode
+    from fd_monitor.nodes.monitor import MonitorNode
     from fd_monitor.wire.bags import bag_topics, read_bag
     from fd_monitor.wire.conversions import to_msg
 
@@ -39,7 +39,7 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     if edit is not None:
         edit(data)
     with ros_context() as ctx:
-        node = RuntimeNode(system=system, gains=gf, context=ctx, parameter_overrides=[
+        node = MonitorNode(system=system, gains=gf, context=ctx, parameter_overrides=[
             Parameter("diagnostics_period", value=0.2), *params])
         col = Collector(ctx, list(OUT), diagnostics=True)
         drv = Node("driver", context=ctx)
@@ -91,7 +91,7 @@ def _offline(system, gf, data, n):
     ("three_tank_lpv_leaks_abrupt", "hinf_sc LPV, rho from the levels"),
     ("farhat_koenig_fault", "hminus_switched, mode from /plant/mode"),
 ])
-def test_runtime_node_equals_the_offline_runtime(bag, what):
+def test_monitor_equals_the_offline_runtime(bag, what):
     n = 1200 if bag.startswith("three_tank") else 600
     system, gf, got, data, _ = _drive(bag, n)
     rt, ref = _offline(system, gf, data, n)
@@ -108,7 +108,7 @@ def test_runtime_node_equals_the_offline_runtime(bag, what):
         assert ref.alarm[1003:].any() and not ref.alarm[:1000].any()   # the leak at 1000
 
 
-def test_runtime_node_reports_a_mode_the_design_lacks_and_a_bad_side_signal():
+def test_monitor_reports_a_mode_the_design_lacks_and_a_bad_side_signal():
     """/plant/mode = 7 (no such mode) from sample 200: WARN outside certified region naming
     the mode; a NaN mode at 400 is a bad message and a hole, and the node goes on."""
     def edit(data):
@@ -128,22 +128,23 @@ def test_runtime_node_reports_a_mode_the_design_lacks_and_a_bad_side_signal():
         sorted({s.message for s in inp})
 
 
-def test_gain_method_reads_the_parameters_the_node_would_see(tmp_path):
-    """`monitor` picks its node class from the gain file's method before the node exists:
-    from parameter overrides, from a params file, and the default."""
+def test_monitor_reads_the_parameters_the_node_would_see(tmp_path):
+    """`monitor` decides which nodes to make before any exists, from the parameters the node
+    would see: parameter overrides, a params file, the defaults."""
     from rclpy.parameter import Parameter
 
-    from fd_monitor.nodes.runtime_node import gain_method
+    from fd_monitor.nodes.monitor import peek_parameters
 
+    names = ("system", "gains", "layout")
     params = tmp_path / "p.yaml"
     params.write_text("monitor:\n  ros__parameters:\n    system: pwa_cascade\n"
-                      "    gains: pwa_cascade_qb\n")
+                      "    gains: pwa_cascade_qb\n    layout: chain\n")
     with ros_context() as ctx:
-        assert gain_method(context=ctx) == "thresholds"           # the defaults
-        assert gain_method(context=ctx, parameter_overrides=[
-            Parameter("system", value="farhat_koenig"),
-            Parameter("gains", value="farhat_koenig_hminus_switched")]) == "hminus_switched"
-        assert gain_method(context=ctx, parameter_overrides=[
-            Parameter("gains", value="no_such_file")]) is None     # the node says why
+        assert peek_parameters("monitor", names, context=ctx) == {
+            "system": "three_tank", "gains": "three_tank_thresholds", "layout": "fused"}
+        assert peek_parameters("monitor", names, context=ctx, parameter_overrides=[
+            Parameter("gains", value="farhat_koenig_hminus_switched")])["gains"] == \
+            "farhat_koenig_hminus_switched"
     with ros_context(args=["--ros-args", "--params-file", str(params)]) as ctx:
-        assert gain_method(context=ctx) == "qb"
+        assert peek_parameters("monitor", names, context=ctx) == {
+            "system": "pwa_cascade", "gains": "pwa_cascade_qb", "layout": "chain"}

@@ -106,7 +106,7 @@ def test_live_subset_has_every_method():
 @pytest.mark.parametrize("name", GENERIC)
 def test_live_monitor_runs_any_gain_file_like_analyze(tmp_path, name):
     """The `monitor` process on an hinf_sc / hminus_switched gain file (the fused
-    RuntimeNode) publishes exactly what `analyze` computes offline: every residual, threshold
+    MonitorNode) publishes exactly what `analyze` computes offline: every residual, threshold
     and alarm of every channel, sample for sample; the bag's expectations hold offline
     (test_regression.py), so they hold live."""
     from fd_monitor.core.runtime import runtime_for

@@ -33,7 +33,7 @@ from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.model.gains import load_gains, to_plain
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import read_bag
-from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y
+from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
 __all__ = ["analyze_summary", "check_expected", "check_truth", "core_summary",
            "propose_expected", "write_expected"]
@@ -207,7 +207,8 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
     :func:`fd_monitor.analysis.summary.summarize` (a cross-check of the runtimes):
 
     * ``hinf_sc``: :class:`fd_monitor.core.residual_bank.ResidualBank` (the gain file's
-      thresholds; an LPV bank schedules itself from the measurements); channels are the
+      thresholds; an LPV bank schedules itself from the measurements, or reads the measured
+      rho from ``/plant/rho`` when it has no scheduling map); channels are the
       generators' faults, alarm ``||r_i|| > J_i``; a generator alarming at the last sample
       isolates its fault;
     * ``hminus_switched``: :class:`fd_monitor.core.generalized_observer.GeneralizedObserver`
@@ -232,7 +233,12 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
     k = np.asarray(y.stamps)
     if gf.method == "hinf_sc":
         bank = ResidualBank(system, gf)
-        sig = bank.run(u.values, y.values)
+        rho = None
+        if bank.kind == "lpv" and not bank.model.scheduling:
+            # measured rho without a scheduling map: the bag's side-signal topic
+            t_rho = side_topic("rho").absolute
+            rho = read_bag(spec.folder, [t_rho])[t_rho].values
+        sig = bank.run(u.values, y.values, rho)
         alarm = sig > bank.thresholds
         channels = list(bank.faults)
         modes = np.full(len(k), system.initial_mode)    # a bank has one (LTI / LPV) mode
@@ -270,9 +276,10 @@ def check_truth(spec: BagSpec, expected: Mapping[str, Any], system: Any) -> list
     """Check that expected results agree with the bag's truth and spec (honest expectations).
 
     No expected first alarm is before the fault onset (no false alarm is expected);
-    a fault-free bag expects no alarm; the isolated set is the set of biased sensors (or
-    fault-model states); the expected bias values are the true final biases; the expected mode
-    sequence is the true one; a corrupted bag expects exactly its corrupted stamps.
+    a fault-free bag expects no alarm; the isolated set, when stated (a detect-only method
+    states none), is the set of biased sensors (or fault-model states, or faults); the
+    expected bias values are the true final biases; the expected mode sequence is the true
+    one; a corrupted bag expects exactly its corrupted stamps.
 
     Returns
     -------
@@ -289,8 +296,10 @@ def check_truth(spec: BagSpec, expected: Mapping[str, Any], system: Any) -> list
         if onsets and int(a["first_sample"]) < min(onsets):
             out.append(f"alarms.{c}: expected before the fault onset {min(onsets)}")
     targets = sorted({f["target"] for f in facts["faults"].values() if f["target"]})
-    # a residual bank (hinf_sc) isolates faults by name, not by the channel they act on
-    if sorted(expected.get("isolated", [])) not in (targets, sorted(facts["faults"])):
+    # a residual bank (hinf_sc) isolates faults by name, not by the channel they act on; a
+    # detect-only method (hminus_switched: one channel ||r||) states no isolated set
+    if "isolated" in expected and \
+            sorted(expected["isolated"]) not in (targets, sorted(facts["faults"])):
         out.append(f"isolated {expected.get('isolated')} but the faulty channels are "
                    f"{targets} (faults {sorted(facts['faults'])})")
     if list(expected.get("modes", [])) != facts["modes"]:

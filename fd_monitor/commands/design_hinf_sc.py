@@ -70,15 +70,18 @@ def run(args: argparse.Namespace) -> int:
     doc = {"method": "hinf_sc", "system": system.name, "kind": out["results"]["kind"],
            "gain_file": str(path), "solver_time_s": out["solver"]["time_s"],
            "generators": out["summary"], "thresholds": out["results"].get("thresholds"),
+           "threshold_method": out["results"].get("threshold_method"),
            "mu_grid": {g["fault"]: g["mu_grid"] for g in out["results"]["generators"]},
            "plots": plots}
     if args.json:
         print_json(doc)
         return 0
+    thr = doc["thresholds"] or [float("inf")] * len(out["summary"])
     rows = [(s["fault"], s["lambda"], s["mu"],
-             ", ".join(f"{k}={v:.3g}" for k, v in s["gamma2"].items())) for s in
-            out["summary"]]
-    print_table(rows, header=["fault", "lambda", "mu", "gamma^2"],
+             ", ".join(f"{k}={v:.3g}" for k, v in s["gamma2"].items()), f"{j:.4g}")
+            for s, j in zip(out["summary"], thr)]
+    method = (doc["threshold_method"] or {"method": "none"})["method"]
+    print_table(rows, header=["fault", "lambda", "mu", "gamma^2", f"threshold ({method})"],
                 title=f"hinf_sc bank for {system.name} ({out['results']['kind']}) -> {path}")
     grids = doc["mu_grid"]
     lams = next(iter(grids.values()))["lambda"]

@@ -41,7 +41,10 @@ def run(args: argparse.Namespace) -> int:
            "hminus_status": out["summary"]["hminus_status"],
            "frequencies_rad_s": list(FREQS), "sigma_min_db": out["summary"]["sigma_min_db"],
            "improvement_db": out["summary"]["improvement_db"],
-           "decay_rate": out["summary"]["decay_rate"], "plots": plots}
+           "decay_rate": out["summary"]["decay_rate"],
+           "thresholds": {d: o.get("threshold")
+                          for d, o in out["results"]["observers"].items()},
+           "threshold_method": out["results"].get("threshold_method"), "plots": plots}
     if args.json:
         print_json(doc)
     else:
@@ -54,4 +57,7 @@ def run(args: argparse.Namespace) -> int:
         print_table(rows, header=["design", "mode", *[f"{w:g} rad/s" for w in FREQS]],
                     title=f"hminus_switched for {system.name} (q = {out['summary']['q']}, "
                           f"beta = {out['summary']['beta']}) -> {path}; sigma_min T_rf, dB")
+        if doc["threshold_method"]:
+            print(f"thresholds on ||r|| ({doc['threshold_method']['method']}): " +
+                  ", ".join(f"{d} {v:.4g}" for d, v in doc["thresholds"].items()))
     return 0

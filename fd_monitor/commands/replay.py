@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     # an interrupted replay exits 128 + signal (130, 143) like any shell tool, not 0.
     old = {s: signal.signal(s, remember) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        code = run_node(make, ["replay"], prog="replay")
+        code = run_node(make, ["replay"], prog="replay", pacing=True)
     finally:
         for s, h in old.items():
             signal.signal(s, h)

@@ -97,7 +97,8 @@ class GeneralizedObserver:
     design : str
         ``hminus`` (the H-minus / loop-shaped design, default) or ``stability`` (LMI 26 only).
     threshold : float, optional
-        On ``||r||`` (output units); default ``results.threshold`` or +inf.
+        On ``||r||`` (output units); default the design's ``observers.<design>.threshold``
+        (``design hminus_switched`` writes it), else ``results.threshold``, else +inf.
 
     Attributes
     ----------
@@ -121,7 +122,8 @@ class GeneralizedObserver:
         self.n = self.modes[0]["M"].shape[0]
         self.z = np.zeros(self.q)
         self.xhat = np.zeros(self.n)
-        th = threshold if threshold is not None else res.get("threshold")
+        th = threshold if threshold is not None else obs.get("threshold",
+                                                            res.get("threshold"))
         self.threshold = float("inf") if th is None else float(th)
         self.nu = system.nu
 

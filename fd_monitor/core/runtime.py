@@ -173,6 +173,9 @@ class Runtime:
     BATCH_OPTIONS : tuple of str
         Keyword options :meth:`run_batch` takes (class attribute; default: the
         constructor's).
+    CHAIN : bool
+        :meth:`payloads` are the diagnosis chain's (observer, detector, AGEI, estimator), so
+        a live node publishes the four chain nodes' topics (class attribute; ``thresholds``).
     channels : tuple of str
         (m,) alarm channel names.
     units : tuple of str
@@ -192,6 +195,7 @@ class Runtime:
     ESTIMATE_KIND: ClassVar[str] = "none"
     SIGNED: ClassVar[bool] = False
     BATCH_OPTIONS: ClassVar[tuple[str, ...] | None] = None
+    CHAIN: ClassVar[bool] = False
 
     channels: tuple[str, ...]
     units: tuple[str, ...]
@@ -234,6 +238,15 @@ class Runtime:
             one); no state has changed.
         """
         raise NotImplementedError
+
+    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+        """What a live node publishes of ``out``, by field name: ``residual``,
+        ``threshold``, ``alarm`` (m,), ``mode``, ``x_hat`` (flattened; zero-length when the
+        method has none)."""
+        x_hat = out.estimates.get("x_hat")
+        return ({"residual": out.residual, "threshold": out.threshold, "alarm": out.alarm,
+                 "mode": out.mode,
+                 "x_hat": np.zeros(0) if x_hat is None else np.ravel(x_hat)},)
 
     @property
     def side_labels(self) -> dict[str, tuple[str, ...]]:
@@ -315,9 +328,11 @@ class Runtime:
                 continue
             outs.append(o)
             prev = kk
-        return self._stack(outs, restarts)
+        return self.stack(outs, restarts)
 
-    def _stack(self, outs: Sequence[RuntimeOutput], restarts: list[int]) -> RuntimeTrace:
+    def stack(self, outs: Sequence[RuntimeOutput], restarts: list[int]) -> RuntimeTrace:
+        """The :class:`RuntimeTrace` of outputs of :meth:`step` in processing order (a caller
+        that decides holes itself, e.g. the offline bag reader, steps and then stacks)."""
         m, K = len(self.channels), len(outs)
         res, thr = np.zeros((K, m)), np.zeros((K, m))
         alarm = np.zeros((K, m), bool)
@@ -423,6 +438,7 @@ class ThresholdsRuntime(Runtime):
     ESTIMATE_KIND = "sensor_bias"
     SIGNED = True
     BATCH_OPTIONS = ("agei", "keep")
+    CHAIN = True
 
     def __init__(self, system: System, gains: Any, agei: bool = True) -> None:
         super().__init__(system, gains)
@@ -445,6 +461,12 @@ class ThresholdsRuntime(Runtime):
         return RuntimeOutput(o.k, d.residual, d.threshold, d.alarm, o.outside, o.mode,
                              {"x_hat": o.observer.x_hat, "sigma_hat": o.estimator.sigma_hat,
                               "isolated": o.estimator.isolated}, o)
+
+    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+        """The chain's payloads: observer, detector, AGEI, estimator (``out.core``)."""
+        o = out.core
+        return (o.observer.payload(), o.detector.payload(), o.agei.payload(),
+                o.estimator.payload())
 
     def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """sigma^ per output."""
@@ -654,10 +676,11 @@ class HminusSwitchedRuntime(Runtime):
     """``hminus_switched``: :class:`~fd_monitor.core.generalized_observer.GeneralizedObserver`
     (Farhat & Koenig).
 
-    One channel ``r_norm``: ``||r_k||`` (output units) against ``results.threshold`` (+inf
-    when the gain file has none: the shipped file has none, its designer writes
-    ``threshold: {method: none}``), armed ``results.threshold_method.settle_s`` after every
-    (re)start as for ``hinf_sc``. Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
+    One channel ``r_norm``: ``||r_k||`` (output units) against the design's threshold
+    (``observers.<design>.threshold``, written by the designer's Monte Carlo ``threshold``
+    section; else ``results.threshold``; +inf when the gain file has none), armed
+    ``results.threshold_method.settle_s`` after every (re)start as for ``hinf_sc``.
+    Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
 
     The switching signal alpha(k), in order of precedence: the side signal ``mode`` when
     given; an input channel named ``mode``; the plant file's guards (controlled ones on u_k,

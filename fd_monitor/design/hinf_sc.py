@@ -40,7 +40,8 @@ Design file section (``config/systems/<plant>.design.yaml``)::
       model: {A0, B0, C}             # replaces the plant's matrices (nonlinear plants)
       scheduling: {map: three_tank_sqrt, params: {...}}   # rho from y at run time
       thresholds: {method: bound, levels: {nuisance: 1.0, disturbance: 0.0, noise: 0.0},
-                   margin: 3.0}      # or {method: monte_carlo, scenario, runs, settle, margin}
+                   margin: 3.0}      # or {method: monte_carlo, scenario, runs, settle, margin,
+                                     #     levels} (levels: the bound term added, see below)
       lyapunov: common               # lpv: common P (6.40) | affine P(rho) (6.4, 6.66)
       rate: {min: [-1.0], max: [1.0]}   # bounds of d rho/dt, 1/s (6.52; lyapunov: affine)
 
@@ -523,15 +524,24 @@ def _thresholds(system: System, spec: BankSpec, results: dict[str, Any]
     runs = int(ctx.number("runs", th.get("runs", 5), positive=True))
     settle = int(ctx.number("settle", th.get("settle", 0.0), nonneg=True) /
                  system.sample_time)
+    lv = ctx.mapping("levels", th.get("levels") or {}, {"nuisance", "disturbance", "noise"})
+    levels = {k: ctx.number(f"levels.{k}", v, nonneg=True) for k, v in lv.items()}
     tr = simulate_batch(sc, list(range(sc.seed, sc.seed + runs)))
     norms = []
     for r in range(runs):
         bank = ResidualBank(system, results)
         bank.reset(tr.x[r, 0])
-        norms.append(bank.run(tr.u[r], tr.y[r]))
-    J = monte_carlo_thresholds(np.asarray(norms), settle, margin)
+        # an LPV bank without a scheduling map runs on the measured rho (the runs' rho(t))
+        rho = tr.rho[r] if bank.kind == "lpv" and not bank.model.scheduling else None
+        norms.append(bank.run(tr.u[r], tr.y[r], rho))
+    # superposition (linear generators): the runs measure the fault-free residual (model
+    # mismatch the bounds do not cover, e.g. an unmeasured rho, ch. 5), the stated levels add
+    # the bound (4.17) on the response to the nuisance inputs the runs do not contain
+    J = monte_carlo_thresholds(np.asarray(norms), settle, margin) + \
+        bound_thresholds(results, levels, margin)
     return J.tolist(), {"method": "monte_carlo", "scenario": sc.name, "runs": runs,
-                        "settle_s": settle * system.sample_time, "margin": margin}
+                        "settle_s": settle * system.sample_time, "margin": margin,
+                        **({"levels": levels} if levels else {})}
 
 
 # --------------------------------------------------------------------------------------

@@ -33,7 +33,8 @@ Design file section::
       D_add: [[0.046], [0.04]]                    # p x nf
       filter: {omega1: 0.095, omega2: 8.0, order: 2}   # F_H(s) (41), Tustin at Ts
       decay_rate: 0.98                            # LMI (26) with rho^2 P_j (H-minus gains)
-      threshold: {method: none}                   # or {method: monte_carlo, runs, ...}
+      threshold: {method: none}                   # or {method: monte_carlo, scenario,
+                                                  #     runs, settle, margin} (_threshold)
 """
 
 from __future__ import annotations
@@ -50,7 +51,11 @@ from scipy.signal import cont2discrete, tf2ss
 
 from fd_monitor.core.freq import freq_response, sigma
 from fd_monitor.core.generalized_observer import check_certificate, residual_ss
-from fd_monitor.model.errors import DesignError, GainFileError
+from fd_monitor.core.runtime import HminusSwitchedRuntime
+from fd_monitor.core.simulator import simulate_batch
+from fd_monitor.design.hinf_thresholds import monte_carlo_thresholds
+from fd_monitor.model.errors import DesignError, GainFileError, ScenarioError
+from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import System
 
 from ._lmi_common import design_checker, solve
@@ -113,7 +118,8 @@ def _parse(system: System, sec: Mapping[str, Any], origin: str) -> dict[str, Any
     if (filt is None) != (Dadd is None):
         ctx.fail("filter", "filter and D_add together (the loop-shaping design (41)-(44))",
                  show=False)
-    th = ctx.mapping("threshold", sec.get("threshold") or {"method": "none"})
+    th = _threshold_spec(system, ctx.mapping("threshold", sec.get("threshold") or
+                                             {"method": "none"}), origin)
     req = ctx.boolean("require_hminus", sec.get("require_hminus", False))
     rho = ctx.number("decay_rate", sec.get("decay_rate", 0.98), positive=True)
     if rho > 1:
@@ -447,9 +453,12 @@ def design(system: System, sec: Mapping[str, Any], origin: str = "<dict>", sha: 
                                                              "omega2", "order",
                                                              "discretisation")}}
             observers["hminus"] = obs
-    wall = time.perf_counter() - t0
     results: dict[str, Any] = {"E": spec["E"], "T": st["T"], "K": st["K"],
                                "sample_time": system.sample_time, "observers": observers}
+    th_method = _threshold(system, spec["threshold"], results)
+    if th_method is not None:
+        results["threshold_method"] = th_method
+    wall = time.perf_counter() - t0
     try:
         cert = check_certificate(system, results)
     except GainFileError as exc:
@@ -469,6 +478,54 @@ def design(system: System, sec: Mapping[str, Any], origin: str = "<dict>", sha: 
     return {"parameters": parameters, "results": results, "certificate": cert,
             "solver": {"name": "CLARABEL", "status": "optimal", "time_s": wall},
             "summary": summary}
+
+
+def _threshold_spec(system: System, th: Mapping[str, Any], origin: str
+                    ) -> dict[str, Any] | None:
+    """The ``threshold`` section, checked before solving: None (``method: none``) or
+    ``{scenario, runs, settle (samples), margin}`` for ``monte_carlo``."""
+    ctx = design_checker(origin, "hminus_switched.threshold")
+    ctx.mapping("", th, {"method", "scenario", "runs", "settle", "margin"})
+    method = th.get("method", "none")
+    if method == "none":
+        return None
+    if method != "monte_carlo":
+        ctx.fail("method", "none or monte_carlo", method)
+    sc_name = th.get("scenario")
+    if not isinstance(sc_name, str):
+        ctx.fail("scenario", "a fault-free scenario name or path", sc_name)
+    try:
+        sc = load_scenario(sc_name, system)
+    except ScenarioError as exc:
+        raise DesignError(f"{origin}: hminus_switched.threshold.scenario: {exc}") from None
+    if sc.faults:
+        ctx.fail("scenario", "a fault-free scenario (no faults)", sc_name)
+    runs = ctx.integer("runs", th.get("runs", 5), 1)
+    settle_s = ctx.number("settle", th.get("settle", 0.0), nonneg=True)
+    margin = ctx.number("margin", th.get("margin", 1.0), positive=True)
+    settle = round(settle_s / system.sample_time)
+    if settle >= round(sc.duration / system.sample_time):
+        ctx.fail("settle", f"less than the scenario's duration {sc.duration} s", settle_s)
+    return {"scenario": sc, "runs": runs, "settle": settle, "margin": margin}
+
+
+def _threshold(system: System, th: Mapping[str, Any] | None, results: dict[str, Any]
+               ) -> dict[str, Any] | None:
+    """Monte Carlo threshold on ``||r_k||`` (:func:`_threshold_spec`): ``margin * max
+    ||r_k||`` over ``runs`` fault-free simulated runs (seeds ``seed .. seed + runs - 1`` of
+    the scenario) after ``settle`` samples, for each observer (stored as
+    ``observers.<design>.threshold``), run by the same runtime the nodes and ``analyze`` use
+    (:class:`~fd_monitor.core.runtime.HminusSwitchedRuntime`, switching signal: the runs'
+    true mode). Returns ``threshold_method`` or None."""
+    if th is None:
+        return None
+    sc = th["scenario"]
+    traj = simulate_batch(sc, list(range(sc.seed, sc.seed + th["runs"])))
+    for name, obs in results["observers"].items():
+        res = HminusSwitchedRuntime.run_batch(system, results, traj, design=name).residual
+        obs["threshold"] = float(monte_carlo_thresholds(res, th["settle"], th["margin"])[0])
+    return {"method": "monte_carlo", "scenario": sc.name, "runs": th["runs"],
+            "settle_s": th["settle"] * system.sample_time, "margin": th["margin"]}
 
 
 def sigma_table(results: Mapping[str, Any], freqs: tuple[float, ...] = FREQS

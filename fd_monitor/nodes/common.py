@@ -17,14 +17,16 @@ acknowledgements: after every ``ack_window`` (< ``qos_depth``) samples they bloc
 writer's history. Together: no sample is lost, whatever the rate.
 
 Acknowledgements travel on Fast DDS heartbeats, whose default period (3 s) would make each
-wait last about a second; :func:`use_dds_profile` points Fast DDS at ``config/fastdds.xml``
-(2 ms heartbeats) unless the user chose a profile file.
+wait last about a second; :func:`use_dds_profile` points Fast DDS at
+``config/fastdds_pacing.xml`` (2 ms heartbeats) in such a source and at ``config/fastdds.xml``
+(20 ms) in the other nodes, unless the user chose a profile file.
 """
 
 from __future__ import annotations
 
 import gc
 import os
+import struct
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -47,10 +49,12 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import serialize_message
 
-from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.model.errors import FdMonitorError, MessageError, WrongLengthError
 from fd_monitor.model.paths import config_dirs
 from fd_monitor.nodes.ros_args import init_ros, shown_params_file
+from fd_monitor.wire.conversions import MAX_STAMP, to_msg
 from fd_monitor.wire.topics import DIAGNOSTICS, Topic
 
 __all__ = [
@@ -60,6 +64,7 @@ __all__ = [
     "Diagnostics",
     "NodeUsage",
     "Param",
+    "SerializedArray",
     "data_pub_qos",
     "pub_events",
     "sub_events",
@@ -127,6 +132,54 @@ def incompatible_text(topic: str, side: str, info: Any) -> str:
             f"{int(info.total_count)} so far): our {side} cannot talk to it")
 
 
+class SerializedArray:
+    """Stamped, labelled Float64MultiArray messages of fixed labels, serialized directly.
+
+    The message of :func:`~fd_monitor.wire.conversions.to_msg` serialized once (CDR, little
+    endian); ``data`` is its last field, so a sample's message is that prefix (layout, data
+    length) followed by ``[k, *values]`` packed as float64: what a publisher takes as
+    serialized bytes, without a message object per sample (the node tests compare every
+    published value).
+
+    Parameters
+    ----------
+    labels : sequence of str
+        (m,) channel names.
+    """
+
+    def __init__(self, labels: Sequence[str]) -> None:
+        self.labels = tuple(labels)
+        n = len(self.labels) + 1
+        cdr = serialize_message(to_msg(self.labels, 0, [0.0] * len(self.labels)))
+        self.prefix = cdr[:-8 * n]
+        self._pack = struct.Struct(f"<{n}d").pack
+
+    def encode(self, stamp: int, values: Any) -> bytes:
+        """The serialized message ``[stamp, *values]``; ``values`` (m,) array or list."""
+        if not 0 <= stamp < MAX_STAMP:
+            raise MessageError(f"stamp {stamp!r} out of range [0, 2**53)")
+        vals = values.tolist() if hasattr(values, "tolist") else values
+        try:
+            return self.prefix + self._pack(stamp, *vals)
+        except struct.error:
+            raise WrongLengthError(f"{len(self.labels)} labels for {len(vals)} values") from None
+
+
+def with_message_info(sub: Any) -> None:
+    """Have ``sub``'s executor pass the DDS MessageInfo with each message.
+
+    rclpy picks the callback form from its signature, and a two-argument callback is what
+    breaks its EventsExecutor in these wheels (``SystemError: null argument to internal
+    routine``): that executor calls a MessageInfo subscription's callback with ONE argument,
+    the tuple ``(msg, info)``, where the SingleThreadedExecutor passes two. So the callback
+    takes ``*args`` (one argument: rclpy chooses message-only) and the subscription is then
+    marked as wanting the MessageInfo (``_callback_type``, which both executors read at every
+    message). Tested: ``test_nodes_chain`` (plain u, y published in a burst, paired by
+    their source timestamps under the EventsExecutor).
+    """
+    sub._callback_type = type(sub).CallbackType.WithMessageInfo
+
+
 class DataInput:
     """A data-path subscription that meets reliable and best-effort volatile publishers.
 
@@ -147,18 +200,21 @@ class DataInput:
         Called with one line per incompatible-QoS event or switch.
     raw : bool
         Serialized messages (record).
+    with_info : bool
+        ``callback(msg, info)`` with the DDS MessageInfo (``source_timestamp``, ns), under
+        either executor (:func:`with_message_info`); else ``callback(msg)``.
     """
 
     def __init__(self, node: Node, msg_type: Any, topic: str, callback: Callable[..., None],
-                 report: Callable[[str], None], raw: bool = False) -> None:
+                 report: Callable[[str], None], raw: bool = False,
+                 with_info: bool = False) -> None:
         self.node, self.msg_type, self.topic = node, msg_type, topic
         self.callback, self.report, self.raw = callback, report, raw
+        self.with_info = with_info
         self.name = node.resolve_topic_name(topic)
         want = data_sub_qos()
-        self.sub = node.create_subscription(
-            msg_type, topic, callback, want, raw=raw,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-            **sub_events(self._on_incompatible))
+        self.sub = self._create(want, qos_overriding_options=(
+            QoSOverridingOptions.with_default_policies()))
         self.reliable = self.sub.qos_profile.reliability == ReliabilityPolicy.RELIABLE
         #: True when the user set the reliability (no automatic switch).
         self.overridden = self.sub.qos_profile.reliability != want.reliability
@@ -177,11 +233,25 @@ class DataInput:
     def _switch(self) -> None:
         self.node.destroy_timer(self._switch_timer)
         old = self.sub
-        self.sub = self.node.create_subscription(
-            self.msg_type, self.topic, self.callback, data_sub_qos(reliable=False),
-            raw=self.raw, **sub_events(self._on_incompatible))
+        self.sub = self._create(data_sub_qos(reliable=False))
         self.node.destroy_subscription(old)
         self.reliable = False
+
+    def _create(self, qos: QoSProfile, **kwargs: Any) -> Any:
+        if not self.with_info:
+            return self.node.create_subscription(self.msg_type, self.topic, self.callback, qos,
+                                                 raw=self.raw, **kwargs,
+                                                 **sub_events(self._on_incompatible))
+        callback = self.callback
+
+        def deliver(*args: Any) -> None:
+            # SingleThreadedExecutor: (msg, info); EventsExecutor: ((msg, info),)
+            callback(*(args if len(args) == 2 else args[0]))
+        sub = self.node.create_subscription(self.msg_type, self.topic, deliver, qos,
+                                           raw=self.raw, **kwargs,
+                                           **sub_events(self._on_incompatible))
+        with_message_info(sub)
+        return sub
 
     def destroy(self) -> None:
         """Destroy the subscription (lifecycle cleanup)."""
@@ -466,18 +536,30 @@ def wait_for_subscribers(publishers: Sequence[tuple[Any, int]]) -> bool:
 _PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
 
-def use_dds_profile() -> str | None:
-    """Point Fast DDS at fd_monitor's ``config/fastdds.xml`` before rclpy starts.
+#: fd_monitor's Fast DDS profiles: nodes, and sources that pace by acknowledgements.
+PROFILES = {False: "fastdds.xml", True: "fastdds_pacing.xml"}
 
-    Does nothing when the user set a profile file already, or when the XML is not found.
-    Child processes inherit it. Returns the profile in force, if any.
+
+def use_dds_profile(pacing: bool = False) -> str | None:
+    """Point Fast DDS at one of fd_monitor's profiles before rclpy starts.
+
+    ``pacing`` (``plant_sim``, ``replay``: sources that wait for acknowledgements):
+    ``config/fastdds_pacing.xml``, 2 ms heartbeats, so each wait lasts milliseconds. Else
+    ``config/fastdds.xml``, 20 ms heartbeats: a lost sample is still repaired within tens of
+    milliseconds, and a node's writers do not pay 500 heartbeats a second each (the
+    four-process chain spent 0.7 ms of CPU per sample on them: README, "Measured").
+
+    Does nothing when the user set a profile file already (one not of fd_monitor), or when
+    the XML is not found. Child processes inherit it (and choose again). Returns the profile
+    in force, if any.
     """
+    dirs = list(config_dirs())
+    ours = {str(d / name) for d in dirs for name in PROFILES.values()}
     for var in _PROFILE_VARS:
-        if os.environ.get(var):
+        if os.environ.get(var) and os.environ[var] not in ours:
             return os.environ[var]
-
-    for d in config_dirs():
-        xml = d / "fastdds.xml"
+    for d in dirs:
+        xml = d / PROFILES[pacing]
         if xml.is_file():
             for var in _PROFILE_VARS:
                 os.environ[var] = str(xml)
@@ -575,20 +657,21 @@ def _events_executor() -> Any:
 
 def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] | None = None,
              prog: str = "fd_monitor", usage: Sequence[NodeUsage] = (),
-             events: bool = False) -> int:
+             pacing: bool = False) -> int:
     """Init rclpy, build the node(s), spin until done or shut down; return an exit status.
 
-    With ``events`` and nodes that all allow it (``events_executor`` true: their callbacks
-    take no MessageInfo, which it cannot pass in these wheels) the executor is rclpy's
-    EventsExecutor, driven by a ``spin_once`` loop (its ``spin()`` processes nothing in these
-    wheels): no wait-set rebuild per callback, what a node handling thousands of messages per
-    second needs (``monitor``).
+    When the nodes all allow it (``events_executor`` true: the diagnosis nodes, whose
+    callbacks take no MessageInfo, which it cannot pass in these wheels) the executor is
+    rclpy's EventsExecutor, driven by a ``spin_once`` loop (its ``spin()`` processes nothing
+    in these wheels): no wait-set rebuild per callback (about 0.15 ms per message with the
+    SingleThreadedExecutor here), what a node handling thousands of messages per second needs.
 
     With ``-h``/``--help`` before ``--ros-args`` it prints :func:`usage_text` of ``usage``
     and returns 0 without starting ROS.
 
     A node may expose ``done`` (an ``rclpy.task.Future``) to end the spin, and
-    ``exit_code``. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
+    ``exit_code``. ``pacing``: a source that paces by acknowledgements (its DDS profile:
+    :func:`use_dds_profile`). Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
     parameter) print one line ``<prog>: error: ...`` and return 2. SIGINT/SIGTERM end
     cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
     ``rclpy.try_shutdown()``, as the ROS 2 demos do.
@@ -596,7 +679,7 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
     if wants_help(args):
         sys.stdout.write(usage_text(prog, usage))
         return 0
-    use_dds_profile()
+    use_dds_profile(pacing)
     try:
         init_ros(args)
     except FdMonitorError as exc:
@@ -610,7 +693,7 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
         # frozen, a full garbage collection later does not rescan it (a ~25 ms pause of the
         # data path otherwise).
         gc.freeze()
-        events = events and all(getattr(n, "events_executor", False) for n in nodes)
+        events = all(getattr(n, "events_executor", False) for n in nodes)
         executor = _events_executor() if events else SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)

@@ -92,8 +92,10 @@ class ResidualReport:
                 level, msg = WARN, f"|residual| > {share:g} x threshold"
             else:
                 level, msg = OK, "ok"
+            modes = self.system.mode_names  # (a switching signal may name another mode)
             values = {"sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
-                      "mode": self.system.mode_names[mode], **self.gain_values()}
+                      "mode": modes[mode] if 0 <= mode < len(modes) else str(mode),
+                      **self.gain_values()}
             if not qb:
                 values["sigma_hat"] = float(self.sigma_hat[i])
             self.diag.update(ch, level, msg, values)

@@ -15,8 +15,10 @@ initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray
 (:func:`~fd_monitor.wire.conversions.decode`), pairs plain (unstamped) messages by
 sample-and-hold (a plain ``plant/y`` gets the latest ``plant/u`` published before it, by
 the DDS source timestamps; no u yet: reported, sample not processed), joins inputs on the stamp
-(:class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond ``stamp_horizon``,
-a stream that restarts lower = a new run after ``restart_after`` s), and reports on
+through the input policy offline reading shares (:class:`~fd_monitor.wire.stream.InputStream`:
+per-topic order check, :class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond
+``stamp_horizon``, a stream that restarts lower = a new run after ``restart_after`` s),
+and reports on
 ``/diagnostics``: an ``input`` channel (OK; WARN with the de-duplicated reasons of the bad
 messages; STALE when no input came for ``stale_timeout`` s), a ``ros graph`` channel
 (incompatible QoS, a second publisher on this node's output topics) plus the node's own
@@ -34,11 +36,13 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
@@ -52,13 +56,16 @@ from fd_monitor.nodes.common import (
     DataInput,
     Diagnostics,
     Param,
+    SerializedArray,
     data_pub_qos,
     declare_parameters,
     incompatible_text,
     pub_events,
 )
-from fd_monitor.wire.conversions import ArrivalStamper, decode, readable_stamp, to_msg
+from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
+from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
+from fd_monitor.wire.stream import RESTART_AFTER, STAMP_HORIZON, InputStream, TopicOrder
 from fd_monitor.wire.topics import Layout, Topic
 
 __all__ = ["COMMON_PARAMS", "RUNTIME_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
@@ -68,9 +75,9 @@ __all__ = ["COMMON_PARAMS", "RUNTIME_PARAMS", "FdNode", "Input", "load_plant_and
 RUNTIMES = ("thresholds", "qb")
 
 #: The join's hole timeout, of every node that joins plant/u and plant/y.
-GAP_TIMEOUT = Param("gap_timeout", 1.0, "s a later sample must have been complete before a "
-                    "missing one is declared lost (a hole: restart at the next valid sample); "
-                    "absorbs out-of-order publication", low=0.001, high=3600.0)
+GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have been complete "
+                    "before a missing one is declared lost (a hole: restart at the next valid "
+                    "sample); absorbs out-of-order publication", low=0.001, high=3600.0)
 #: The per-channel WARN level of every node that detects.
 WARN_SHARE = Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its "
                    "threshold", read_only=False, low=0.0, high=1.0)
@@ -88,9 +95,9 @@ COMMON_PARAMS = (
           read_only=False, low=0.01, high=3600.0),
     Param("log_throttle", 1.0, "s between two log lines about bad input (the others are "
           "counted)", read_only=False, low=0.0, high=3600.0),
-    Param("stamp_horizon", 100000, "samples above the next expected stamp beyond which a "
+    Param("stamp_horizon", STAMP_HORIZON, "samples above the next expected stamp beyond which a "
           "stamp is held as a possible new run, not joined", low=1, high=2**53),
-    Param("restart_after", 1.0, "s without progress before held stamps (a stream that "
+    Param("restart_after", RESTART_AFTER, "s without progress before held stamps (a stream that "
           "restarted lower, or jumped beyond the horizon) become a new run", low=0.001,
           high=3600.0),
     Param("qos_depth", DEFAULT_DEPTH, "history depth of the publishers", low=10,
@@ -102,6 +109,9 @@ COMMON_PARAMS = (
 #: s a plain sample waits for a later held input (``plant/u``) before it is paired with the
 #: latest one published before it.
 HOLD_WAIT = 0.1
+
+#: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
+_WARN_ONLY = frozenset(("out_of_order", "hole", "feedback_lost", "new_run"))
 
 #: Parameters that take effect when set (the others are read-only).
 RUNTIME_PARAMS = ("gains", "stale_timeout", "diagnostics_period", "log_throttle",
@@ -198,13 +208,9 @@ class FdNode(LifecycleNode):
     """
 
     inputs: Sequence[Input] = ()
-    #: Subscription callbacks take the MessageInfo (the DDS source timestamp orders plain
-    #: messages for sample-and-hold). False: message only, plain messages ordered by their
-    #: arrival here -- what rclpy's EventsExecutor can call in these wheels (``monitor``).
-    message_info = True
-    #: Set at configure: every callback is message-only, so ``run_node`` may use the
-    #: EventsExecutor.
-    events_executor = False
+    #: ``run_node`` runs the node on rclpy's EventsExecutor (plain inputs still get their
+    #: source timestamps: :func:`~fd_monitor.nodes.common.with_message_info`).
+    events_executor = True
     #: Gain-file method -> name of the method building the node's runtime for it.
     runtimes: Mapping[str, str] = {}
     #: Output topics, for the start line and the second-publisher check.
@@ -222,6 +228,8 @@ class FdNode(LifecycleNode):
         self._error: FdMonitorError | None = None
         self._autostarting = False
         self._entities: list[Any] = []
+        #: labels -> serialized layout of publish_array
+        self._serialized: dict[tuple[str, ...], SerializedArray] = {}
         #: The robot's topics giving u and y, when the node has an adapter file (at start).
         self.adapter_input: AdapterInput | None = None
         from std_srvs.srv import Trigger
@@ -438,9 +446,12 @@ class FdNode(LifecycleNode):
         self._pubs.append(pub)
         return pub
 
-    def subscribe(self, topic: str, callback: Callable[..., None]) -> DataInput:
-        """A data-path subscription of Float64MultiArray (relative topic name)."""
-        sub = DataInput(self, Float64MultiArray, topic, callback, self._graph_note)
+    def subscribe(self, topic: str, callback: Callable[..., None],
+                  with_info: bool = False, raw: bool = False) -> DataInput:
+        """A data-path subscription of Float64MultiArray (relative topic name); with
+        ``with_info`` the callback gets ``(msg, info)``; ``raw``: serialized messages."""
+        sub = DataInput(self, Float64MultiArray, topic, callback, self._graph_note,
+                        raw=raw, with_info=with_info)
         self._entities.append(sub)
         return sub
 
@@ -460,11 +471,11 @@ class FdNode(LifecycleNode):
                               horizon=self.params.stamp_horizon,
                               restart_after=self.params.restart_after,
                               feedback_source=self._feedback_source)
+        #: The input policy shared with offline reading (order check, join, release).
+        self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
         self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
-        info = self.message_info
-        self.events_executor = not info
         self._data_inputs = {}
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
         self.adapter_input = None
@@ -473,8 +484,8 @@ class FdNode(LifecycleNode):
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
             cb = self._callback(inp)
-            self._data_inputs[inp.name] = self.subscribe(
-                inp.topic, cb if info else lambda msg, cb=cb: cb(msg, None))
+            self._data_inputs[inp.name] = self.subscribe(inp.topic, cb, inp.plain_ok,
+                                                         raw=True)
         self._open_loop: set[str] = set()
         if self._held:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
@@ -500,26 +511,29 @@ class FdNode(LifecycleNode):
                                        f"feedback (its initial value) until one appears")
         return there
 
-    def _callback(self, inp: Input) -> Callable[[Any, Any], None]:
+    def _callback(self, inp: Input) -> Callable[..., None]:
         stamper = self._stamper
         topic = self.resolve_topic_name(inp.topic)
-        order = _TopicOrder(topic)
+        order = TopicOrder(topic)
+        stream = self.stream
         # the restart flag of the sequence input, by field (resolved once)
         i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
+        # serialized messages in, decoded without a message object when the layout is known
+        dec = RawDecoder(partial(deserialize_message, message_type=Float64MultiArray), topic,
+                         labels=inp.labels, size=inp.size, require_stamp=not inp.plain_ok,
+                         allow_nan=inp.allow_nan)
 
-        def cb(msg: Any, info: Any) -> None:
+        def cb(raw: bytes, info: Any = None) -> None:
             if not self.active:
                 self.inactive_dropped += 1
                 return
             try:
-                d = decode(msg, topic, labels=inp.labels, size=inp.size,
-                           require_stamp=not inp.plain_ok, allow_nan=inp.allow_nan)
+                d = dec.decode(raw)
             except MessageError as exc:
                 self.bad_input(str(exc))
-                k = readable_stamp(msg) if inp.initial is None else None
-                if k is not None and k + inp.stamp_offset >= 0:
-                    self.join.reject(k + inp.stamp_offset)
-                    self._drain()
+                k = readable_stamp(dec.message(raw)) if inp.initial is None else None
+                if k is not None:
+                    stream.refused(k + inp.stamp_offset, time.monotonic())
                 return
             if d.stamp is None:
                 t = int(info["source_timestamp"]) if info is not None else time.time_ns()
@@ -531,15 +545,9 @@ class FdNode(LifecycleNode):
                                           d.values))
                 self._pair_plain()
                 return
-            note, duplicate = order.check(int(d.stamp))
-            if note is not None:
-                self._warn(note)
-                if duplicate:
-                    return
-            stamp = int(d.stamp) + inp.stamp_offset
-            if stamp >= 0:
-                self.on_input(inp.name, stamp, d.values,
-                              restart=inp.sequence and d.values[i_restart] > 0.5)
+            if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
+                              inp.stamp_offset, inp.sequence and d.values[i_restart] > 0.5):
+                self._input_ok()
         return cb
 
     def _pair_plain(self, now: float | None = None) -> None:
@@ -568,8 +576,7 @@ class FdNode(LifecycleNode):
                 self.bad_input(f"{self.resolve_topic_name(inp.topic)} sample {k}: no "
                                f"{', '.join(topics)} received before it; sample not "
                                f"processed")
-                self.join.reject(k)
-                self._drain()
+                self.stream.refused(k, time.monotonic())
                 continue
             self.on_input(inp.name, k, values)
 
@@ -621,11 +628,11 @@ class FdNode(LifecycleNode):
     def on_input(self, name: str, stamp: int, values: np.ndarray,
                  restart: bool = False) -> None:
         """Join one decoded input; process every sample that became complete."""
-        note = self.join.put(name, stamp, values, time.monotonic(), restart)
-        if note is not None:
-            self.bad_input(note)
-            return
-        self._drain()
+        if self.stream.put(name, stamp, values, time.monotonic(), restart):
+            self._input_ok()
+
+    def _input_ok(self) -> None:
+        """An input was joined: the ``input`` channel (OK, or the WARN of recent bad input)."""
         level = self.diag.level("input")
         if level == WARN and time.monotonic() - self._last_bad < self.diag.period:
             self.diag.touch("input")
@@ -647,24 +654,21 @@ class FdNode(LifecycleNode):
 
     def _drain(self) -> None:
         """Process every sample the join releases now; report holes and restarts."""
-        for s in self.join.ready(time.monotonic()):
-            self._run(s)
+        self.stream.release(time.monotonic())
 
-    def _run(self, s: Sample) -> None:
-        if s.new_run is not None:
-            old, count = s.new_run
-            self._warn(f"new run: the stream restarted at stamp {s.k} (the old one stopped "
-                       f"before {old}; {count} messages held meanwhile); fresh state")
-        elif s.feedback_lost:
+    def _note(self, kind: str, line: str, stamp: Any) -> None:
+        """A report of the input policy (:class:`~fd_monitor.wire.stream.InputStream`):
+        out of order, holes and new runs are warnings; the others are dropped messages."""
+        if kind in ("hole", "feedback_lost"):
             self.holes += 1
-            self._warn(f"feedback for sample {s.k} did not come in time (lost on the way?): "
-                       f"restarted at {s.k} (fresh state, feedback at initial values)")
-        elif s.hole is not None:
-            self.holes += 1
-            a, b = s.hole
-            span = f"stamp {a}" if a == b else f"stamps {a}..{b}"
-            self._warn(f"hole: no valid sample for {span}; restarted at {s.k} (fresh state, "
-                       f"feedback at initial values)")
+        if kind in _WARN_ONLY:
+            self._warn(line)
+        else:
+            self.bad_input(line)
+
+    def _run(self, s: Sample) -> bool:
+        """Process one released sample (reset first at a restart); False when the core
+        refused it (the stream counts it lost: the next sample restarts the chain)."""
         if s.restart:
             self.reset()
         self.restarting = s.restart
@@ -672,11 +676,11 @@ class FdNode(LifecycleNode):
             self.process(s.k, s.inputs)
         except ImplausibleError as exc:
             # Refused by the core (an implausible value): reported like a bad message and a
-            # hole at k, so the next sample restarts the chain (core/plausibility.py).
+            # hole at k (core/plausibility.py).
             self.bad_input(str(exc))
-            self.join.lost(s.k)
-            return
+            return False
         self.processed += 1
+        return True
 
     def reset(self) -> None:
         """Reset the core component as :meth:`~fd_monitor.core.monitor.Monitor.reset` does
@@ -687,8 +691,13 @@ class FdNode(LifecycleNode):
         raise NotImplementedError
 
     def publish_array(self, pub: Any, labels: Sequence[str], stamp: int, values: Any) -> None:
-        """Publish one stamped, labelled message."""
-        pub.publish(to_msg(labels, stamp, values))
+        """Publish one stamped, labelled message (serialized directly:
+        :class:`~fd_monitor.nodes.common.SerializedArray`, one per layout)."""
+        key = tuple(labels)
+        ser = self._serialized.get(key)
+        if ser is None:
+            ser = self._serialized[key] = SerializedArray(key)
+        pub.publish(ser.encode(stamp, values))
 
     def gain_values(self) -> dict[str, str]:
         """Gain-file id and certificate status, for /diagnostics (per sample: cached)."""
@@ -698,31 +707,6 @@ class FdNode(LifecycleNode):
             cached = self._gain_values = (g, {"gain_file": g.id,
                                               "certificate": g.certificate_status})
         return cached[1]
-
-
-class _TopicOrder:
-    """Per-topic duplicate and out-of-order report, as
-    :func:`fd_monitor.analysis.offline.read_inputs` reports them (a duplicate is dropped,
-    the first kept; out of order is only reported).
-
-    A duplicate here is the same stamp twice in a row; out of order is one line per step
-    back. A stamp seen earlier goes on to the join, which keeps the first of a pending one and
-    holds a processed one: dropped if the stream goes on, a new run if it stopped (a source
-    that restarted, a second bag) -- not thousands of duplicates.
-    """
-
-    def __init__(self, topic: str) -> None:
-        self.topic = topic
-        self.last: int | None = None
-
-    def check(self, k: int) -> tuple[str | None, bool]:
-        """Record stamp k: (one-line report or None, True when k is a duplicate)."""
-        last, self.last = self.last, k
-        if k == last:
-            return f"{self.topic} stamp {k}: duplicate (first kept)", True
-        if last is not None and k < last:
-            return f"{self.topic} stamp {k} after stamp {last}: out of order", False
-        return None, False
 
 
 def require(condition: bool, message: str) -> None:

@@ -1,24 +1,33 @@
-"""``monitor``: the diagnosis chain as one node (default), or the four chain nodes on one
-executor (``layout:=chain``).
+"""``monitor``: one node, one join, one runtime step per sample, for every gain file (default),
+or the four chain nodes on one executor (``layout:=chain``, ``thresholds`` gain files).
 
-**fused** (default): one lifecycle node joins ``/plant/u`` and ``/plant/y`` on the stamp
-(plain messages from a driver are stamped on arrival, as the observer does), calls the
-runtime once per sample (:meth:`fd_monitor.core.monitor.Monitor.step`: observer, detector,
-AGEI, bias estimator, feedback inside the call) and publishes what the four-node chain
-publishes, same topics, same layouts, same bits: ``/fd/state_estimate``, ``/fd/residual``,
-``/fd/threshold``, ``/fd/alarm`` (stamp k), ``/fd/guard_event``, ``/fd/threshold_override``,
-``/fd/bias_estimate`` (stamp k + 1: decided at k for k + 1), and ``/diagnostics`` (input,
-ros graph, estimate, one ``residual <out>`` per output, tracker, bias estimate). One join and
-seven publications per sample instead of four joins, seven publications and six
-subscriptions: what makes the live path keep up at kHz rates (README, "Measured").
+**fused** (default): one lifecycle node joins ``plant/u``, ``plant/y`` and the side signals
+the runtime needs (``plant/rho``: the measured scheduling parameters of an LPV bank without a
+scheduling map; ``plant/mode``: the switching signal of a plant no guard switches) on the
+stamp (plain messages from a driver are stamped on arrival, as the observer does), calls the
+registry's runtime of the gain file (:func:`fd_monitor.core.runtime.runtime_for`, the one
+``analyze`` runs) once per sample, and publishes:
 
-**any other gain file** (qb, hinf_sc, hminus_switched): the fused
-:class:`~fd_monitor.nodes.runtime_node.RuntimeNode` (the registry's runtime, generic
-outputs), whatever the layout.
+- a ``thresholds`` gain file (:attr:`~fd_monitor.core.runtime.Runtime.CHAIN`): what the
+  four-node chain publishes, same topics, same layouts, same bits: ``fd/state_estimate``,
+  ``fd/residual``, ``fd/threshold``, ``fd/alarm`` (stamp k), ``fd/guard_event``,
+  ``fd/threshold_override``, ``fd/bias_estimate`` (stamp k + 1: decided at k for k + 1);
+  /diagnostics channels ``estimate``, ``residual <out>``, ``tracker``, ``bias estimate``;
+- any other (qb, hinf_sc, hminus_switched): ``fd/residual`` (the residual evaluation signal
+  per channel), ``fd/threshold`` (in force; ``inf`` while a bank settles or when the gain file
+  has none), ``fd/alarm`` (1.0 / 0.0), ``fd/state_estimate`` (``mode`` then x^ flattened,
+  labels ``x.<state>`` or ``<channel>.<state>`` for a bank), stamp k, labels = the runtime's
+  channels; /diagnostics channels ``estimate`` (WARN ``outside certified region``: rho outside
+  its design box, a mode the design lacks, x^ or u outside a stated envelope) and
+  ``residual <channel>``;
+
+plus ``input`` and ``ros graph``. One join and four or seven publications per sample instead
+of the chain's four joins and six subscriptions: what makes the live path keep up at kHz
+rates (README, "Measured").
 
 **chain**: the four nodes ``observer``, ``detector``, ``agei`` and ``bias_estimator`` on one
 executor in one process, each with its own name, parameters and diagnostics: the distributed
-form of the chain in one process (bit-identical to the fused node).
+form of the ``thresholds`` method in one process (bit-identical to the fused node).
 
 The executor is rclpy's EventsExecutor driven by a ``spin_once`` loop (its ``spin()`` does
 nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
@@ -26,20 +35,21 @@ nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
 
 from __future__ import annotations
 
-import struct
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from rclpy.serialization import serialize_message
+import numpy as np
 
-from fd_monitor.core.monitor import Monitor, MonitorOutput
-from fd_monitor.model.errors import FdMonitorError
-from fd_monitor.nodes import agei, bias_estimator, detector, observer, runtime_node
+from fd_monitor.core.runtime import RUNTIMES, runtime_class, runtime_for
+from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
+from fd_monitor.model.gains import GainFile, load_gains
+from fd_monitor.model.system import load_system
+from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
-from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
+from fd_monitor.nodes.common import OK, NodeUsage, Param, SerializedArray, run_node
 from fd_monitor.nodes.detector import DetectorNode, ResidualReport
 from fd_monitor.nodes.fd_node import (
     COMMON_PARAMS,
@@ -49,23 +59,29 @@ from fd_monitor.nodes.fd_node import (
     Input,
 )
 from fd_monitor.nodes.observer import EstimateReport, ObserverNode
-from fd_monitor.nodes.runtime_node import RuntimeNode, gain_method
-from fd_monitor.wire.conversions import to_msg
 from fd_monitor.wire.topics import (
     ALARM,
     BIAS_ESTIMATE,
     CHAIN_OUTPUTS,
     DIAGNOSTICS,
     GUARD_EVENT,
+    PLANT_MODE,
+    PLANT_RHO,
     PLANT_U,
     PLANT_Y,
     RESIDUAL,
+    RUNTIME_OUTPUTS,
     STATE_ESTIMATE,
     THRESHOLD,
     THRESHOLD_OVERRIDE,
+    runtime_estimate,
+    side_topic,
 )
 
-__all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main"]
+__all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main", "peek_parameters"]
+
+#: u of a plant without inputs; x^ of a runtime without one.
+_NO_INPUT = np.zeros(0)
 
 LAYOUTS = ("fused", "chain")
 
@@ -73,163 +89,198 @@ LAYOUTS = ("fused", "chain")
 DIAG_REFRESH = 0.1
 
 PARAMS = (
-    Param("layout", "fused", "fused: the chain as one node (one join, one Monitor.step per "
-          "sample); chain: the four nodes observer, detector, agei, bias_estimator on one "
-          "executor (their own names, parameters and diagnostics)"),
+    Param("layout", "fused", "fused: one node (one join, one runtime step per sample); "
+          "chain (thresholds gain files): the four nodes observer, detector, agei, "
+          "bias_estimator on one executor (their own names, parameters and diagnostics)"),
     GAP_TIMEOUT,
     WARN_SHARE,
-    Param("enabled", True, "AGEI on; false: the ablation without AGEI (never triggers, no "
-          "override)"),
+    Param("enabled", True, "thresholds: AGEI on; false: the ablation without AGEI (never "
+          "triggers, no override)"),
     ADAPTER_PARAM,
 )
 
 USAGE = NodeUsage(
-    "monitor", "monitor: the diagnosis chain (observer, detector, AGEI, bias estimator) as "
-    "one node (layout:=chain: the four nodes in one process).", (*COMMON_PARAMS, *PARAMS),
-    subscribes=((PLANT_U, "u_k (stamped, or plain: stamped on arrival)"),
-                (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)")),
-    publishes=((STATE_ESTIMATE, "mode, x^_k, y~_k, restart (stamp k)"),
-               (RESIDUAL, "r:<out>, w:<out> (stamp k)"),
-               (THRESHOLD, "R:<out> in force, rbar:<out> nominal (stamp k)"),
-               (ALARM, "0/1 per output (stamp k)"),
-               (GUARD_EVENT, "trigger, phase, row, mode_uncertain (stamp k + 1)"),
-               (THRESHOLD_OVERRIDE, "AGEI override per output, NaN = none "
+    "monitor", "monitor: one node, one runtime step per sample, for any gain file (the "
+    "registry's runtime, as analyze runs it); layout:=chain with a thresholds gain file: the "
+    "four chain nodes in one process.", (*COMMON_PARAMS, *PARAMS),
+    subscribes=((PLANT_U, "u_k (plants with inputs; stamped, or plain: stamped on arrival)"),
+                (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)"),
+                (PLANT_RHO, "measured scheduling parameters (LPV bank without a "
+                            "scheduling map; stamped k)"),
+                (PLANT_MODE, "switching signal (no guard decides the mode; stamped k)")),
+    publishes=((STATE_ESTIMATE, "thresholds: mode, x^_k, y~_k, restart; other methods: "
+                "mode, x^ (flattened per generator) (stamp k)"),
+               (RESIDUAL, "thresholds: r:<out>, w:<out>; other methods: the residual "
+                "evaluation signal per channel (stamp k)"),
+               (THRESHOLD, "thresholds: R:<out> in force, rbar:<out> nominal; other "
+                "methods: in force per channel, inf = none (stamp k)"),
+               (ALARM, "0/1 per channel (stamp k)"),
+               (GUARD_EVENT, "thresholds: trigger, phase, row, mode_uncertain "
                 "(stamp k + 1)"),
-               (BIAS_ESTIMATE, "sigma^_{k+1}, iso:<out>, active, k_detect "
+               (THRESHOLD_OVERRIDE, "thresholds: AGEI override per output, NaN = none "
                 "(stamp k + 1)"),
-               (DIAGNOSTICS, "input, estimate, residual <out>, tracker, bias estimate")))
+               (BIAS_ESTIMATE, "thresholds: sigma^_{k+1}, iso:<out>, active, k_detect "
+                "(stamp k + 1)"),
+               (DIAGNOSTICS, "input, ros graph, estimate, residual <channel>; thresholds: "
+                "tracker, bias estimate")))
 
 
 class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
-    """The fused chain node: one join of ``plant/u`` and ``plant/y``, one runtime step per
-    sample, the chain's seven outputs.
+    """The fused node: one join, one registry runtime step per sample, the method's outputs
+    (see the module docstring).
 
     Parameters
     ----------
     system, gains, qos, **kwargs
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
+    node_name : str
     """
 
-    runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds"}
-    outputs = CHAIN_OUTPUTS
+    runtimes: Mapping[str, str] = {m: "_start" for m in RUNTIMES}
     bias_channel = "bias estimate"
-    # message-only callbacks: runs under the EventsExecutor (run_node)
-    message_info = False
 
     def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
                  **kwargs: Any) -> None:
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
 
     def start(self) -> None:
-        """Configure and activate (autostart), unless the layout is ``chain``."""
+        """Check the layout, configure and activate (autostart)."""
         if self.params.layout not in LAYOUTS:
             raise FdMonitorError(f"node {self.get_name()}: parameter layout: "
                                  f"{self.params.layout!r}: expected one of "
                                  f"{', '.join(LAYOUTS)}")
-        if self.params.layout == "fused":
-            super().start()
+        super().start()
 
     def setup(self) -> None:
-        """Publishers, runtime, diagnostics and inputs (at configure)."""
+        """Runtime, publishers, diagnostics and inputs (at configure)."""
+        self.start_runtime()
+
+    def _start(self) -> None:
         s = self.system
-        o = s.outputs
-        # Each topic's message is serialised once (CDR, little endian); ``data`` is its last
-        # field, so a sample's message is that prefix (layout, data length) followed by the
-        # k and values as float64: published as serialised bytes, no message object per
-        # sample (the tests compare every published value with Monitor's). The values are
-        # the runtime's payloads by field name (the layouts, built once).
-        self._out = []
-        for t in self.outputs:
-            lay = t.layout(s)
-            n = len(lay.labels) + 1
-            cdr = serialize_message(to_msg(lay.labels, 0, [0.0] * len(lay.labels)))
-            self._out.append((self.publisher(t), cdr[:-8 * n], struct.Struct(f"<{n}d"),
-                              lay, t.next_sample))
-        #: per topic: publisher, prefix, packer, which payload holds each field, k or k + 1
-        #: (resolved at the first sample from the runtime's payloads)
-        self._plan: list[tuple[Any, bytes, struct.Struct, Any, bool]] | None = None
+        self.build_core(self.gain_file)
+        rt = self.runtime
+        self.pubs = [self.publisher(t) for t in self.outputs]
         self.sigma_hat = [0.0] * s.ny
         self._alarmed: set[str] = set()
         self._episode = 0
         self._was_outside = False
         self._last_active, self._last_isolated = False, []
-        self.channels = [f"residual {n}" for n in o]
-        self.diag.add("estimate", self.params.stale_timeout)
+        stale = self.params.stale_timeout
+        self.diag.add("estimate", stale)
         for ch in self.channels:
-            self.diag.add(ch, self.params.stale_timeout)
-        self.diag.add("tracker", self.params.stale_timeout)
-        self.diag.add(self.bias_channel, self.params.stale_timeout, keep_on_stale=True)
-        self._channels_all = ["estimate", *self.channels, "tracker", self.bias_channel]
+            self.diag.add(ch, stale)
+        if rt.CHAIN:
+            self.diag.add("tracker", stale)
+            self.diag.add(self.bias_channel, stale, keep_on_stale=True)
+        self._channels_all = ["estimate", *self.channels,
+                              *(["tracker", self.bias_channel] if rt.CHAIN else [])]
         self._last_key: Any = None
         self._next_report = 0.0
-        self.start_runtime()
+        self.start_inputs([
+            *([Input.of("u", PLANT_U, s, plain_ok=True, hold=True)] if s.nu else []),
+            Input.of("y", PLANT_Y, s, plain_ok=True),
+            *(Input.laid_out(n, side_topic(n), side_topic(n).with_labels({n: rt.side_labels[n]}))
+              for n in rt.side_inputs),
+        ], gap_timeout=self.params.gap_timeout)
 
     # -- the runtime: built, reset and stepped here only ------------------------------------
 
-    def _start_thresholds(self) -> None:
-        s = self.system
-        self.build_core(self.gain_file)
-        self.start_inputs([
-            Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
-            Input.of("y", PLANT_Y, s, plain_ok=True),
-        ], gap_timeout=self.params.gap_timeout)
-
-    def build_core(self, gains: Any) -> None:
-        """The runtime of a gain file (at configure, and when ``gains`` is set)."""
-        self.runtime = Monitor(self.system, gains, agei=self.params.enabled)
-        # the residual reports ask whether the detector is the thresholds one
-        self.detector = self.runtime.detector
+    def build_core(self, gains: GainFile) -> None:
+        """The runtime of ``gains`` (at configure, and when ``gains`` is set: a swap keeps the
+        method, channels and side signals)."""
+        cls = runtime_class(gains.method)
+        options = {"agei": self.params.enabled} if "agei" in cls.options() else {}
+        try:
+            rt = runtime_for(self.system, gains, **options)
+        except GainFileError as exc:
+            raise FdMonitorError(str(exc)) from None
+        old = getattr(self, "runtime", None)
+        if old is not None and (rt.channels != old.channels
+                                or rt.side_inputs != old.side_inputs):
+            raise FdMonitorError(f"{gains.path}: channels {', '.join(rt.channels)} or side "
+                                 f"signals differ from the running ones")
+        self.runtime = rt
+        #: the thresholds detector (its residual reports add sigma^), else None
+        self.detector = rt.monitor.detector if rt.CHAIN else None
+        #: /diagnostics status (and alarm log) name of each of the runtime's channels
+        self.channels = [f"residual {c}" for c in rt.channels]
+        self.outputs = CHAIN_OUTPUTS if rt.CHAIN else RUNTIME_OUTPUTS
+        #: per topic: publisher, serializer, which payload holds each field, k or k + 1
+        #: (resolved at the first sample from the runtime's payloads)
+        self._plan: list[tuple[Any, SerializedArray, Any, bool]] | None = None
 
     def reset(self) -> None:
-        """Fresh runtime state (a new run: first sample, after a hole, ``~/reset``)."""
+        """Fresh runtime state (a new run: first sample, after a hole, ``~/reset``), as the
+        offline run restarts it."""
         self.runtime.reset()
 
-    def step_runtime(self, k: int, inputs: dict[str, Any]) -> MonitorOutput:
-        """One sample through the runtime (raises ImplausibleError: refused, no state
-        changed)."""
-        return self.runtime.step(k, inputs["u"], inputs["y"])
+    def _layouts(self, out: Any) -> list[Any]:
+        """Each output topic's layout (the generic state estimate's from x^'s shape at the
+        first sample: one estimate, or a bank's)."""
+        rt, s = self.runtime, self.system
+        if rt.CHAIN:
+            return [t.layout(s) for t in self.outputs]
+        x_hat = out.estimates.get("x_hat", _NO_INPUT)
+        return [RESIDUAL.channels(rt.channels), THRESHOLD.channels(rt.channels),
+                ALARM.channels(rt.channels), runtime_estimate(s, rt.channels, x_hat)]
 
     # -- per sample ---------------------------------------------------------------------------
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
-        """(u_k, y_k) -> the chain's seven outputs and the diagnostics."""
-        out = self.step_runtime(k, inputs)
-        ob, det, ag, est = out.observer, out.detector, out.agei, out.estimator
-        stamps = (k, k + 1)
-        pays = (ob.payload(), det.payload(), ag.payload(), est.payload(),
-                {"restart": self.restarting})
+        """Inputs of k -> one runtime step -> the outputs and the diagnostics."""
+        rt = self.runtime
+        u = inputs["u"] if self.system.nu else _NO_INPUT
+        side = {n: inputs[n] for n in rt.side_inputs} if rt.side_inputs else None
+        try:
+            out = rt.step(k, u, inputs["y"], side)
+        except MessageError as exc:
+            # refused by the runtime: reported like a bad message, and a hole at k
+            raise ImplausibleError(str(exc)) from None
+        pays = (*rt.payloads(out), {"restart": self.restarting})
         if self._plan is None:
-            self._plan = [(pub, prefix, cdr, lay.sources(pays), nxt)
-                          for pub, prefix, cdr, lay, nxt in self._out]
-        for pub, prefix, cdr, src, nxt in self._plan:
-            # [k, *values] as Python numbers (bools and ints pack exactly as float64)
-            data: list[Any] = [stamps[nxt]]
+            self._plan = [(pub, SerializedArray(lay.labels), lay.sources(pays), t.next_sample)
+                          for pub, t, lay in zip(self.pubs, self.outputs, self._layouts(out))]
+        stamps = (k, k + 1)
+        for pub, ser, src, nxt in self._plan:
+            # values as Python numbers (bools and ints pack exactly as float64)
+            data: list[Any] = []
             for i, name, scalar in src:
                 v = pays[i][name]
                 if scalar:
                     data.append(v)
                 else:
                     data.extend(v.tolist())
-            pub.publish(prefix + cdr.pack(*data))
-        alarm = det.alarm.tolist()
-        # Diagnostics: a full report when a status can change (alarms, mode, AGEI phase,
-        # estimator, certified region) and at least every DIAG_REFRESH s; else the channels
-        # are only marked fresh. /diagnostics goes out every diagnostics_period anyway.
-        outside = ob.outside is not None and bool((ob.outside != 0.0).any())
-        key = (alarm, ob.mode, ag.phase, est.active, est.isolated.tolist(), outside)
+            pub.publish(ser.encode(stamps[nxt], data))
+        self._diagnose(k, out)
+
+    def _diagnose(self, k: int, out: Any) -> None:
+        """A full report when a status can change (alarms, mode, AGEI phase, estimator,
+        certified region) and at least every DIAG_REFRESH s; else the channels are only
+        marked fresh. /diagnostics goes out every diagnostics_period anyway."""
+        alarm = out.alarm.tolist()
+        outside = out.outside is not None and bool((out.outside != 0.0).any())
+        core = out.core if self.runtime.CHAIN else None
+        key = (alarm, out.mode, outside, None if core is None else
+               (core.agei.phase, core.estimator.active, core.estimator.isolated.tolist()))
         now = time.monotonic()
-        if key != self._last_key or now >= self._next_report:
-            self._last_key, self._next_report = key, now + DIAG_REFRESH
-            self.sigma_hat = est.sigma_hat
-            self.report_estimate(k, int(ob.mode), ob.x_hat, ob.outside)
-            self._report(k, int(ob.mode), det.residual, det.threshold, alarm)
+        if key == self._last_key and now < self._next_report:
+            for ch in self._channels_all:
+                self.diag.touch(ch)
+            return
+        self._last_key, self._next_report = key, now + DIAG_REFRESH
+        rt = self.runtime
+        x_hat = out.estimates.get("x_hat", _NO_INPUT)
+        self.report_estimate(k, int(out.mode), x_hat, out.outside,
+                             rt.region_names or None)
+        if core is not None:
+            self.sigma_hat = core.estimator.sigma_hat
+        self._report(k, int(out.mode), out.residual, out.threshold, alarm)
+        if core is not None:
+            ag = core.agei
             self.diag.update("tracker", OK, f"phase {ag.phase}", {
                 "sample": k, "trigger": ag.trigger, "phase": ag.phase, "row": ag.row,
                 **self.gain_values()})
-            self.report_bias(k, est)
-        else:
-            for ch in self._channels_all:
-                self.diag.touch(ch)
+            self.report_bias(k, core.estimator)
 
 
 def make_chain(**kwargs: Any) -> list:
@@ -244,27 +295,44 @@ def make_chain(**kwargs: Any) -> list:
 
 
 def make_nodes(**kwargs: Any) -> list:
-    """The fused monitor node, or with ``layout: chain`` the four chain nodes
-    (:func:`make_chain`); for a gain file of another method than ``thresholds`` (qb,
-    hinf_sc, hminus_switched) the fused :class:`~fd_monitor.nodes.runtime_node.RuntimeNode`.
-    ``kwargs`` go to every node (e.g. ``context``)."""
-    method = gain_method(**kwargs)
-    if method is not None and method != "thresholds":
-        return [RuntimeNode(**kwargs)]
-    node = MonitorNode(**kwargs)
-    if node.params.layout == "fused":
-        return [node]
-    node.destroy_node()
+    """The fused monitor node, or with ``layout: chain`` and a gain file whose method has the
+    chain (``thresholds``) the four chain nodes (:func:`make_chain`). ``kwargs`` go to every
+    node (e.g. ``context``)."""
+    values = peek_parameters("monitor", ("system", "gains", "layout"), **kwargs)
+    method = None
+    try:
+        system = load_system(str(values["system"]))
+        method = load_gains(str(values["gains"]), system, verify=False).method
+    except FdMonitorError:
+        pass                        # the fused node reports why, at configure
+    if values["layout"] != "chain" or method not in RUNTIMES or not runtime_class(method).CHAIN:
+        return [MonitorNode(**kwargs)]
     return make_chain(**{**kwargs, "parameter_overrides": [
         p for p in kwargs.get("parameter_overrides", []) if p.name != "layout"]})
+
+
+def peek_parameters(node_name: str, names: Sequence[str], **kwargs: Any) -> dict[str, Any]:
+    """Parameters ``names`` of a node called ``node_name`` as it would see them
+    (``--params-file``, ``-p``, ``parameter_overrides``; else their defaults), before the
+    node exists: ``monitor`` decides which nodes to make by them."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    defaults = {p.name: p.default for p in (*COMMON_PARAMS, *PARAMS)}
+    peek = Node(node_name, allow_undeclared_parameters=True,
+                automatically_declare_parameters_from_overrides=True, **kwargs)
+    try:
+        return {n: peek.get_parameter_or(n, Parameter(n, value=defaults[n])).value
+                for n in names}
+    finally:
+        peek.destroy_node()
 
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the fused monitor node (or, with ``layout:=chain``, the four chain nodes)."""
     return run_node(make_nodes, args, prog="monitor",
-                    usage=[USAGE, runtime_node.USAGE,
-                           *(m.USAGE for m in (observer, detector, agei, bias_estimator))],
-                    events=True)
+                    usage=[USAGE, *(m.USAGE for m in (observer, detector, agei,
+                                                      bias_estimator))])
 
 
 if __name__ == "__main__":

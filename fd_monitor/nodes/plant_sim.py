@@ -259,7 +259,7 @@ class PlantSimNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run ``plant_sim`` until the scenario ends (or SIGINT/SIGTERM)."""
-    return run_node(PlantSimNode, args, prog="plant_sim", usage=[USAGE])
+    return run_node(PlantSimNode, args, prog="plant_sim", usage=[USAGE], pacing=True)
 
 
 if __name__ == "__main__":

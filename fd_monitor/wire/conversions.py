@@ -38,6 +38,7 @@ __all__ = [
     "encode_data",
     "join_labels",
     "readable_stamp",
+    "RawDecoder",
     "split_labels",
     "to_msg",
 ]
@@ -228,6 +229,72 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
         raise NonFiniteError(f"{where}: value {name} is {float(values[i])!r}: expected finite "
                              f"numbers")
     return Decoded(stamp, got_labels or (expected or ()), values.copy())
+
+
+class RawDecoder:
+    """:func:`decode` for serialized (CDR) Float64MultiArray messages of one input, fast.
+
+    A node's input carries messages of one layout (labels, stamp offset, length). The first
+    message of a layout is deserialized and decoded in full (every check of :func:`decode`);
+    its serialized bytes before the values are remembered. A later message whose bytes start
+    with that prefix and have the same length has the same layout, so only its values are
+    read (one buffer view, no message object) and checked: stamp an integer in
+    ``[0, 2**53)``, values finite (as the ``allow_*`` flags say). Anything else -- another
+    layout, a bad value -- goes through :func:`decode` on the deserialized message, so errors
+    and results are the same as :func:`decode`'s, bit for bit (``test_conversions``).
+
+    Parameters
+    ----------
+    deserialize : callable
+        ``bytes -> message`` (rclpy's ``deserialize_message`` bound to the type).
+    topic : str
+    **options
+        :func:`decode`'s keyword arguments (labels, size, require_stamp, allow_nan, allow_inf).
+    """
+
+    def __init__(self, deserialize: Any, topic: str = "?", **options: Any) -> None:
+        self.deserialize, self.topic, self.options = deserialize, topic, options
+        allow_nan, allow_inf = options.get("allow_nan", False), options.get("allow_inf", False)
+        # the value check of decode, as one array operation (None: every value is allowed)
+        self._bad = (None if allow_nan and allow_inf else np.isinf if allow_nan
+                     else np.isnan if allow_inf else None)
+        self._finite_only = not (allow_nan or allow_inf)
+        #: (prefix bytes, total length, number of float64 incl. the stamp, stamped, labels)
+        self._layout: tuple[bytes, int, int, bool, tuple[str, ...]] | None = None
+
+    def message(self, raw: bytes) -> Any:
+        """The deserialized message (for the error path: :func:`readable_stamp`)."""
+        return self.deserialize(raw)
+
+    def decode(self, raw: bytes) -> Decoded:
+        """Decode one serialized message (raises :class:`MessageError` as :func:`decode`)."""
+        lay = self._layout
+        if lay is not None and len(raw) == lay[1] and raw.startswith(lay[0]):
+            n = lay[2]
+            data = np.frombuffer(raw, "<f8", n, lay[1] - 8 * n)
+            ok = True
+            stamp = None
+            values = data
+            if lay[3]:
+                s = float(data[0])
+                ok = 0.0 <= s < MAX_STAMP and s == math.floor(s)
+                stamp = int(s) if ok else None
+                values = data[1:]
+            if ok and (not np.isfinite(values).all() if self._finite_only
+                       else self._bad is not None and self._bad(values).any()):
+                ok = False
+            if ok:
+                return Decoded(stamp, lay[4], values.copy())
+        d = decode(self.deserialize(raw), self.topic, **self.options)
+        self._learn(raw, d)
+        return d
+
+    def _learn(self, raw: bytes, d: Decoded) -> None:
+        n = d.values.size + (d.stamp is not None)
+        if raw[:4] != b"\x00\x01\x00\x00" or len(raw) < 4 + 8 * n:
+            return                               # not little-endian CDR: always decode
+        prefix = raw[:len(raw) - 8 * n]
+        self._layout = (prefix, len(raw), n, d.stamp is not None, d.labels)
 
 
 class ArrivalStamper:

@@ -8,7 +8,8 @@ same. At a *restart* (the first sample, and the first valid sample after a hole)
 takes its initial values (sigma^ = 0, no trigger, no override), as after
 :meth:`fd_monitor.core.monitor.Monitor.reset`.
 
-Two roles, matching the offline runner (:func:`fd_monitor.analysis.offline.run_bag`):
+Two roles (the entry role is the one input policy of the nodes and of offline bag reading,
+through :class:`fd_monitor.wire.stream.InputStream`):
 
 * the **entry** node (``sequence=None``: the observer) decides the holes. When its next stamp
   k is incomplete, k is lost if a message for it was rejected (:meth:`StampJoin.reject`) or
@@ -46,10 +47,34 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Sample", "StampJoin"]
+__all__ = ["Note", "Sample", "StampJoin"]
 
 #: Holes remembered to recognise late messages for skipped stamps.
 _HOLE_HISTORY = 64
+
+
+class Note(str):
+    """The one-line reason :meth:`StampJoin.put` returns for an input it does not join, with
+    its kind (so offline reports can group it; a node just logs the line).
+
+    Attributes
+    ----------
+    kind : str
+        ``duplicate`` (a pending stamp again: the first is kept), ``late`` (a required input
+        for a stamp inside a declared hole: ignored), ``held`` (the first stamp of an episode
+        below the stream or beyond the horizon), ``dropped`` (more than ``max_pending``
+        stamps buffered: the oldest dropped).
+    stamp : int or None
+        The stamp it is about when not the one put (``dropped``: the oldest).
+    """
+
+    kind: str
+    stamp: int | None
+
+    def __new__(cls, text: str, kind: str, stamp: int | None = None) -> Note:
+        self = super().__new__(cls, text)
+        self.kind, self.stamp = kind, stamp
+        return self
 
 
 @dataclass(frozen=True)
@@ -147,6 +172,7 @@ class StampJoin:
         self.held_messages = 0
         self.new_runs = 0
         self._progress = -float("inf")                 # time of the last release
+        self._restart_next = False                     # the last released sample was lost
         self._adopted: tuple[int, int] | None = None
 
     def reset(self) -> None:
@@ -159,7 +185,7 @@ class StampJoin:
     # -- input ---------------------------------------------------------------------------------
 
     def put(self, name: str, stamp: int, value: Any, now: float = 0.0,
-            restart: bool = False) -> str | None:
+            restart: bool = False) -> Note | None:
         """Store one input. Returns a one-line reason when it is ignored, else None.
 
         ``restart`` (downstream role, sequence input only): the entry node restarted at
@@ -172,13 +198,14 @@ class StampJoin:
             # Feedback for a skipped sample, or (downstream) anything of a dead stamp.
             if name in self.feedback or self.sequence is not None:
                 return None
-            return f"{name} stamp {stamp}: arrived after its hole was declared; ignored"
+            return Note(f"{name} stamp {stamp}: arrived after its hole was declared; ignored",
+                        "late")
         if self.k_next is not None and (stamp < self.k_next or (
                 self.horizon is not None and stamp > self.k_next + self.horizon)):
             return self._hold(name, stamp, value, now, restart)
         slot = self.pending.setdefault(stamp, {})
         if name in slot:
-            return f"{name} stamp {stamp}: duplicate; the first one is kept"
+            return Note(f"{name} stamp {stamp}: duplicate; the first one is kept", "duplicate")
         slot[name] = value
         if name == self.sequence:
             self._seq.append(stamp)
@@ -190,11 +217,12 @@ class StampJoin:
             oldest = min(self.pending)
             self._forget(oldest)
             self.dropped += 1
-            return f"more than {self.max_pending} samples pending: dropped stamp {oldest}"
+            return Note(f"more than {self.max_pending} samples pending: dropped stamp {oldest}",
+                        "dropped", oldest)
         return None
 
     def _hold(self, name: str, stamp: int, value: Any, now: float,
-              restart: bool) -> str | None:
+              restart: bool) -> Note | None:
         if name in self.feedback and self.sequence is None:
             return None                          # feedback follows the run it belongs to
         assert self.k_next is not None
@@ -202,7 +230,7 @@ class StampJoin:
         slot = self.held.setdefault(stamp, {})
         self._held_t.setdefault(stamp, now)
         if name in slot:
-            return f"{name} stamp {stamp}: duplicate; the first one is kept"
+            return Note(f"{name} stamp {stamp}: duplicate; the first one is kept", "duplicate")
         slot[name] = value
         self.held_messages += 1
         if name == self.sequence:
@@ -218,8 +246,9 @@ class StampJoin:
             return None
         where = ("below" if stamp < self.k_next
                  else f"more than {self.horizon} samples ahead of")
-        return (f"{name} stamp {stamp}: {where} the stream (next is {self.k_next}): held; "
-                f"it becomes a new run if the stream stops for {self.restart_after:g} s")
+        return Note(f"{name} stamp {stamp}: {where} the stream (next is {self.k_next}): held; "
+                    f"it becomes a new run if the stream stops for {self.restart_after:g} s",
+                    "held")
 
     def _adopt(self) -> int:
         """Make the held stamps the stream: a new run from the smallest complete one."""
@@ -232,6 +261,7 @@ class StampJoin:
         self.holes.clear()
         self.k_next = None
         self.held_messages = 0
+        self._restart_next = False
         self.new_runs += 1
         for stamp, slot in held.items():
             self.pending[stamp] = slot
@@ -257,9 +287,11 @@ class StampJoin:
 
     def lost(self, stamp: int) -> None:
         """Sample ``stamp``, already released, was refused by the core (implausible): it is
-        a hole, and the next complete sample is a restart (entry role)."""
+        a hole, and the next sample is a restart. The stream goes on at ``stamp + 1`` (a
+        later gap is a hole like any other, a late message for ``stamp + 1`` still counts);
+        the restart does not wait for feedback (none comes for a refused sample)."""
         self.holes.append((stamp, stamp))
-        self.k_next = None
+        self._restart_next = True
 
     # -- release -------------------------------------------------------------------------------
 
@@ -289,6 +321,7 @@ class StampJoin:
         if hole is not None:
             self.holes.append(hole)
         self.k_next = k + 1
+        self._restart_next = False
         adopted, self._adopted = self._adopted, None
         # At a restart, feedback decided before the hole does not belong to this run.
         return Sample(k, {**slot, **self.feedback} if restart else slot, restart, hole,
@@ -311,6 +344,8 @@ class StampJoin:
                 return None
             return self._release(min(self._complete_since), True, None)
         if k in self._complete_since:
+            if self._restart_next:
+                return self._release(k, True, None)
             if self._feedback_here(self.pending[k]):
                 return self._release(k, False, None)
             if self._feedback_overdue(k, now, self.gap_timeout):
@@ -347,7 +382,7 @@ class StampJoin:
                 self._forget(seq.popleft())
             s, slot = later, self.pending[later]
         k = self.k_next
-        restart = k is None or s in self._restart_at or s != k
+        restart = k is None or s in self._restart_at or s != k or self._restart_next
         lost = False
         if not restart and not self._feedback_here(slot):
             if not self._feedback_overdue(s, now, self.restart_after):

@@ -48,6 +48,7 @@ __all__ = [
     "BIAS_ESTIMATE",
     "CHAIN_DATA",
     "CHAIN_OUTPUTS",
+    "RUNTIME_OUTPUTS",
     "DIAGNOSTICS",
     "DIAGNOSTIC_ARRAY",
     "FLOAT64_MULTI_ARRAY",
@@ -284,6 +285,10 @@ TOPICS = (PLANT_U, PLANT_Y, PLANT_RHO, PLANT_MODE, PLANT_TRUTH, *CHAIN_OUTPUTS, 
 #: The sensor-bias chain's data topics: what ``record`` and the demo record by default
 #: (with ``/diagnostics``).
 CHAIN_DATA = (PLANT_U, PLANT_Y, PLANT_TRUTH, *CHAIN_OUTPUTS)
+#: What the fused monitor publishes for a registry runtime that is not the chain (fields of
+#: :meth:`fd_monitor.core.runtime.Runtime.payloads`; layouts: the runtime's channels and
+#: :func:`runtime_estimate`).
+RUNTIME_OUTPUTS = (RESIDUAL, THRESHOLD, ALARM, STATE_ESTIMATE)
 
 _SIDE = {"rho": PLANT_RHO, "mode": PLANT_MODE}
 

@@ -1,0 +1,147 @@
+"""The one input policy of fd_monitor, live and offline (pure Python, no ROS; time is an
+argument).
+
+A node's subscription callback and the offline bag reader
+(:func:`fd_monitor.analysis.offline.read_streams`) push every message through the same code:
+
+1. the caller decodes it (:func:`~fd_monitor.wire.conversions.decode`); a message that does
+   not decode is reported by the caller and its readable stamp is *refused*
+   (:meth:`InputStream.refused`: the join may declare that stamp lost at once);
+2. the per-topic order check (:class:`TopicOrder`): the same stamp twice in a row is a
+   ``duplicate`` (dropped, the first kept), a step back is ``out_of_order`` (reported, joined);
+3. the stamp join (:class:`~fd_monitor.wire.join.StampJoin`, entry role): a pending stamp
+   again is a ``duplicate``, an input for a stamp inside a declared hole is ``late``, a stamp
+   below the stream or beyond ``stamp_horizon`` is ``held`` (a new run once the stream has
+   stopped for ``restart_after`` s), more than ``max_pending`` stamps ``dropped``;
+4. release (:meth:`InputStream.release`): every sample the join can decide at time ``now``, in
+   stamp order, with its ``hole`` (a missing stamp is lost once a later one has been complete
+   for ``gap_timeout`` s, or at once when it was refused), ``restart`` and ``new_run``; the
+   caller's ``step`` runs it (reset at a restart) and returns False when the core refused it
+   (implausible): the join then counts that sample lost and restarts at the next one.
+
+Reports go to the caller's ``note(kind, line, stamp)``; ``kind`` is the step's kind above,
+``hole`` (``stamp`` is the inclusive ``(first, last)``), ``feedback_lost`` or ``new_run``.
+A node logs the line and reports it on ``/diagnostics``; the offline reader turns it into an
+:class:`~fd_monitor.analysis.offline.InputReport` entry. Live, ``now`` is the node's
+monotonic clock; offline it is each bag record's log time in s, and ``+inf`` at the end of
+the bag (every decision that waits for time is taken).
+
+The defaults of the time and stamp limits (:data:`GAP_TIMEOUT`, :data:`STAMP_HORIZON`,
+:data:`RESTART_AFTER`) are declared here once: the nodes' parameters and the offline reader
+take them from here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from fd_monitor.wire.join import Sample, StampJoin
+
+__all__ = ["GAP_TIMEOUT", "InputStream", "RESTART_AFTER", "STAMP_HORIZON", "TopicOrder"]
+
+#: s a later sample must have been complete before a missing one is declared lost.
+GAP_TIMEOUT = 1.0
+#: Samples above the next expected stamp beyond which a stamp is held, not joined.
+STAMP_HORIZON = 100_000
+#: s without progress before held stamps become a new run.
+RESTART_AFTER = 1.0
+
+#: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
+NoteFn = Callable[[str, str, Any], None]
+
+
+class TopicOrder:
+    """Per-topic duplicate and out-of-order report (a duplicate is dropped, the first kept;
+    out of order is only reported).
+
+    A duplicate here is the same stamp twice in a row; out of order is one line per step
+    back. A stamp seen earlier goes on to the join, which keeps the first of a pending one and
+    holds a processed one: dropped if the stream goes on, a new run if it stopped (a source
+    that restarted, a second bag) -- not thousands of duplicates.
+    """
+
+    def __init__(self, topic: str) -> None:
+        self.topic = topic
+        self.last: int | None = None
+
+    def check(self, k: int) -> tuple[str | None, bool]:
+        """Record stamp k: (one-line report or None, True when k is a duplicate)."""
+        last, self.last = self.last, k
+        if k == last:
+            return f"{self.topic} stamp {k}: duplicate (first kept)", True
+        if last is not None and k < last:
+            return f"{self.topic} stamp {k} after stamp {last}: out of order", False
+        return None, False
+
+
+class InputStream:
+    """Decoded messages -> order check -> stamp join -> released samples, one policy.
+
+    Parameters
+    ----------
+    join : StampJoin
+        The join of the inputs (entry role for ``/plant/u``, ``/plant/y`` and side signals).
+    step : callable
+        ``step(sample) -> bool``: run one released :class:`~fd_monitor.wire.join.Sample`
+        (reset first when ``sample.restart``); False when the core refused it (implausible).
+    note : callable
+        ``note(kind, line, stamp)``: one report (see the module's kinds).
+    """
+
+    def __init__(self, join: StampJoin, step: Callable[[Sample], bool], note: NoteFn) -> None:
+        self.join = join
+        self.step = step
+        self.note = note
+
+    def refused(self, stamp: int | None, now: float) -> None:
+        """A required message for ``stamp`` did not decode (the caller reported why): the
+        stamp is lost (None: unreadable, nothing to refuse)."""
+        if stamp is not None and stamp >= 0:
+            self.join.reject(stamp)
+            self.release(now)
+
+    def stamped(self, order: TopicOrder, name: str, stamp: int, values: Any, now: float,
+                offset: int = 0, restart: bool = False) -> bool:
+        """One decoded stamped message of input ``name`` (its topic's ``order``), joined at
+        ``stamp + offset``. True when joined (samples released), False when reported and
+        dropped or held."""
+        line, duplicate = order.check(stamp)
+        if line is not None:
+            self.note("duplicate" if duplicate else "out_of_order", line, stamp)
+            if duplicate:
+                return False
+        stamp += offset
+        return stamp >= 0 and self.put(name, stamp, values, now, restart)
+
+    def put(self, name: str, stamp: int, values: Any, now: float,
+            restart: bool = False) -> bool:
+        """Join one input (already order-checked, or paired by sample-and-hold) and release
+        what became ready; False when the join reported and did not join it."""
+        line = self.join.put(name, stamp, values, now, restart)
+        if line is not None:
+            self.note(line.kind, line, stamp if line.stamp is None else line.stamp)
+            return False
+        self.release(now)
+        return True
+
+    def release(self, now: float) -> None:
+        """Run every sample the join releases at ``now``; report holes and new runs."""
+        join = self.join
+        for s in join.ready(now):
+            if s.new_run is not None:
+                old, count = s.new_run
+                self.note("new_run", f"new run: the stream restarted at stamp {s.k} (the old "
+                          f"one stopped before {old}; {count} messages held meanwhile); "
+                          f"fresh state", s.k)
+            elif s.feedback_lost:
+                self.note("feedback_lost", f"feedback for sample {s.k} did not come in time "
+                          f"(lost on the way?): restarted at {s.k} (fresh state, feedback at "
+                          f"initial values)", s.k)
+            elif s.hole is not None:
+                a, b = s.hole
+                span = f"stamp {a}" if a == b else f"stamps {a}..{b}"
+                self.note("hole", f"hole: no valid sample for {span}; restarted at {s.k} "
+                          f"(fresh state, feedback at initial values)", s.hole)
+            if not self.step(s):
+                join.lost(s.k)
