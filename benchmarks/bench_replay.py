@@ -48,7 +48,7 @@ def _env() -> dict[str, str]:
     sys.path.insert(0, str(REPO))
     from fd_monitor.nodes.common import use_dds_profile
 
-    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 200)))
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="fd_bench_roslog_"))
