@@ -193,6 +193,17 @@ def test_hminus_threshold_section_errors_are_one_line():
         hminus_switched.design(s, bad, origin, sha)
 
 
+def test_hinf_monte_carlo_threshold_refuses_a_faulty_scenario():
+    """Monte Carlo thresholds come from fault-free runs (hinf_sc and hminus_switched share
+    the check: design/hinf_thresholds.fault_free_scenario)."""
+    s = load_system("thesis_5_3")
+    sec, origin, sha = load_design_section(s, "hinf_sc")
+    bad = dict(sec, thresholds=dict(sec["thresholds"], scenario="bag_thesis_5_3_overlap"))
+    with pytest.raises(DesignError, match=r"hinf_sc\.thresholds\.scenario: expected a "
+                                          r"fault-free scenario"):
+        hinf_sc.design(s, bad, origin, sha)
+
+
 # --------------------------------------------------------------------------------------
 # simulate -> bag -> analyze -> report, as for the other plants (issue 10, item 5)
 

@@ -70,9 +70,12 @@ from fd_monitor.core.hinf_model import AffineModel, Generator, generator_ss, ver
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.design.hinf_spec import BankSpec, FaultDir, check_assumptions, parse_spec
-from fd_monitor.design.hinf_thresholds import bound_thresholds, monte_carlo_thresholds
-from fd_monitor.model.errors import DesignError, GainFileError, ScenarioError
-from fd_monitor.model.scenario import load_scenario
+from fd_monitor.design.hinf_thresholds import (
+    bound_thresholds,
+    fault_free_scenario,
+    monte_carlo_thresholds,
+)
+from fd_monitor.model.errors import DesignError, GainFileError
 from fd_monitor.model.system import System
 
 from ._lmi_common import (
@@ -514,13 +517,8 @@ def _thresholds(system: System, spec: BankSpec, results: dict[str, Any]
         levels = {k: ctx.number(f"levels.{k}", v, nonneg=True) for k, v in lv.items()}
         J = bound_thresholds(results, levels, margin)
         return J.tolist(), {"method": "bound", "levels": levels, "margin": margin}
-    sc_name = th.get("scenario")
-    if not isinstance(sc_name, str):
-        ctx.fail("scenario", "a fault-free scenario name or path", sc_name)
-    try:
-        sc = load_scenario(sc_name, system)
-    except ScenarioError as exc:
-        raise DesignError(f"{spec.origin}: hinf_sc.thresholds.scenario: {exc}") from None
+    sc = fault_free_scenario(ctx, th.get("scenario"), system, spec.origin,
+                             "hinf_sc.thresholds")
     runs = int(ctx.number("runs", th.get("runs", 5), positive=True))
     settle = int(ctx.number("settle", th.get("settle", 0.0), nonneg=True) /
                  system.sample_time)

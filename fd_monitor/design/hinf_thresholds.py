@@ -2,7 +2,8 @@
 
 Two ways to set the threshold of each generator of a ``hinf_sc`` bank: from the attenuation
 bounds and stated signal levels (:func:`bound_thresholds`), or from the residuals of
-fault-free simulated runs (:func:`monte_carlo_thresholds`). numpy only.
+fault-free simulated runs (:func:`monte_carlo_thresholds`, on the scenario
+:func:`fault_free_scenario` loads; ``hminus_switched`` uses both too). numpy only.
 """
 
 from __future__ import annotations
@@ -12,7 +13,11 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["bound_thresholds", "monte_carlo_thresholds"]
+from fd_monitor.model.errors import DesignError, ScenarioError
+from fd_monitor.model.scenario import Scenario, load_scenario
+from fd_monitor.model.system import System
+
+__all__ = ["bound_thresholds", "fault_free_scenario", "monte_carlo_thresholds"]
 
 
 def bound_thresholds(results: Mapping[str, Any], levels: Mapping[str, float],
@@ -51,3 +56,26 @@ def monte_carlo_thresholds(norms: np.ndarray, settle: int = 0,
     if a.ndim == 2:
         a = a[None]
     return margin * a[:, settle:, :].max(axis=(0, 1))
+
+
+def fault_free_scenario(ctx: Any, name: Any, system: System, origin: Any,
+                        section: str) -> Scenario:
+    """The fault-free scenario of a Monte Carlo threshold (``scenario`` of the design file's
+    threshold ``section``); one-line errors naming the file and the key.
+
+    Parameters
+    ----------
+    ctx : Checker
+        The section's checker (:func:`fd_monitor.design._lmi_common.design_checker`).
+    name : object
+        The ``scenario`` value: a scenario name or path.
+    """
+    if not isinstance(name, str):
+        ctx.fail("scenario", "a fault-free scenario name or path", name)
+    try:
+        sc = load_scenario(name, system)
+    except ScenarioError as exc:
+        raise DesignError(f"{origin}: {section}.scenario: {exc}") from None
+    if sc.faults:
+        ctx.fail("scenario", "a fault-free scenario (no faults)", name)
+    return sc

@@ -53,9 +53,8 @@ from fd_monitor.core.freq import freq_response, sigma
 from fd_monitor.core.generalized_observer import check_certificate, residual_ss
 from fd_monitor.core.runtime import HminusSwitchedRuntime
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.design.hinf_thresholds import monte_carlo_thresholds
-from fd_monitor.model.errors import DesignError, GainFileError, ScenarioError
-from fd_monitor.model.scenario import load_scenario
+from fd_monitor.design.hinf_thresholds import fault_free_scenario, monte_carlo_thresholds
+from fd_monitor.model.errors import DesignError, GainFileError
 from fd_monitor.model.system import System
 
 from ._lmi_common import design_checker, solve
@@ -491,15 +490,8 @@ def _threshold_spec(system: System, th: Mapping[str, Any], origin: str
         return None
     if method != "monte_carlo":
         ctx.fail("method", "none or monte_carlo", method)
-    sc_name = th.get("scenario")
-    if not isinstance(sc_name, str):
-        ctx.fail("scenario", "a fault-free scenario name or path", sc_name)
-    try:
-        sc = load_scenario(sc_name, system)
-    except ScenarioError as exc:
-        raise DesignError(f"{origin}: hminus_switched.threshold.scenario: {exc}") from None
-    if sc.faults:
-        ctx.fail("scenario", "a fault-free scenario (no faults)", sc_name)
+    sc = fault_free_scenario(ctx, th.get("scenario"), system, origin,
+                             "hminus_switched.threshold")
     runs = ctx.integer("runs", th.get("runs", 5), 1)
     settle_s = ctx.number("settle", th.get("settle", 0.0), nonneg=True)
     margin = ctx.number("margin", th.get("margin", 1.0), positive=True)
