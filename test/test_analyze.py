@@ -111,7 +111,7 @@ def test_analyze_arrays_reports_bad_sample():
 def test_analyze_loads_no_scipy_rosbags_rclpy_cvxpy_or_matplotlib(repo):
     """`analyze` on a bundled three_tank bag with the thresholds gain file runs without
     scipy (imported where a linear mode is discretised), the rosbags type store (its
-    Float64MultiArrays are read by bags._decode_f64ma), rclpy, cvxpy or matplotlib: the
+    Float64MultiArrays are read by conversions.parse_cdr), rclpy, cvxpy or matplotlib: the
     import budget behind its start-up time (benchmarks/bench_replay.py) cannot regress
     silently."""
     import subprocess

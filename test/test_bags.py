@@ -135,12 +135,13 @@ def _f64ma_fields(msg):
 
 def test_float64multiarray_fast_decoder_agrees_with_rosbags_on_mangled_bytes():
     """The offline reader decodes Float64MultiArray CDR without the rosbags type store
-    (bags._decode_f64ma); on valid messages and on 24,000 seeded mutations of them (bit
+    (conversions.parse_cdr); on valid messages and on 24,000 seeded mutations of them (bit
     flips, truncations, extra bytes, random bytes) it accepts exactly the little-endian
     bytes rosbags accepts, with the same fields, and leaves every other case to rosbags."""
     import random
 
-    from fd_monitor.wire.bags import _decode_f64ma, _typestore, serialize_array
+    from fd_monitor.wire.bags import _typestore, serialize_array
+    from fd_monitor.wire.conversions import parse_cdr
 
     store = _typestore()
     ty = "std_msgs/msg/Float64MultiArray"
@@ -162,7 +163,7 @@ def test_float64multiarray_fast_decoder_agrees_with_rosbags_on_mangled_bytes():
     rng = random.Random(7)
     accepted = 0
     for base in bases:
-        assert _f64ma_fields(_decode_f64ma(base)) == _f64ma_fields(store.deserialize_cdr(base, ty))
+        assert _f64ma_fields(parse_cdr(base)) == _f64ma_fields(store.deserialize_cdr(base, ty))
         for _ in range(6000):
             x = bytearray(base)
             op = rng.random()
@@ -176,7 +177,7 @@ def test_float64multiarray_fast_decoder_agrees_with_rosbags_on_mangled_bytes():
             else:
                 x[rng.randrange(len(x))] = rng.randrange(256)
             raw = bytes(x)
-            fast, ref = _decode_f64ma(raw), rosbags_or_none(raw)
+            fast, ref = parse_cdr(raw), rosbags_or_none(raw)
             if ref is not None and raw[:2] == b"\x00\x01":
                 accepted += 1
                 assert fast is not None, raw

@@ -1,4 +1,5 @@
-"""RawDecoder (serialized messages, the nodes' input path) == decode, result and error."""
+"""RawDecoder (serialized messages, the nodes' input path) == decode, result and error;
+big-endian bytes go through the fallback deserializer."""
 
 from __future__ import annotations
 
@@ -46,7 +47,7 @@ def _outcome(fn, msg):
 @pytest.mark.parametrize("options", [dict(labels=LABELS, require_stamp=True),
                                      dict(labels=LABELS, allow_nan=True),
                                      dict(size=3)])
-def test_raw_decoder_equals_decode(options):
+def test_raw_decoder_equals_decode(options, monkeypatch):
     from rclpy.serialization import deserialize_message, serialize_message
     from std_msgs.msg import Float64MultiArray
 
@@ -58,9 +59,30 @@ def test_raw_decoder_equals_decode(options):
         raw = serialize_message(msg)
         assert _outcome(dec.decode, raw) == _outcome(
             lambda m: decode(m, "/t", **options), msg)
-    # the fast path is taken: a known layout is read without deserializing
+    # the fast path is taken: a known layout is read without decode or a deserializer
     dec.decode(serialize_message(to_msg(LABELS, 41, [1.0, 2.0, 3.0])))
-    dec.deserialize = None
+    from fd_monitor.wire import conversions
+
+    def boom(*args, **kwargs):
+        raise AssertionError("decode called for a known layout")
+
+    monkeypatch.setattr(conversions, "decode", boom)
+    dec.fallback = None
     d = dec.decode(serialize_message(to_msg(LABELS, 42, [7.0, 8.0, 9.0])))
     assert d.stamp == 42 and d.labels == LABELS
     np.testing.assert_array_equal(d.values, [7.0, 8.0, 9.0])
+
+
+def test_big_endian_goes_through_the_fallback():
+    from rclpy.serialization import serialize_message
+
+    raw = bytearray(serialize_message(to_msg(LABELS, 3, [1.0, 2.0, 3.0])))
+    raw[1] = 0                                  # CDR_BE header: not parsed here
+    seen = []
+
+    def fallback(b):
+        seen.append(b)
+        return to_msg(LABELS, 3, [1.0, 2.0, 3.0])
+
+    d = RawDecoder(fallback, "/t", labels=LABELS).decode(bytes(raw))
+    assert seen and d.stamp == 3

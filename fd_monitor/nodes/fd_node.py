@@ -518,7 +518,8 @@ class FdNode(LifecycleNode):
         stream = self.stream
         # the restart flag of the sequence input, by field (resolved once)
         i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
-        # serialized messages in, decoded without a message object when the layout is known
+        # serialized messages in, decoded without a message object (rclpy's deserializer
+        # only for what the CDR parser leaves: big-endian)
         dec = RawDecoder(partial(deserialize_message, message_type=Float64MultiArray), topic,
                          labels=inp.labels, size=inp.size, require_stamp=not inp.plain_ok,
                          allow_nan=inp.allow_nan)

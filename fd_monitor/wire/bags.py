@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from functools import cache
 from io import BytesIO
 from pathlib import Path
-from typing import Any, BinaryIO, NamedTuple
+from typing import Any, BinaryIO
 
 import numpy as np
 import yaml
@@ -60,9 +60,11 @@ from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError, Wr
 from fd_monitor.wire.conversions import (
     MAX_STAMP,
     ArrivalStamper,
+    cdr_shape,
     decode,
     encode_data,
     join_labels,
+    parse_cdr,
 )
 from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY
 
@@ -104,110 +106,12 @@ def _typestore() -> Any:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-class _Dimension(NamedTuple):
-    """``std_msgs/msg/MultiArrayDimension`` as :func:`_decode_f64ma` returns it."""
-
-    label: str
-    size: int
-    stride: int
-
-
-class _Layout(NamedTuple):
-    """``std_msgs/msg/MultiArrayLayout`` as :func:`_decode_f64ma` returns it (``dim`` a
-    tuple: one layout is shared by the messages that have the same bytes before the data)."""
-
-    dim: tuple[_Dimension, ...]
-    data_offset: int
-
-
-class _Float64MultiArray(NamedTuple):
-    """``std_msgs/msg/Float64MultiArray`` as :func:`_decode_f64ma` returns it (the fields of
-    the rosbags dataclass; ``data`` a read-only float64 view of the bytes, as rosbags')."""
-
-    layout: _Layout
-    data: np.ndarray
-
-
-_U32 = struct.Struct("<I").unpack_from
-_U32X2 = struct.Struct("<II").unpack_from
-#: Message length -> (the bytes before the data, layout, data start, data size) of messages
-#: of that length decoded last: a message of the same length with the same bytes before its
-#: data parses the same way, so only its data is read (the messages of a topic share their
-#: header bytes: labels, sizes, offset; /plant/u and /plant/y of three_tank share a length).
-_F64MA_SHAPES: dict[int, list[tuple[bytes, _Layout, int, int]]] = {}
-
-
-def _f64ma_shape(raw: bytes) -> tuple[bytes, _Layout, int, int] | None:
-    """Little-endian CDR bytes of a Float64MultiArray -> (the bytes before its data, its
-    layout, where its data starts, how many float64 it has), without the type store.
-
-    The rosbags Jazzy deserialiser's steps and checks, written out for this one type: the
-    offline reader decodes thousands of these per bag, and loading the type store costs more
-    than reading a bag. None for anything that is not a well-formed little-endian message
-    (big-endian, truncated, a bad count or string, more than 3 trailing bytes):
-    :func:`_deserialize` then asks rosbags, which gives the canonical error. Positions are
-    counted from the end of the 4-byte encapsulation header, as CDR aligns them.
-    """
-    n = len(raw)
-    for shape in _F64MA_SHAPES.get(n, ()):
-        if raw.startswith(shape[0]):
-            return shape
-    if raw[:2] != b"\x00\x01":
-        return None
-    n -= 4
-    try:
-        count, = _U32(raw, 4)
-        pos = 4
-        if pos + count > n:                        # rosbags: check_sequence(minimum 1)
-            return None
-        dims = []
-        for _ in range(count):
-            pos = (pos + 3) & -4
-            length, = _U32(raw, 4 + pos)
-            end = pos + 4 + length
-            if length < 1 or end > n or raw[3 + end] != 0:      # rosbags: check_string
-                return None
-            label = raw[8 + pos:3 + end].decode()
-            pos = (end + 3) & -4
-            size, stride = _U32X2(raw, 4 + pos)
-            pos += 8
-            dims.append(_Dimension(label, size, stride))
-        offset, size = _U32X2(raw, 4 + pos)
-        pos += 8
-        if pos + 8 * size > n:                     # rosbags: check_sequence(minimum 8)
-            return None
-        if size:
-            pos = (pos + 7) & -8
-            if pos + 8 * size > n:                 # rosbags: numpy.frombuffer's ValueError
-                return None
-    except (struct.error, UnicodeDecodeError):
-        return None
-    if pos + 8 * size + 7 < n + 4:                 # rosbags: "CDR message size mismatch"
-        return None
-    shape = (raw[:4 + pos], _Layout(tuple(dims), offset), 4 + pos, size)
-    if len(_F64MA_SHAPES) >= 256:     # bounded: ever new layouts only parse every message
-        _F64MA_SHAPES.clear()
-    shapes = _F64MA_SHAPES.setdefault(n + 4, [])
-    if len(shapes) >= 8:
-        del shapes[0]
-    shapes.append(shape)
-    return shape
-
-
-def _decode_f64ma(raw: bytes) -> _Float64MultiArray | None:
-    """:func:`_f64ma_shape` and the data: the message's fields (None: see there)."""
-    raw = bytes(raw)
-    shape = _f64ma_shape(raw)
-    if shape is None:
-        return None
-    return _Float64MultiArray(shape[1], np.frombuffer(raw, "<f8", shape[3], shape[2]))
-
-
 def _deserialize(raw: bytes, msgtype: str) -> Any:
-    """One CDR message -> its fields (a rosbags dataclass, or :class:`_Float64MultiArray`
-    with the same fields and values); rosbags' error on bytes that do not decode."""
+    """One CDR message -> its fields (a rosbags dataclass, or a
+    :class:`~fd_monitor.wire.conversions.CdrFloat64MultiArray` with the same fields and
+    values); rosbags' error on bytes that do not decode."""
     if msgtype == FLOAT64_MULTI_ARRAY:
-        msg = _decode_f64ma(raw)
+        msg = parse_cdr(raw)
         if msg is not None:
             return msg
     return _typestore().deserialize_cdr(raw, msgtype)
@@ -1071,14 +975,14 @@ def _arrays_of_one_layout(records: Sequence[tuple[str, str, int, bytes]]
     out: dict[str, TopicArrays] = {}
     for topic, msgs in topics.items():
         raw0 = msgs[0][1]
-        shape = _f64ma_shape(raw0)
+        shape = cdr_shape(raw0)
         if shape is None:
             return None
         head, layout, start, size = shape
         if any(len(raw) != len(raw0) or not raw.startswith(head) for _t, raw in msgs):
             return None
         try:
-            first = decode(_decode_f64ma(raw0), topic, allow_nan=True, allow_inf=True)
+            first = decode(parse_cdr(raw0), topic, allow_nan=True, allow_inf=True)
         except MessageError:
             return None
         block = np.frombuffer(b"".join(raw for _t, raw in msgs), np.uint8)

@@ -20,10 +20,11 @@ dataclasses ``rosbags`` deserialises, so this module imports no ROS package at i
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -38,7 +39,12 @@ __all__ = [
     "encode_data",
     "join_labels",
     "readable_stamp",
+    "CdrDimension",
+    "CdrFloat64MultiArray",
+    "CdrLayout",
     "RawDecoder",
+    "cdr_shape",
+    "parse_cdr",
     "split_labels",
     "to_msg",
 ]
@@ -231,70 +237,168 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
     return Decoded(stamp, got_labels or (expected or ()), values.copy())
 
 
+# -- serialized (CDR) Float64MultiArray, without a type store ---------------------------------
+
+class CdrDimension(NamedTuple):
+    """``std_msgs/msg/MultiArrayDimension`` as :func:`parse_cdr` returns it."""
+
+    label: str
+    size: int
+    stride: int
+
+
+class CdrLayout(NamedTuple):
+    """``std_msgs/msg/MultiArrayLayout`` as :func:`parse_cdr` returns it (``dim`` a
+    tuple: one layout is shared by the messages that have the same bytes before the data)."""
+
+    dim: tuple[CdrDimension, ...]
+    data_offset: int
+
+
+class CdrFloat64MultiArray(NamedTuple):
+    """``std_msgs/msg/Float64MultiArray`` as :func:`parse_cdr` returns it (the fields of
+    the rosbags dataclass; ``data`` a read-only float64 view of the bytes, as rosbags')."""
+
+    layout: CdrLayout
+    data: np.ndarray
+
+
+_U32 = struct.Struct("<I").unpack_from
+_U32X2 = struct.Struct("<II").unpack_from
+#: Message length -> (the bytes before the data, layout, data start, data size) of messages
+#: of that length decoded last: a message of the same length with the same bytes before its
+#: data parses the same way, so only its data is read (the messages of a topic share their
+#: header bytes: labels, sizes, offset; /plant/u and /plant/y of three_tank share a length).
+_CDR_SHAPES: dict[int, list[tuple[bytes, CdrLayout, int, int]]] = {}
+
+
+def cdr_shape(raw: bytes) -> tuple[bytes, CdrLayout, int, int] | None:
+    """Little-endian CDR bytes of a Float64MultiArray -> (the bytes before its data, its
+    layout, where its data starts, how many float64 it has), without the type store.
+
+    The rosbags Jazzy deserialiser's steps and checks, written out for this one type: the
+    offline reader decodes thousands of these per bag, and loading the type store costs more
+    than reading a bag. None for anything that is not a well-formed little-endian message
+    (big-endian, truncated, a bad count or string, more than 3 trailing bytes): the caller
+    then asks rosbags (:mod:`fd_monitor.wire.bags`) or rclpy, which gives the canonical error.
+    Positions are counted from the end of the 4-byte encapsulation header, as CDR aligns them.
+    """
+    n = len(raw)
+    for shape in _CDR_SHAPES.get(n, ()):
+        if raw.startswith(shape[0]):
+            return shape
+    if raw[:2] != b"\x00\x01":
+        return None
+    n -= 4
+    try:
+        count, = _U32(raw, 4)
+        pos = 4
+        if pos + count > n:                        # rosbags: check_sequence(minimum 1)
+            return None
+        dims = []
+        for _ in range(count):
+            pos = (pos + 3) & -4
+            length, = _U32(raw, 4 + pos)
+            end = pos + 4 + length
+            if length < 1 or end > n or raw[3 + end] != 0:      # rosbags: check_string
+                return None
+            label = raw[8 + pos:3 + end].decode()
+            pos = (end + 3) & -4
+            size, stride = _U32X2(raw, 4 + pos)
+            pos += 8
+            dims.append(CdrDimension(label, size, stride))
+        offset, size = _U32X2(raw, 4 + pos)
+        pos += 8
+        if pos + 8 * size > n:                     # rosbags: check_sequence(minimum 8)
+            return None
+        if size:
+            pos = (pos + 7) & -8
+            if pos + 8 * size > n:                 # rosbags: numpy.frombuffer's ValueError
+                return None
+    except (struct.error, UnicodeDecodeError):
+        return None
+    if pos + 8 * size + 7 < n + 4:                 # rosbags: "CDR message size mismatch"
+        return None
+    shape = (raw[:4 + pos], CdrLayout(tuple(dims), offset), 4 + pos, size)
+    if len(_CDR_SHAPES) >= 256:     # bounded: ever new layouts only parse every message
+        _CDR_SHAPES.clear()
+    shapes = _CDR_SHAPES.setdefault(n + 4, [])
+    if len(shapes) >= 8:
+        del shapes[0]
+    shapes.append(shape)
+    return shape
+
+
+def parse_cdr(raw: bytes) -> CdrFloat64MultiArray | None:
+    """:func:`cdr_shape` and the data: the message's fields (None: see there)."""
+    raw = bytes(raw)
+    shape = cdr_shape(raw)
+    if shape is None:
+        return None
+    return CdrFloat64MultiArray(shape[1], np.frombuffer(raw, "<f8", shape[3], shape[2]))
+
+
 class RawDecoder:
     """:func:`decode` for serialized (CDR) Float64MultiArray messages of one input, fast.
 
-    A node's input carries messages of one layout (labels, stamp offset, length). The first
-    message of a layout is deserialized and decoded in full (every check of :func:`decode`);
-    its serialized bytes before the values are remembered. A later message whose bytes start
-    with that prefix and have the same length has the same layout, so only its values are
-    read (one buffer view, no message object) and checked: stamp an integer in
-    ``[0, 2**53)``, values finite (as the ``allow_*`` flags say). Anything else -- another
-    layout, a bad value -- goes through :func:`decode` on the deserialized message, so errors
-    and results are the same as :func:`decode`'s, bit for bit (``test_conversions``).
+    Every message is parsed by :func:`cdr_shape` (the bytes before the values are parsed
+    once per layout and cached). The first message of a layout goes through :func:`decode`
+    with every check; a later message of the same layout (same cached shape) has the same
+    labels, stamp offset and length, so only its values are read (one buffer view, no message
+    object) and checked: stamp an integer in ``[0, 2**53)``, values finite (as the
+    ``allow_*`` flags say). Anything else -- another layout, a bad value, bytes
+    :func:`cdr_shape` does not parse -- goes through :func:`decode`, so errors and results
+    are :func:`decode`'s, bit for bit (``test/test_raw_decode.py``).
 
     Parameters
     ----------
-    deserialize : callable
-        ``bytes -> message`` (rclpy's ``deserialize_message`` bound to the type).
+    fallback : callable
+        ``bytes -> message`` for bytes :func:`cdr_shape` does not parse (big-endian CDR):
+        rclpy's ``deserialize_message`` bound to the type, which gives the canonical error.
     topic : str
     **options
         :func:`decode`'s keyword arguments (labels, size, require_stamp, allow_nan, allow_inf).
     """
 
-    def __init__(self, deserialize: Any, topic: str = "?", **options: Any) -> None:
-        self.deserialize, self.topic, self.options = deserialize, topic, options
+    def __init__(self, fallback: Any, topic: str = "?", **options: Any) -> None:
+        self.fallback, self.topic, self.options = fallback, topic, options
         allow_nan, allow_inf = options.get("allow_nan", False), options.get("allow_inf", False)
         # the value check of decode, as one array operation (None: every value is allowed)
         self._bad = (None if allow_nan and allow_inf else np.isinf if allow_nan
                      else np.isnan if allow_inf else None)
         self._finite_only = not (allow_nan or allow_inf)
-        #: (prefix bytes, total length, number of float64 incl. the stamp, stamped, labels)
-        self._layout: tuple[bytes, int, int, bool, tuple[str, ...]] | None = None
+        #: the layout :func:`decode` accepted last (a cached :func:`cdr_shape` object), stamped,
+        #: labels
+        self._known: tuple[CdrLayout, bool, tuple[str, ...]] | None = None
 
     def message(self, raw: bytes) -> Any:
-        """The deserialized message (for the error path: :func:`readable_stamp`)."""
-        return self.deserialize(raw)
+        """The message's fields (for the error path: :func:`readable_stamp`)."""
+        msg = parse_cdr(raw)
+        return msg if msg is not None else self.fallback(raw)
 
     def decode(self, raw: bytes) -> Decoded:
         """Decode one serialized message (raises :class:`MessageError` as :func:`decode`)."""
-        lay = self._layout
-        if lay is not None and len(raw) == lay[1] and raw.startswith(lay[0]):
-            n = lay[2]
-            data = np.frombuffer(raw, "<f8", n, lay[1] - 8 * n)
-            ok = True
-            stamp = None
-            values = data
-            if lay[3]:
+        shape = cdr_shape(raw)
+        known = self._known
+        if shape is not None and known is not None and shape[1] is known[0]:
+            data = np.frombuffer(raw, "<f8", shape[3], shape[2])
+            ok, stamp, values = True, None, data
+            if known[1]:
                 s = float(data[0])
-                ok = 0.0 <= s < MAX_STAMP and s == math.floor(s)
+                ok = 0.0 <= s < MAX_STAMP and s == math.floor(s)      # NaN: False
                 stamp = int(s) if ok else None
                 values = data[1:]
             if ok and (not np.isfinite(values).all() if self._finite_only
                        else self._bad is not None and self._bad(values).any()):
                 ok = False
             if ok:
-                return Decoded(stamp, lay[4], values.copy())
-        d = decode(self.deserialize(raw), self.topic, **self.options)
-        self._learn(raw, d)
+                return Decoded(stamp, known[2], values.copy())
+        msg = (CdrFloat64MultiArray(shape[1], np.frombuffer(raw, "<f8", shape[3], shape[2]))
+               if shape is not None else self.fallback(raw))
+        d = decode(msg, self.topic, **self.options)
+        if shape is not None:
+            self._known = (shape[1], d.stamp is not None, d.labels)
         return d
-
-    def _learn(self, raw: bytes, d: Decoded) -> None:
-        n = d.values.size + (d.stamp is not None)
-        if raw[:4] != b"\x00\x01\x00\x00" or len(raw) < 4 + 8 * n:
-            return                               # not little-endian CDR: always decode
-        prefix = raw[:len(raw) - 8 * n]
-        self._layout = (prefix, len(raw), n, d.stamp is not None, d.labels)
 
 
 class ArrivalStamper:
