@@ -340,6 +340,8 @@ class _Channel:
     stale_timeout: float | None
     keep_on_stale: bool = False
     stale: bool = False
+    #: its level changed since the last publication
+    unpublished: bool = False
 
 
 #: s: level changes are published at once, but at most this often (bursts are merged).
@@ -420,14 +422,22 @@ class Diagnostics:
 
     def update(self, channel: str, level: bytes, message: str,
                values: dict[str, Any] | None = None) -> None:
-        """Set a channel's status (fresh input); publish soon on a level change."""
+        """Set a channel's status (fresh input); publish soon on a level change.
+
+        A level that was never published is published before another replaces it: a WARN
+        set and cleared within one burst interval (a busy node working through a backlog)
+        still reaches /diagnostics.
+        """
         ch = self._channels[channel]
         changed = ch.level != level
+        if changed and ch.unpublished:
+            self.publish()
         ch.level, ch.message, ch.stale = level, message, False
         if values is not None:
             ch.values = dict(values)  # formatted when published (keeps callbacks cheap)
         ch.last_input = self._clock()
         if changed:
+            ch.unpublished = True
             self._changed()
 
     def touch(self, channel: str) -> None:
@@ -479,6 +489,8 @@ class Diagnostics:
         self._pub.publish(arr)
         self._last_publish = self._clock()
         self._dirty = False
+        for ch in self._channels.values():
+            ch.unpublished = False
         for cb in self.on_publish:
             cb()
 
