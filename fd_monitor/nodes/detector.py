@@ -92,10 +92,8 @@ class ResidualReport:
                 level, msg = WARN, f"|residual| > {share:g} x threshold"
             else:
                 level, msg = OK, "ok"
-            modes = self.system.mode_names  # (a switching signal may name another mode)
             values = {"sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
-                      "mode": modes[mode] if 0 <= mode < len(modes) else str(mode),
-                      **self.gain_values()}
+                      "mode": self.mode_name(mode), **self.gain_values()}
             if not qb:
                 values["sigma_hat"] = float(self.sigma_hat[i])
             self.diag.update(ch, level, msg, values)

@@ -700,6 +700,12 @@ class FdNode(LifecycleNode):
             ser = self._serialized[key] = SerializedArray(key)
         pub.publish(ser.encode(stamp, values))
 
+    def mode_name(self, mode: int) -> str:
+        """The plant's name of mode index ``mode`` (the index itself when it has none: a
+        switching signal outside the design)."""
+        modes = self.system.mode_names
+        return modes[mode] if 0 <= mode < len(modes) else str(mode)
+
     def gain_values(self) -> dict[str, str]:
         """Gain-file id and certificate status, for /diagnostics (per sample: cached)."""
         g = self.gain_file

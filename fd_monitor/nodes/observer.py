@@ -58,13 +58,7 @@ USAGE = NodeUsage(
 class EstimateReport:
     """The ``estimate`` /diagnostics status of a node running the observer (observer,
     monitor): the mode, WARN outside the gain file's certified region. Uses the node's
-    ``diag``, ``system`` and ``_was_outside``."""
-
-    def mode_name(self, mode: int) -> str:
-        """The plant's name of mode index ``mode`` (the index itself when it has none: a
-        switching signal outside the design)."""
-        modes = self.system.mode_names
-        return modes[mode] if 0 <= mode < len(modes) else str(mode)
+    ``diag``, ``system``, ``mode_name`` and ``_was_outside``."""
 
     def report_estimate(self, k: int, mode: int, x_hat: Any, out: Any,
                         names: Sequence[str] | None = None) -> None:

@@ -393,9 +393,7 @@ class RawDecoder:
                 ok = False
             if ok:
                 return Decoded(stamp, known[2], values.copy())
-        msg = (CdrFloat64MultiArray(shape[1], np.frombuffer(raw, "<f8", shape[3], shape[2]))
-               if shape is not None else self.fallback(raw))
-        d = decode(msg, self.topic, **self.options)
+        d = decode(self.message(raw), self.topic, **self.options)
         if shape is not None:
             self._known = (shape[1], d.stamp is not None, d.labels)
         return d
