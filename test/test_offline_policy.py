@@ -22,7 +22,14 @@ from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import write_messages
 from fd_monitor.wire.join import StampJoin
-from fd_monitor.wire.stream import GAP_TIMEOUT, RESTART_AFTER, STAMP_HORIZON, TopicOrder
+from fd_monitor.wire.stream import (
+    GAP_TIMEOUT,
+    MAX_GAP,
+    RESTART_AFTER,
+    STAMP_HORIZON,
+    TopicOrder,
+    gap_samples,
+)
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
 TS = 0.1                     # three_tank's sample time, s
@@ -83,13 +90,14 @@ def _bag(tmp_path, sys_, timeline) -> str:
 def _node_reference(timeline) -> list[tuple]:
     """The decisions of a live entry node: callback put + release, a 10 ms gap timer."""
     join = StampJoin(["u", "y"], gap_timeout=GAP_TIMEOUT, horizon=STAMP_HORIZON,
-                     restart_after=RESTART_AFTER)
+                     restart_after=RESTART_AFTER, max_gap=gap_samples(MAX_GAP, TS))
     orders = {t: TopicOrder(t) for t in (PLANT_U.absolute, PLANT_Y.absolute)}
     name = {PLANT_U.absolute: "u", PLANT_Y.absolute: "y"}
     out: list[tuple] = []
 
     def drain(now: float) -> None:
-        out.extend((s.k, s.restart, s.hole, s.new_run is not None) for s in join.ready(now))
+        out.extend((s.k, s.restart, s.bridge, s.hole, s.new_run is not None)
+                   for s in join.ready(now))
 
     clock = 0.0
     for t, topic, k, v in [*timeline, (timeline[-1][0] + 5.0, None, 0, None)]:
@@ -115,7 +123,7 @@ def test_offline_takes_the_live_nodes_decisions(plant, tmp_path):
     seen: list[tuple] = []
 
     def step(s) -> bool:
-        seen.append((s.k, s.restart, s.hole, s.new_run is not None))
+        seen.append((s.k, s.restart, s.bridge, s.hole, s.new_run is not None))
         return True
 
     us, ys, _side, rep = read_streams(bag, sys_, step=step)
@@ -130,10 +138,13 @@ def test_offline_takes_the_live_nodes_decisions(plant, tmp_path):
     assert kinds["missing"] == [[20, 24], [28, 28], [40, 40]]
     assert kinds["late"] == [40]                       # y40 came after its hole was declared
     assert kinds["held"] == [0, STRAY]                 # the stray, the new run's first
-    assert rep.restarts == [25, 41, 0, 29]             # 29: decided at the end (now = inf)
-    assert [s for s in seen if s[1]] == [(0, True, None, False), (25, True, (20, 24), False),
-                                         (41, True, (40, 40), False), (0, True, None, True),
-                                         (29, True, (28, 28), False)]
+    # holes of at most MAX_GAP s (20 samples) are bridged; only the new run restarts
+    assert rep.restarts == [0]
+    assert rep.bridges == [25, 41, 29]                 # 29: decided at the end (now = inf)
+    assert [s for s in seen if s[1] or s[2]] == [
+        (0, True, False, None, False), (25, False, True, (20, 24), False),
+        (41, False, True, (40, 40), False), (0, True, False, None, True),
+        (29, False, True, (28, 28), False)]
     # the values joined are the messages' (the new run's stamp 0 replays sample 0)
     np.testing.assert_array_equal(ys[10], tr.y[0, 10])
     np.testing.assert_array_equal(us[79], tr.u[0, 79])
@@ -176,7 +187,8 @@ def test_a_bag_read_twice_gives_the_same_run(plant, tmp_path):
 
 def test_a_refused_sample_then_a_gap_is_a_reported_hole(plant, tmp_path):
     """An implausible y at 50 (refused by the runtime), then no message for 51..53: the
-    stream goes on at 51, so 51..53 are a reported hole and 54 the restart."""
+    stream goes on at 51, so 51..53 are a reported hole and 54 bridges the 4 lost samples
+    (50..53, within MAX_GAP)."""
     sys_, g, tr = plant
     u, y = PLANT_U.absolute, PLANT_Y.absolute
     bad = tr.y[0, 50].copy()
@@ -185,7 +197,7 @@ def test_a_refused_sample_then_a_gap_is_a_reported_hole(plant, tmp_path):
           for m in ((k * TS, u, k, tr.u[0, k]), (k * TS, y, k, bad if k == 50 else tr.y[0, k]))]
     run = run_bag(_bag(tmp_path, sys_, tl), g, system=sys_)
     assert run.inputs.by_kind() == {"implausible": [50], "missing": [[51, 53]]}
-    assert run.inputs.restarts == [54]
+    assert run.inputs.restarts == [] and run.inputs.bridges == [54]
     assert list(run.k) == [*range(50), *range(54, 80)]
 
 

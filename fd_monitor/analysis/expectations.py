@@ -52,7 +52,7 @@ def analyze_summary(bag: str | Path, gains: str | Path, *,
         transient), ``isolated``, ``bias_estimate``, ``modes`` (estimated mode sequence,
         repeats collapsed; a restart begins in the plant's initial mode), ``mode_segments``,
         ``input_errors`` (kind -> stamps), ``restarts`` (samples where the monitor restarted
-        after a hole), ``samples``.
+        after a hole), ``bridges`` (where it bridged one), ``samples``.
     """
     return summarize_run(run_bag(bag, gains, transient=transient))
 
@@ -65,7 +65,7 @@ def check_expected(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> l
     channel of ``no_alarm`` alarms; ``isolated`` equals the isolated set; every
     ``bias_estimate`` is within its tolerance; ``modes`` equals the estimated mode sequence;
     ``input_errors`` (kind -> stamps) equals what was reported for those kinds and no other
-    kind was reported; ``restarts`` equals the restart samples.
+    kind was reported; ``restarts`` and ``bridges`` equal the restart and bridge samples.
 
     Returns
     -------
@@ -140,10 +140,10 @@ def _check_inputs(expected: Mapping[str, Any], summary: Mapping[str, Any]) -> li
             if want_ie.get(kind, []) != got_ie.get(kind, []):
                 fails.append(f"input_errors.{kind}: expected samples {want_ie.get(kind, [])}, "
                              f"got {got_ie.get(kind, [])}")
-    if "restarts" in expected and sorted(summary.get("restarts", [])) != \
-            sorted(expected["restarts"]):
-        fails.append(f"restarts: expected {sorted(expected['restarts'])}, got "
-                     f"{sorted(summary.get('restarts', []))}")
+    for key in ("restarts", "bridges"):
+        if key in expected and sorted(summary.get(key, [])) != sorted(expected[key]):
+            fails.append(f"{key}: expected {sorted(expected[key])}, got "
+                         f"{sorted(summary.get(key, []))}")
     return fails
 
 
@@ -198,6 +198,7 @@ def propose_expected(spec: BagSpec, summary: Mapping[str, Any], system: Any, *,
     if spec.corruptions:
         doc["input_errors"] = dict(summary["input_errors"])
         doc["restarts"] = list(summary["restarts"])
+        doc["bridges"] = list(summary.get("bridges", []))
     return doc
 
 
@@ -257,7 +258,7 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
                   spec.transient)
     return {"method": gf.method, "channels": channels, "alarms": s["alarms"],
             "isolated": s["isolated"], "bias_estimate": {}, "samples": s["samples"],
-            "input_errors": {}, "restarts": [], "modes": s["modes"]}
+            "input_errors": {}, "restarts": [], "bridges": [], "modes": s["modes"]}
 
 
 def write_expected(path: str | Path, doc: Mapping[str, Any], header: str = "") -> Path:

@@ -30,7 +30,8 @@ Each bag folder holds ``metadata.yaml``, ``<name>.mcap`` (zstd-compressed chunks
     input_errors:                 # bad-input bag: what the monitor must report, by kind
       non_finite: [300, 301]      # sample stamps
       missing: [[700, 749]]       # runs of stamps with no message at all
-    restarts: [451, 650]          # samples at which the monitor restarted (after a hole)
+    restarts: [750]               # samples at which the monitor restarted (after a long hole)
+    bridges: [302, 451]           # samples at which it bridged a short hole (memory kept)
 
 Corruptions (applied to the simulated messages, in this order; ``samples`` are stamps k):
 
@@ -308,6 +309,7 @@ def load_expected(path: str | Path) -> dict[str, Any]:
         _fail(ck, "(top level)", "a mapping")
     allowed = {"bag", "gains", "description", "alarms", "no_alarm", "isolated",
                "bias_estimate", "modes", "mode_min_dwell", "input_errors", "restarts",
+               "bridges",
                "fault_onset_sample", "transient"}
     extra = set(d) - allowed
     if extra:
@@ -318,7 +320,7 @@ def load_expected(path: str | Path) -> dict[str, Any]:
     for c, a in alarms.items():
         if not isinstance(a, Mapping) or set(a) != {"first_sample", "tolerance"}:
             _fail(ck, f"alarms.{c}", "{first_sample, tolerance}", a)
-    for key in ("no_alarm", "isolated", "modes", "restarts"):
+    for key in ("no_alarm", "isolated", "modes", "restarts", "bridges"):
         if key in d and not isinstance(d[key], list):
             _fail(ck, key, "a list", d[key])
     be = d.get("bias_estimate") or {}

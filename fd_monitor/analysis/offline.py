@@ -18,10 +18,11 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    one registry keyed by the gain file's ``method``: ``thresholds``, ``qb``, ``hinf_sc``,
    ``hminus_switched``) on each released sample, with the side signals the runtime needs read
    from ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`: ``/plant/rho``,
-   ``/plant/mode``), and resets it at every restart (the state estimate is re-initialised
-   from the next measurement and the filters start again, so no stale estimate is carried
-   across missing data); a sample the runtime refuses (implausible) is reported and lost, as
-   live. Every rejected message is reported.
+   ``/plant/mode``); a hole of at most ``MAX_GAP`` s of samples is bridged
+   (:meth:`~fd_monitor.core.runtime.Runtime.bridge`: the fault memory kept, the state
+   estimate carried over the gap), a longer one restarts it (``reset``: a new run); a sample
+   the runtime refuses (implausible) is reported and lost, as live. Every rejected message is
+   reported.
 3. :mod:`fd_monitor.analysis.summary` reads the resulting :class:`BagRun`
    (:func:`~fd_monitor.analysis.summary.summarize_run`,
    :func:`~fd_monitor.analysis.summary.analyze_run`).
@@ -59,10 +60,12 @@ from fd_monitor.wire.conversions import decode, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.stream import (
     GAP_TIMEOUT,
+    MAX_GAP,
     RESTART_AFTER,
     STAMP_HORIZON,
     InputStream,
     TopicOrder,
+    gap_samples,
 )
 from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY, PLANT_TRUTH, PLANT_U, PLANT_Y
 from fd_monitor.wire.topics import side_topic as _side_topic
@@ -95,12 +98,15 @@ class InputReport:
         ``{kind, topic, sample, message}`` per rejected or suspicious message; ``kind`` one of
         :data:`INPUT_ERROR_KINDS`. ``sample`` is the stamp (None when unreadable).
     restarts : list of int
-        Samples at which the monitor restarted (after a hole, a refused sample, or at a new
-        run), the first processed sample not counted.
+        Samples at which the monitor restarted (after a hole longer than ``MAX_GAP``, a
+        refused restart sample, or at a new run), the first processed sample not counted.
+    bridges : list of int
+        Samples at which the monitor bridged a shorter hole (its memory kept).
     """
 
     errors: list[dict[str, Any]] = field(default_factory=list)
     restarts: list[int] = field(default_factory=list)
+    bridges: list[int] = field(default_factory=list)
 
     def by_kind(self) -> dict[str, list[Any]]:
         """kind -> sorted stamps (``missing``: ``[first, last]`` runs; -1: no stamp)."""
@@ -244,8 +250,9 @@ def read_streams(bag: str | Path, system: Any,
     step : callable, optional
         ``step(sample) -> bool`` run on each released
         :class:`~fd_monitor.wire.join.Sample` after its values are kept (a runtime step,
-        reset first at a restart); False: the runtime refused it (implausible), the sample
-        is lost and the next one restarts. Default: every sample is accepted.
+        reset first at a restart, bridged first at a bridge); False: the runtime refused it
+        (implausible), the sample is lost (the next one bridges or restarts). Default: every
+        sample is accepted.
 
     Returns
     -------
@@ -290,19 +297,20 @@ def read_streams(bag: str | Path, system: Any,
 
     required = [names[t] for t in topics]
     with _bag_errors(bag):
-        _join_messages(scan.messages(topics), labels, names, required, rep, keep)
+        _join_messages(scan.messages(topics), labels, names, required, rep, keep,
+                       gap_samples(MAX_GAP, system.sample_time))
     return us, ys, sides, rep
 
 
 def _join_messages(messages: Iterable[tuple[str, int, Any]],
                    labels: dict[str, tuple[str, ...]], names: dict[str, str],
                    required: Sequence[str], rep: InputReport,
-                   step: Callable[[Sample], bool]) -> None:
+                   step: Callable[[Sample], bool], max_gap: int = 0) -> None:
     """The message loop of :func:`read_streams`: each ``(topic, log time ns, message)``
     through :class:`~fd_monitor.wire.stream.InputStream`; reports into ``rep``."""
 
     join = StampJoin(required, gap_timeout=GAP_TIMEOUT, horizon=STAMP_HORIZON,
-                     restart_after=RESTART_AFTER)
+                     restart_after=RESTART_AFTER, max_gap=max_gap)
     refused: set[int] = set()                    # stamps of messages that did not decode
     where = [_UY]                                # topic of the message being joined
     processed = [False]
@@ -322,6 +330,8 @@ def _join_messages(messages: Iterable[tuple[str, int, Any]],
     def run(s: Sample) -> bool:
         if s.restart and processed[0]:
             rep.restarts.append(s.k)
+        elif s.bridge:
+            rep.bridges.append(s.k)
         ok = step(s)
         processed[0] = processed[0] or ok
         return ok
@@ -494,9 +504,9 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
 
     The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so
     every gain-file method runs; the side signals it needs are read from
-    ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`). The runtime restarts
-    (``reset``) after a hole in
-    the stamps.
+    ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`). The runtime bridges a
+    hole in the stamps of at most ``MAX_GAP`` s (``bridge``) and restarts (``reset``) after a
+    longer one.
 
     Parameters
     ----------
@@ -557,7 +567,8 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
             raise BagError(f"{bag}: no valid (u, y) sample on {PLANT_U.absolute} and "
                            f"{PLANT_Y.absolute}"
                            + "".join(f" and {_side_topic(n).absolute}" for n in sides))
-        out = _fields(rt, rt.stack(outs, list(rep.restarts)), truth, refused, rep)
+        out = _fields(rt, rt.stack(outs, list(rep.restarts), list(rep.bridges)), truth,
+                      refused, rep)
     return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
                   transient=float(transient), **out)
 
@@ -565,14 +576,17 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
 def _runtime_step(rt: Any, nu: int, outs: list[Any],
                   refused: list[tuple[int, MessageError]]) -> Callable[[Sample], bool]:
     """``step(sample) -> bool`` for :func:`read_streams`: one runtime step on a released
-    sample (reset first at a restart), its output appended to ``outs``; an implausible sample
-    is appended to ``refused`` (False: the stream counts it lost)."""
+    sample (reset first at a restart, bridged first at a bridge), its output appended to
+    ``outs``; an implausible sample is appended to ``refused`` (False: the stream counts it
+    lost)."""
     no_u = np.zeros(0)
 
     def step(s: Sample) -> bool:
         v = s.inputs
         if s.restart:
             rt.reset()
+        elif s.bridge:
+            rt.bridge(s.k)
         try:
             o = rt.step(s.k, v["u"] if nu else no_u, v["y"],
                         {n: v[n] for n in rt.side_inputs} or None)
@@ -605,13 +619,14 @@ def _adapted_streams(bag: str | Path, adapter: Any, system: Any
 
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
-                side: Any = None, truth: Any = None) -> dict[str, Any]:
-    """A runtime over samples ``ks`` (``us[k]``, ``ys[k]``, ``side[name][k]``); restarts after
-    a hole.
+                side: Any = None, truth: Any = None,
+                max_gap: float = MAX_GAP) -> dict[str, Any]:
+    """A runtime over samples ``ks`` (``us[k]``, ``ys[k]``, ``side[name][k]``); a hole of at
+    most ``max_gap`` s of samples is bridged, a longer one restarts, as live.
 
     Returns the per-sample fields of a :class:`BagRun`. A sample the runtime refuses as
     implausible (:mod:`fd_monitor.core.plausibility`) is reported in ``rep`` and left out,
-    and the runtime restarts at the next sample, as after a hole. Another invalid sample
+    a lost sample like a hole's. Another invalid sample
     raises :class:`~fd_monitor.model.errors.MessageError` naming its stamp (:func:`read_streams`
     has already left such samples out of a bag).
 
@@ -637,8 +652,10 @@ def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
             raise exc
         _refused(rep, k, exc)
 
-    tr = rt.run(ks, us, ys, side or None, on_refused=refuse)
+    tr = rt.run(ks, us, ys, side or None, on_refused=refuse,
+                max_gap=gap_samples(max_gap, rt.system.sample_time))
     rep.restarts.extend(tr.restarts)
+    rep.bridges.extend(tr.bridges)
     return _fields(rt, tr, truth)
 
 

@@ -354,7 +354,8 @@ def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],
     if s.get("input_errors"):
         lines.append("- input errors: " + "; ".join(
             f"{k}: {v}" for k, v in s["input_errors"].items()))
-        lines.append(f"- monitor restarts at samples: {s.get('restarts', [])}")
+        lines.append(f"- monitor restarts at samples: {s.get('restarts', [])}; bridged holes "
+                     f"(memory kept) at samples: {s.get('bridges', [])}")
     if fails is not None:
         lines += ["", f"## Expected results (`{exp_file}`)", ""]
         lines += ["All expectations hold."] if not fails else \

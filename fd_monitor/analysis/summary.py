@@ -171,6 +171,8 @@ class Outputs:
         Channels whose alarm isolates the fault they are named after (no isolation flags).
     restarts : list of int
         Samples where the monitor restarted after a hole.
+    bridges : list of int
+        Samples where the monitor bridged a hole (its memory kept).
     """
 
     k: np.ndarray
@@ -184,6 +186,7 @@ class Outputs:
     isolation_channels: tuple[str, ...] = ()
     isolating: tuple[str, ...] = ()
     restarts: list[int] = field(default_factory=list)
+    bridges: list[int] = field(default_factory=list)
 
 
 def summarize(out: Outputs, transient: float = 0.0) -> dict[str, Any]:
@@ -196,7 +199,7 @@ def summarize(out: Outputs, transient: float = 0.0) -> dict[str, Any]:
         :func:`first_alarms`), ``isolated`` (channels flagged at the last sample, or the
         isolating channels that alarmed), ``bias_estimate`` (``{name: final value}``),
         ``modes`` (estimated mode names, repeats collapsed), ``mode_segments``
-        (:func:`segments`), ``restarts``.
+        (:func:`segments`), ``restarts``, ``bridges``.
     """
     alarms = first_alarms(out.k, out.alarm, out.channels, out.dt, transient)
     if out.isolated is not None and len(out.k):
@@ -207,7 +210,7 @@ def summarize(out: Outputs, transient: float = 0.0) -> dict[str, Any]:
     return {"samples": len(out.k), "alarms": alarms, "isolated": isolated,
             "bias_estimate": {n: float(v[-1]) for n, v in out.estimate.items()},
             "modes": collapse(names), "mode_segments": segments(out.k, names),
-            "restarts": list(out.restarts)}
+            "restarts": list(out.restarts), "bridges": list(out.bridges)}
 
 
 def outputs_of_run(run: Any) -> Outputs:
@@ -217,7 +220,7 @@ def outputs_of_run(run: Any) -> Outputs:
                    alarm=run.alarm, mode=run.mode_hat, mode_names=tuple(sys_.mode_names),
                    estimate=dict(run.estimate), isolated=run.isolated,
                    isolation_channels=tuple(sys_.outputs), isolating=tuple(run.isolating),
-                   restarts=list(run.inputs.restarts))
+                   restarts=list(run.inputs.restarts), bridges=list(run.inputs.bridges))
 
 
 def summarize_run(run: Any) -> dict[str, Any]:
@@ -237,6 +240,7 @@ def summarize_run(run: Any) -> dict[str, Any]:
             "bias_estimate": s["bias_estimate"], "modes": s["modes"],
             "mode_segments": s["mode_segments"],
             "input_errors": run.inputs.by_kind(), "restarts": s["restarts"],
+            "bridges": s["bridges"],
             "transient_s": run.transient, "channels": list(run.channels),
             "estimate_kind": run.estimate_kind}
 
@@ -252,7 +256,9 @@ def analyze_run(run: Any) -> dict[str, Any]:
         ``{sample, time}``, or None), ``transitions_estimated``, ``transitions_true`` (or
         None), ``mode_agreement`` (or None), ``isolated``, ``bias_estimate``,
         ``input_errors`` (every rejected or suspicious input message: ``{kind, topic, sample,
-        message}``) and ``restarts`` (samples where the monitor restarted after a hole).
+        message}``), ``restarts`` (samples where the monitor restarted after a hole longer
+        than ``MAX_GAP``, or a new run) and ``bridges`` (samples where it bridged a shorter
+        one, its memory kept).
     """
     system = run.system
     k = run.k
@@ -291,15 +297,16 @@ def analyze_run(run: Any) -> dict[str, Any]:
         "bias_estimate": summary["bias_estimate"],
         "input_errors": list(run.inputs.errors),
         "restarts": list(run.inputs.restarts),
+        "bridges": list(run.inputs.bridges),
     }
 
 
 def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
     """The :class:`Outputs` the live diagnosis chain published, from a recorded bag.
 
-    Uses ``/fd/alarm`` (a column per output), ``/fd/state_estimate`` (columns ``mode`` and
-    ``restart``) and ``/fd/bias_estimate`` (a column per output: sigma^; ``iso:<output>``:
-    isolation flag), by label.
+    Uses ``/fd/alarm`` (a column per output), ``/fd/state_estimate`` (columns ``mode``,
+    ``restart`` and ``bridge`` when recorded) and ``/fd/bias_estimate`` (a column per
+    output: sigma^; ``iso:<output>``: isolation flag), by label.
 
     Parameters
     ----------
@@ -312,6 +319,7 @@ def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
     be = topics[BIAS_ESTIMATE.absolute]
     outputs = tuple(system.outputs)
     restart = st.column("restart")
+    bridge = st.column("bridge") if "bridge" in st.labels else np.zeros(len(st.stamps))
     return Outputs(
         k=np.asarray(al.stamps), dt=float(system.sample_time), channels=outputs,
         alarm=np.column_stack([al.column(c) > 0.5 for c in outputs]),
@@ -319,7 +327,8 @@ def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
         estimate={c: be.column(c) for c in outputs},
         isolated=np.column_stack([be.column(f"iso:{c}") > 0.5 for c in outputs]),
         isolation_channels=outputs,
-        restarts=[int(k) for k in st.stamps[1:][restart[1:] > 0.5]])
+        restarts=[int(k) for k in st.stamps[1:][restart[1:] > 0.5]],
+        bridges=[int(k) for k in st.stamps[bridge > 0.5]])
 
 
 # --------------------------------------------------------------------------------------

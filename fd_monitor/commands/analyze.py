@@ -71,7 +71,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     system : System
     gains : GainFile or DiagnosisGains
     k : numpy.ndarray
-        (K,) sample indices (a hole restarts the monitor, as in a bag).
+        (K,) sample indices (a hole is bridged or restarts the monitor, as in a bag).
     u : numpy.ndarray
         (K, nu) inputs.
     y : numpy.ndarray
@@ -204,8 +204,9 @@ def run(args: argparse.Namespace) -> int:
         print_table([(e["kind"], e["topic"], e["sample"], e["message"])
                      for e in doc["input_errors"]],
                     header=("input error", "topic", "sample", "message"),
-                    title="bad input (left out; the monitor restarted after each hole at "
-                          f"samples {doc['restarts'] or 'none'})")
+                    title="bad input (left out; the monitor bridged holes at samples "
+                          f"{doc.get('bridges') or 'none'} and restarted at samples "
+                          f"{doc['restarts'] or 'none'})")
     if doc["bias_estimate"]:      # hinf_sc and hminus_switched estimate no bias
         print()
         print_table([(n, f"{v:+.6f}", "yes" if n in doc["isolated"] else "no")

@@ -187,12 +187,48 @@ class BiasEstimator:
         self.z = np.zeros((self.N, n))
         self._buf: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._z_started = False
+        #: the last sample stepped (None: none yet), and whether the next one re-anchors
+        self._k_last: int | None = None
+        self._reanchor = False
+
+    def bridge(self, k: int) -> None:
+        """The next sample is ``k``; those after the last one stepped are lost (a short hole).
+
+        Active: sigma^, K_d and the isolation survive; the next sample re-anchors the state
+        on the compensated measurement and keeps sigma^ (the ``hold`` step of the module
+        doc: what the gap did to the state is not learnt as a bias). Before detection: the
+        delayed buffer of the pre-smoother gets the last sample held for each lost one, so
+        it stays D samples long in time and z is predicted through the gap. Nothing before
+        the first sample; a second call before the same sample adds what is still missing.
+        """
+        if self._k_last is None:
+            return
+        missing = int(k) - self._k_last - 1
+        if missing <= 0:
+            return
+        self._k_last += missing
+        if self.gains.estimator_init == "presmoother":
+            if self._fast and not self._active1 and self._buf1:
+                held = self._buf1[-1]
+                for _ in range(missing):
+                    self._presmooth1(*held)
+            elif not self._fast and not self.active.all() and self._buf:
+                uo, yo, qo = self._buf[-1]
+                for _ in range(missing):
+                    self._presmooth(uo, yo, qo)
+        if self._active1 or self.active.any():
+            self._reanchor = True
 
     def step_batch(self, k: int, u: np.ndarray, y: np.ndarray, mode: np.ndarray,
                    alarm: np.ndarray, hold: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
         """Batched step: (N, nu), (N, ny), (N,), (N, ny) bool, (N,) bool -> (sigma^, isolated)."""
         g = self.gains
+        self._k_last = k
+        reanchor, self._reanchor = self._reanchor, False
+        if reanchor:
+            # a bridged gap: the runs active before it re-anchor (see bridge)
+            hold = self.active.copy() if hold is None else (hold | self.active)
         presmooth = g.estimator_init == "presmoother" and not self.active.all()
         if presmooth:
             self._presmooth(u, y, mode)
@@ -236,15 +272,12 @@ class BiasEstimator:
         """
         g = self.gains
         f = self.f.step1
+        self._k_last = k
+        if self._reanchor:
+            # a bridged gap: active before it, so re-anchor (see bridge)
+            hold, self._reanchor = hold or self._active1, False
         if g.estimator_init == "presmoother" and not self._active1:
-            # delayed small-gain observer: z estimates x at the oldest buffered sample
-            if not self._z1:
-                self._z1 = list(y)
-            self._buf1.append((u, y, mode))
-            if len(self._buf1) > g.presmoother_delay:
-                uo, yo, qo = self._buf1.popleft()
-                a = g.presmoother_gain
-                self._z1 = f(qo, [z + a * (v - z) for z, v in zip(self._z1, yo)], uo)
+            self._presmooth1(u, y, mode)
         if not self._active1 and any(alarm):
             self._active1, self._k_detect1 = True, k
             self._sigma1 = [0.0] * len(self._sigma1)
@@ -280,6 +313,18 @@ class BiasEstimator:
         ran = k - self._k_detect1 >= g.isolation_delay
         iso = [ran and abs(a) > t for a, t in zip(sig, self._iso_thr1)]
         return BiasOutput(k, np.array(sig), np.array(iso), True, self._k_detect1), sig
+
+    def _presmooth1(self, u: list[float], y: list[float], mode: int) -> None:
+        """Delayed small-gain observer (single stream): z estimates x at the oldest buffered
+        sample."""
+        g = self.gains
+        if not self._z1:
+            self._z1 = list(y)
+        self._buf1.append((u, y, mode))
+        if len(self._buf1) > g.presmoother_delay:
+            uo, yo, qo = self._buf1.popleft()
+            a = g.presmoother_gain
+            self._z1 = self.f.step1(qo, [z + a * (v - z) for z, v in zip(self._z1, yo)], uo)
 
     def _presmooth(self, u: np.ndarray, y: np.ndarray, mode: np.ndarray) -> None:
         """Delayed small-gain observer: z estimates x at the oldest buffered sample."""

@@ -199,6 +199,12 @@ class HybridObserver:
         self._q_mid1 = self.initial_mode
         self._x_next1: list[float] = []
 
+    def bridge(self) -> None:
+        """Samples were lost: the next one re-initialises ``x^ = y~`` (as the first does,
+        with the bias estimate in force), no one-step plausibility test across the gap; the
+        mode estimate is kept."""
+        self.k_next = None
+
     def step1(self, k: int, u: list[float], y: list[float], sg: list[float], trigger: int
               ) -> tuple[ObserverOutput, list[float], list[float]]:
         """Single stream on Python floats: the arithmetic of :meth:`step_batch` for one run.

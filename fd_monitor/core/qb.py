@@ -137,6 +137,7 @@ class QBObserver:
         self.mode = system.initial_mode if mode0 is None else int(mode0)
         self.k: int | None = None
         self.plausibility = Plausibility(system)
+        self._held: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -171,13 +172,30 @@ class QBObserver:
         # Range test only: the estimate converges from x0, it is no one-sample prediction.
         self.plausibility.check(k, uu, yy)
         mode, x = self.mode, self.x.copy()
+        self._advance(uu, yy)
+        self.k, self._held = k, (uu, yy)
+        return mode, x
+
+    def _advance(self, uu: np.ndarray, yy: np.ndarray) -> None:
+        """x_{k+1} and the mode of k + 1 from (u_k, y_k) (13a)-(13b)."""
+        mode, x = self.mode, self.x
         z = np.concatenate([uu, yy, [1.0]])
         xn = self.Phi[mode] @ x + self.Gam[mode] @ z
         q = np.array([mode])
         q = self._plant.next_mode(q, x[None], uu[None], "controlled")
         q = self._plant.next_mode(q, xn[None], uu[None], "autonomous")
-        self.x, self.mode, self.k = xn, int(q[0]), k
-        return mode, x
+        self.x, self.mode = xn, int(q[0])
+
+    def bridge(self, k: int) -> None:
+        """The next sample is ``k`` (those between are lost): predict through the gap with
+        the last u and y held (zero-order hold, the value in force), so x^ -- the
+        fault-model states with it -- and the mode estimate carry over. Nothing before the
+        first sample."""
+        if self.k is None or self._held is None:
+            return
+        for _ in range(self.k + 1, int(k)):
+            self._advance(*self._held)
+        self.k = max(self.k, int(k) - 1)
 
     def residual(self, mode: int, x_hat: np.ndarray, y: Any) -> np.ndarray:
         """(ny,) residual ``r = y - C_mode x_hat`` (Remark 1), output units."""

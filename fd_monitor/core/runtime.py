@@ -6,12 +6,16 @@ offline analysis (:mod:`fd_monitor.analysis.offline`), reports and Monte Carlo c
 on the method name. A runtime has the same small interface for every method:
 
 * :meth:`Runtime.reset` -- start again (the next sample may have any index);
+* :meth:`Runtime.bridge` -- carry the run over lost samples (a short hole): the state
+  estimate is carried over the gap, the fault memory (bias estimate, alarm and isolation
+  history, mode estimate, AGEI phase) is kept;
 * :meth:`Runtime.step` -- one sample ``(k, u_k, y_k)`` plus the method's side signals
   (``side``: ``{"rho": (d,)}`` scheduling variable, ``{"mode": int}`` switching signal) ->
   a frozen :class:`RuntimeOutput`: per-channel residual, threshold in force, alarm, the
   excess over the certified region (``outside``) and the method's estimates;
-* :meth:`Runtime.run` -- a whole stream (restarted at every hole in the sample indices), the
-  same arithmetic as :meth:`Runtime.step` sample by sample, as a :class:`RuntimeTrace`;
+* :meth:`Runtime.run` -- a whole stream (a hole in the sample indices bridged up to
+  ``max_gap`` samples, restarted beyond), the same arithmetic as :meth:`Runtime.step` sample
+  by sample, as a :class:`RuntimeTrace`;
 * :meth:`Runtime.run_batch` -- N simulated runs (a Monte Carlo campaign) as a
   :class:`~fd_monitor.core.batch.BatchResult`.
 
@@ -128,6 +132,8 @@ class RuntimeTrace:
         name -> (K, ...) stacked :attr:`RuntimeOutput.estimates`.
     restarts : list of int
         Samples at which the runtime restarted after a hole.
+    bridges : list of int
+        Samples at which the runtime bridged a hole (:meth:`Runtime.bridge`).
     """
 
     k: np.ndarray
@@ -138,6 +144,7 @@ class RuntimeTrace:
     mode: np.ndarray
     estimates: dict[str, np.ndarray]
     restarts: list[int]
+    bridges: list[int] = field(default_factory=list)
 
 
 def _vector(name: str, v: Any, length: int, k: int) -> np.ndarray:
@@ -211,6 +218,24 @@ class Runtime:
         """Restart from scratch (the next sample may have any index)."""
         raise NotImplementedError
 
+    def bridge(self, k: int) -> None:
+        """The next sample is ``k``; the samples between the last one stepped and ``k`` are
+        lost (a short hole): carry the run over them.
+
+        The state estimate is carried over the gap (predicted through it, or re-initialised
+        from the next measurement, per method); the fault memory survives: bias estimate,
+        alarm and isolation history, the mode estimate, AGEI's phase, thresholds stay armed.
+        A bridge raises no alarm by itself. Before any sample (or right after
+        :meth:`reset`) it does nothing. Called again before the same ``k`` (the sample was
+        refused and the next one bridges a longer gap) it carries on from where it stopped.
+
+        Parameters
+        ----------
+        k : int
+            The next sample's index (greater than the last one stepped).
+        """
+        raise NotImplementedError
+
     def step(self, k: int, u: Any, y: Any,
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """Process sample k.
@@ -218,7 +243,8 @@ class Runtime:
         Parameters
         ----------
         k : int
-            Sample index; consecutive after the first call (call :meth:`reset` after a hole).
+            Sample index; consecutive after the first call (call :meth:`reset` or
+            :meth:`bridge` after a hole).
         u : array_like
             (nu,) inputs u_k, input units.
         y : array_like
@@ -285,8 +311,10 @@ class Runtime:
 
     def run(self, k: Sequence[int] | np.ndarray, u: Any, y: Any,
             side: Mapping[str, Any] | None = None,
-            on_refused: Callable[[int, MessageError], None] | None = None) -> RuntimeTrace:
-        """Run a whole stream with :meth:`step`, restarting (:meth:`reset`) after a hole.
+            on_refused: Callable[[int, MessageError], None] | None = None,
+            max_gap: int = 0) -> RuntimeTrace:
+        """Run a whole stream with :meth:`step`: a hole of at most ``max_gap`` samples is
+        bridged (:meth:`bridge`), a longer one restarts (:meth:`reset`).
 
         Parameters
         ----------
@@ -300,8 +328,12 @@ class Runtime:
             name -> (K, ...) array or mapping index -> value, per side signal.
         on_refused : callable, optional
             Called with (k, error) for a sample :meth:`step` refuses (MessageError); the
-            sample is left out and the runtime restarts at the next one. Without it the
-            error propagates.
+            sample is left out, a lost sample like a hole's (the next one bridges or
+            restarts). Without it the error propagates.
+        max_gap : int
+            Lost samples in a row that are bridged (the stream readers pass
+            :func:`fd_monitor.wire.stream.gap_samples` of ``MAX_GAP``, as the nodes do); 0:
+            every hole restarts.
 
         Returns
         -------
@@ -312,25 +344,32 @@ class Runtime:
         sides = {n: _indexed(v, ks) for n, v in (side or {}).items()}
         outs: list[RuntimeOutput] = []
         restarts: list[int] = []
+        bridges: list[int] = []
         prev: int | None = None
         for kk in ks:
             if prev is not None and kk != prev + 1:
-                self.reset()
-                restarts.append(kk)
+                if 0 < kk - prev - 1 <= max_gap:
+                    self.bridge(kk)
+                    bridges.append(kk)
+                else:
+                    self.reset()
+                    restarts.append(kk)
             try:
                 o = self.step(kk, us(kk), ys(kk),
                               {n: f(kk) for n, f in sides.items()} if sides else None)
             except MessageError as exc:
                 if on_refused is None:
                     raise
-                # refused like a NaN message; prev stays behind, so the next sample restarts
+                # refused like a NaN message; prev stays behind: the next sample bridges the
+                # longer gap or restarts
                 on_refused(kk, exc)
                 continue
             outs.append(o)
             prev = kk
-        return self.stack(outs, restarts)
+        return self.stack(outs, restarts, bridges)
 
-    def stack(self, outs: Sequence[RuntimeOutput], restarts: list[int]) -> RuntimeTrace:
+    def stack(self, outs: Sequence[RuntimeOutput], restarts: list[int],
+              bridges: list[int] | None = None) -> RuntimeTrace:
         """The :class:`RuntimeTrace` of outputs of :meth:`step` in processing order (a caller
         that decides holes itself, e.g. the offline bag reader, steps and then stacks)."""
         m, K = len(self.channels), len(outs)
@@ -349,7 +388,7 @@ class Runtime:
                     est[name] = np.zeros((K, *a.shape), dtype=a.dtype)
                 est[name][j] = a
         return RuntimeTrace(np.array([o.k for o in outs], dtype=int), res, thr, alarm, outside,
-                            mode, est, restarts)
+                            mode, est, restarts, list(bridges or []))
 
     @classmethod
     def run_batch(cls, system: System, gains: Any, traj: Any, **options: Any) -> BatchResult:
@@ -453,6 +492,11 @@ class ThresholdsRuntime(Runtime):
         """See :meth:`Runtime.reset`."""
         self.monitor.reset()
 
+    def bridge(self, k: int) -> None:
+        """:meth:`~fd_monitor.core.monitor.Monitor.bridge`: x^ re-initialised from the next
+        compensated measurement (the paper's x^_0 = y~_0), everything else kept."""
+        self.monitor.bridge(k)
+
     def step(self, k: int, u: Any, y: Any,
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step` (no side signal)."""
@@ -527,6 +571,12 @@ class QBRuntime(Runtime):
     def reset(self) -> None:
         """A new observer (x^ = 0, the plant's initial mode)."""
         self.observer = QBObserver(self.system, self.gains)
+
+    def bridge(self, k: int) -> None:
+        """The observer predicts through the gap on the last u and y held
+        (:meth:`~fd_monitor.core.qb.QBObserver.bridge`): x^ (the fault-model states with it)
+        and the mode estimate carry over."""
+        self.observer.bridge(k)
 
     def step(self, k: int, u: Any, y: Any,
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
@@ -632,6 +682,17 @@ class HinfScRuntime(Runtime):
         """Observers re-initialised from the next measurement; thresholds re-armed."""
         self._k0: int | None = None
         self._k_next: int | None = None
+        self._held: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+
+    def bridge(self, k: int) -> None:
+        """Every generator predicts through the gap on the last u, y (and rho) held, as
+        the bank runs between samples (zero-order hold); thresholds stay armed."""
+        if self._k_next is None or self._held is None:
+            return
+        uu, yy, rho = self._held
+        for j in range(self._k_next, int(k)):
+            self.bank.step(j, uu, yy, rho)
+        self._k_next = max(self._k_next, int(k))
 
     def _rho(self, k: int, y: np.ndarray, side: Mapping[str, Any] | None) -> np.ndarray:
         model = self.bank.model
@@ -660,6 +721,7 @@ class HinfScRuntime(Runtime):
             self._k0 = k
         norms = self.bank.step(k, uu, yy, rho)
         self._k_next = k + 1
+        self._held = (uu, yy, rho)
         armed = k - self._k0 >= self.settle
         thr = self.bank.thresholds if armed else np.full(len(self.channels), np.inf)
         est: dict[str, Any] = {"x_hat": self.bank.xhat.copy()}
@@ -732,6 +794,17 @@ class HminusSwitchedRuntime(Runtime):
         self._mode = int(self.system.initial_mode)
         self._k0: int | None = None
         self._k_next: int | None = None
+        self._held: tuple[np.ndarray, np.ndarray] | None = None
+
+    def bridge(self, k: int) -> None:
+        """The observer predicts through the gap on the last u and y held (its mode by the
+        plant's guards, or held as measured); threshold stays armed."""
+        if self._k_next is None or self._held is None:
+            return
+        uu, yy = self._held
+        for j in range(self._k_next, int(k)):
+            self._advance(j, uu, yy)
+        self._k_next = max(self._k_next, int(k))
 
     def _measured_mode(self, k: int, uu: np.ndarray,
                        side: Mapping[str, Any] | None) -> float | None:
@@ -743,6 +816,20 @@ class HminusSwitchedRuntime(Runtime):
         if self.mode_source == "side":
             self._side(side, "mode", k)
         return None
+
+    def _advance(self, k: int, uu: np.ndarray, yy: np.ndarray) -> np.ndarray:
+        """One observer step in the current mode, then the mode of k + 1 (the plant's
+        guards); returns r_k."""
+        q = self._mode
+        r = self.observer.step(k, uu, yy, q)
+        if self._plant is not None:
+            # the plant's guards give the mode of k + 1 as in the plant (controlled on u_k,
+            # autonomous on x_{k+1}), here on the one-step model prediction of x^
+            qa, xa, ua = np.array([q]), self.observer.xhat[None], uu[None]
+            qn = self._plant.next_mode(qa, xa, ua, "controlled")
+            x_pred = self._plant.step(qa, xa, ua)
+            self._mode = int(self._plant.next_mode(qn, x_pred, ua, "autonomous")[0])
+        return r
 
     def step(self, k: int, u: Any, y: Any,
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
@@ -760,17 +847,11 @@ class HminusSwitchedRuntime(Runtime):
         q = self._mode
         if self._k0 is None:
             self._k0 = k
-        r = self.observer.step(k, uu, yy, q)
+        r = self._advance(k, uu, yy)
         self._k_next = k + 1
+        self._held = (uu, yy)
         nrm = float(np.linalg.norm(r))
         thr = self.observer.threshold if k - self._k0 >= self.settle else float("inf")
-        if self._plant is not None:
-            # the plant's guards give the mode of k + 1 as in the plant (controlled on u_k,
-            # autonomous on x_{k+1}), here on the one-step model prediction of x^
-            qa, xa, ua = np.array([q]), self.observer.xhat[None], uu[None]
-            qn = self._plant.next_mode(qa, xa, ua, "controlled")
-            x_pred = self._plant.step(qa, xa, ua)
-            self._mode = int(self._plant.next_mode(qn, x_pred, ua, "autonomous")[0])
         return RuntimeOutput(k, np.array([nrm]), np.array([thr]), np.array([nrm > thr]),
                              np.array([excess]), q,
                              {"x_hat": self.observer.xhat.copy(), "r": r}, self.observer)

@@ -201,6 +201,12 @@ class DetectorNode(ResidualReport, FdNode):
             self.detector = ResidualDetector(self.system, as_gains(self.system,
                                                                    self.gain_file))
 
+    def bridge(self, k: int) -> None:
+        """The residual filters start again over a bridged gap (Monitor.bridge); the override
+        in force and the alarm episode count are kept."""
+        if isinstance(self.detector, ResidualDetector):
+            self.detector.reset()
+
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """(q^_k, x^_k, y~_k), override -> residual, threshold, alarm at k."""
         est = inputs["est"]

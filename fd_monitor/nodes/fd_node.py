@@ -65,10 +65,18 @@ from fd_monitor.nodes.common import (
 from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
-from fd_monitor.wire.stream import RESTART_AFTER, STAMP_HORIZON, InputStream, TopicOrder
+from fd_monitor.wire.stream import (
+    MAX_GAP,
+    RESTART_AFTER,
+    STAMP_HORIZON,
+    InputStream,
+    TopicOrder,
+    gap_samples,
+)
 from fd_monitor.wire.topics import Layout, Topic
 
-__all__ = ["COMMON_PARAMS", "RUNTIME_PARAMS", "FdNode", "Input", "load_plant_and_gains"]
+__all__ = ["COMMON_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode", "Input",
+           "load_plant_and_gains"]
 
 #: Gain-file methods the chain nodes can run; each node lists the ones it runs in its
 #: ``runtimes`` (method -> name of the method that builds that runtime).
@@ -78,6 +86,11 @@ RUNTIMES = ("thresholds", "qb")
 GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have been complete "
                     "before a missing one is declared lost (a hole: restart at the next valid "
                     "sample); absorbs out-of-order publication", low=0.001, high=3600.0)
+#: The longest hole bridged, of every node that joins plant/u and plant/y.
+MAX_GAP_PARAM = Param("max_gap", MAX_GAP, "s of lost samples (their count times Ts) that are "
+                      "bridged: the run goes on with its estimates, alarm and isolation "
+                      "memory; a longer hole restarts the run (fresh state)", low=0.0,
+                      high=3600.0)
 #: The per-channel WARN level of every node that detects.
 WARN_SHARE = Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its "
                    "threshold", read_only=False, low=0.0, high=1.0)
@@ -330,8 +343,10 @@ class FdNode(LifecycleNode):
         self.processed = 0
         self.holes = 0
         self.inactive_dropped = 0
-        #: True while :meth:`process` handles a restart sample (first, or first after a hole).
+        #: True while :meth:`process` handles a restart sample (first, or first after a hole
+        #: longer than max_gap), and a bridge sample (first after a shorter one).
         self.restarting = False
+        self.bridging = False
         # Reasons of the bad messages since the last /diagnostics publication, each once.
         self._reasons: list[str] = []
         self._graph_notes: list[str] = []
@@ -464,13 +479,15 @@ class FdNode(LifecycleNode):
         """
         self.inputs = tuple(inputs)
         seq = [i.name for i in inputs if i.sequence]
+        max_gap = getattr(self.params, "max_gap", 0.0)
         self.join = StampJoin([i.name for i in inputs if i.initial is None],
                               {i.name: i.initial for i in inputs if i.initial is not None},
                               self.params.max_pending, sequence=seq[0] if seq else None,
                               gap_timeout=None if seq else gap_timeout,
                               horizon=self.params.stamp_horizon,
                               restart_after=self.params.restart_after,
-                              feedback_source=self._feedback_source)
+                              feedback_source=self._feedback_source,
+                              max_gap=gap_samples(max_gap, self.system.sample_time))
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
@@ -516,8 +533,9 @@ class FdNode(LifecycleNode):
         topic = self.resolve_topic_name(inp.topic)
         order = TopicOrder(topic)
         stream = self.stream
-        # the restart flag of the sequence input, by field (resolved once)
+        # the restart and bridge flags of the sequence input, by field (resolved once)
         i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
+        i_bridge = inp.layout.index["bridge"] if inp.sequence and inp.layout else None
         # serialized messages in, decoded without a message object (rclpy's deserializer
         # only for what the CDR parser leaves: big-endian)
         dec = RawDecoder(partial(deserialize_message, message_type=Float64MultiArray), topic,
@@ -547,7 +565,8 @@ class FdNode(LifecycleNode):
                 self._pair_plain()
                 return
             if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
-                              inp.stamp_offset, inp.sequence and d.values[i_restart] > 0.5):
+                              inp.stamp_offset, inp.sequence and d.values[i_restart] > 0.5,
+                              inp.sequence and d.values[i_bridge] > 0.5):
                 self._input_ok()
         return cb
 
@@ -603,6 +622,7 @@ class FdNode(LifecycleNode):
             self._reasons.append(reason)
         self.diag.update("input", WARN, "; ".join(self._reasons),
                          {"bad_messages": self.bad_messages, "holes": self.holes,
+                          "bridged": self.join.bridges, "restarted": self.join.restarts,
                           "new_runs": self.join.new_runs, "processed": self.processed,
                           "last_warning": reason})
 
@@ -640,7 +660,8 @@ class FdNode(LifecycleNode):
         elif level != OK or self.processed % 50 == 0:
             self.diag.update("input", OK, "receiving", {
                 "bad_messages": self.bad_messages, "processed": self.processed,
-                "holes": self.holes, "new_runs": self.join.new_runs,
+                "holes": self.holes, "bridged": self.join.bridges,
+                "restarted": self.join.restarts, "new_runs": self.join.new_runs,
                 "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for()})
         else:
             self.diag.touch("input")
@@ -668,11 +689,14 @@ class FdNode(LifecycleNode):
             self.bad_input(line)
 
     def _run(self, s: Sample) -> bool:
-        """Process one released sample (reset first at a restart); False when the core
-        refused it (the stream counts it lost: the next sample restarts the chain)."""
+        """Process one released sample (reset first at a restart, bridge first at a bridge);
+        False when the core refused it (the stream counts it lost: the next sample bridges
+        or restarts)."""
         if s.restart:
             self.reset()
-        self.restarting = s.restart
+        elif s.bridge:
+            self.bridge(s.k)
+        self.restarting, self.bridging = s.restart, s.bridge
         try:
             self.process(s.k, s.inputs)
         except ImplausibleError as exc:
@@ -686,6 +710,11 @@ class FdNode(LifecycleNode):
     def reset(self) -> None:
         """Reset the core component as :meth:`~fd_monitor.core.monitor.Monitor.reset` does
         (subclasses); called before every restart sample."""
+
+    def bridge(self, k: int) -> None:
+        """Carry the core component over lost samples before sample ``k``, as
+        :meth:`~fd_monitor.core.monitor.Monitor.bridge` does (subclasses; default: nothing
+        to carry, its state simply goes on); called before every bridge sample."""
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:  # pragma: no cover
         """Process sample k (subclasses)."""

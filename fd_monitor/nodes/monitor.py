@@ -108,7 +108,7 @@ USAGE = NodeUsage(
                 (PLANT_RHO, "measured scheduling parameters (LPV bank without a "
                             "scheduling map; stamped k)"),
                 (PLANT_MODE, "switching signal (no guard decides the mode; stamped k)")),
-    publishes=((STATE_ESTIMATE, "thresholds: mode, x^_k, y~_k, restart; other methods: "
+    publishes=((STATE_ESTIMATE, "thresholds: mode, x^_k, y~_k, restart, bridge; other methods: "
                 "mode, x^ (flattened per generator) (stamp k)"),
                (RESIDUAL, "thresholds: r:<out>, w:<out>; other methods: the residual "
                 "evaluation signal per channel (stamp k)"),
@@ -214,6 +214,11 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         offline run restarts it."""
         self.runtime.reset()
 
+    def bridge(self, k: int) -> None:
+        """Carry the runtime over a bridged gap (its memory kept), as the offline run
+        does."""
+        self.runtime.bridge(k)
+
     def _layouts(self, out: Any) -> list[Any]:
         """Each output topic's layout (the generic state estimate's from x^'s shape at the
         first sample: one estimate, or a bank's)."""
@@ -236,7 +241,7 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         except MessageError as exc:
             # refused by the runtime: reported like a bad message, and a hole at k
             raise ImplausibleError(str(exc)) from None
-        pays = (*rt.payloads(out), {"restart": self.restarting})
+        pays = (*rt.payloads(out), {"restart": self.restarting, "bridge": self.bridging})
         if self._plan is None:
             self._plan = [(pub, SerializedArray(lay.labels), lay.sources(pays), t.next_sample)
                           for pub, t, lay in zip(self.pubs, self.outputs, self._layouts(out))]

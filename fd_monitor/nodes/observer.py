@@ -4,15 +4,17 @@ Joins, per sample k: ``/plant/u`` (u_k), ``/plant/y`` (y_k) (plain messages from
 are accepted and stamped on arrival), ``/fd/bias_estimate`` (sigma^_k, published by the
 bias estimator at k - 1, stamped k) and ``/fd/guard_event`` (the AGEI trigger decided at
 k - 1, stamped k). Publishes ``/fd/state_estimate`` (stamp k): ``mode``, x^_k (states),
-y~_k = y_k - sigma^_k (``y~<output>``) and ``restart`` (1 at the first sample and at the first
-valid sample after a hole: downstream nodes reset there).
+y~_k = y_k - sigma^_k (``y~<output>``), ``restart`` (1 at the first sample and at the first
+valid sample after a hole longer than ``max_gap``: downstream nodes reset there) and ``bridge``
+(1 at the first valid sample after a shorter hole: downstream nodes bridge it too).
 
 With a ``qb`` gain file it runs :class:`~fd_monitor.core.qb.QBObserver` on ``/plant/u`` (when
 the plant has inputs) and ``/plant/y`` and publishes the same layout (y~ = y).
 
 The observer is the chain's entry: it declares the holes in the data (a rejected message, or
-a later sample complete for ``gap_timeout`` s) and restarts at the next valid sample, as the
-offline runner does (:func:`fd_monitor.analysis.offline.run_bag`).
+a later sample complete for ``gap_timeout`` s) and bridges (at most ``max_gap`` s of lost
+samples) or restarts at the next valid sample, as the offline runner does
+(:func:`fd_monitor.analysis.offline.run_bag`).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from fd_monitor.core.envelope import CertifiedRegion, describe_excess
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
 from fd_monitor.core.qb import QBObserver
 from fd_monitor.nodes.common import OK, WARN, NodeUsage, run_node
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, GAP_TIMEOUT, FdNode, Input
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, GAP_TIMEOUT, MAX_GAP_PARAM, FdNode, Input
 from fd_monitor.wire.topics import (
     BIAS_ESTIMATE,
     DIAGNOSTICS,
@@ -40,6 +42,7 @@ __all__ = ["EstimateReport", "ObserverNode", "USAGE", "main"]
 
 PARAMS = (
     GAP_TIMEOUT,
+    MAX_GAP_PARAM,
 )
 
 USAGE = NodeUsage(
@@ -50,7 +53,8 @@ USAGE = NodeUsage(
                 (BIAS_ESTIMATE, "sigma^_k from bias_estimator (stamped k)"),
                 (GUARD_EVENT, "AGEI trigger for k (stamped k)")),
     publishes=((STATE_ESTIMATE, "mode, x^_k, y~_k, restart (1: first sample, or "
-                "first after a hole) (stamp k)"),
+                "first after a hole longer than max_gap), bridge (1: first after a shorter "
+                "one) (stamp k)"),
                (DIAGNOSTICS, "input and estimate status (WARN 'outside certified "
                 "region' when x^ or u leave the gain file's certified envelope)")))
 
@@ -154,6 +158,15 @@ class ObserverNode(EstimateReport, FdNode):
         else:
             self.observer.reset()                # Monitor.reset
 
+    def bridge(self, k: int) -> None:
+        """Carry the observer over a bridged gap, as the fused runtime does: the hybrid
+        observer re-initialises x^ from the next compensated measurement (mode kept), the QB
+        observer predicts through the gap on the last u and y held."""
+        if isinstance(self.observer, QBObserver):
+            self.observer.bridge(k)
+        elif self.observer is not None:
+            self.observer.bridge()
+
     def _step_hybrid(self, k: int, inputs: dict[str, Any]) -> ObserverOutput:
         out = self.observer.step(k, inputs["u"], inputs["y"], inputs["sigma"][self._i_sigma],
                                  int(inputs["guard"][self._i_trigger]))
@@ -173,7 +186,8 @@ class ObserverNode(EstimateReport, FdNode):
         out = self._step(k, inputs)
         lay = self._state
         self.publish_array(self.pub, lay.labels, k,
-                           lay.encode(out.payload(), restart=self.restarting))
+                           lay.encode(out.payload(), restart=self.restarting,
+                                      bridge=self.bridging))
         self.report_estimate(k, int(out.mode), np.ravel(out.x_hat), self._outside)
 
 

@@ -4,9 +4,13 @@ A node of the diagnosis chain processes sample k once it has every *required* in
 (e.g. u_k, y_k) and every *feedback* input for k (e.g. sigma^_k, which the estimator
 published while processing k - 1). Samples are processed in stamp order, so the one-sample
 feedback delays of the in-process Monitor hold across processes and the numbers are the
-same. At a *restart* (the first sample, and the first valid sample after a hole) feedback
-takes its initial values (sigma^ = 0, no trigger, no override), as after
-:meth:`fd_monitor.core.monitor.Monitor.reset`.
+same. At a *restart* (the first sample, a new run, and the first valid sample after a hole
+longer than ``max_gap`` samples) feedback takes its initial values (sigma^ = 0, no trigger, no
+override), as after :meth:`fd_monitor.core.monitor.Monitor.reset`. After a hole of at most
+``max_gap`` samples the sample is a *bridge* (:attr:`Sample.bridge`): the core keeps its
+memory (:meth:`fd_monitor.core.runtime.Runtime.bridge`) and the feedback in force is the one
+for the first lost stamp (what the last processed sample decided), as the in-process
+runtime carries it over the gap.
 
 Two roles (the entry role is the one input policy of the nodes and of offline bag reading,
 through :class:`fd_monitor.wire.stream.InputStream`):
@@ -15,15 +19,17 @@ through :class:`fd_monitor.wire.stream.InputStream`):
   k is incomplete, k is lost if a message for it was rejected (:meth:`StampJoin.reject`) or
   a later stamp has been complete for ``gap_timeout`` s (per-topic delivery is reliable and
   in order, so a later complete stamp means k will not come; the timeout absorbs
-  out-of-order publication). Then it restarts at the smallest complete stamp after the
+  out-of-order publication). Then it bridges to (at most ``max_gap`` lost stamps, counting
+  samples the core refused just before) or restarts at the smallest complete stamp after the
   lost ones. Never fills missing data.
 * a **downstream** node (``sequence="est"``) follows the entry node: it processes exactly the
   stamps the entry node published on the sequence input (in order, so when est_s arrives,
   every earlier est has arrived and any pending stamp below s without one is dead), and
-  restarts where the entry node flagged a restart. A sequence stamp that lacks another
-  required input is dead once a later sequence stamp has all of them (delivery is in order
-  per topic: the missing message was published before this node subscribed, or lost): the
-  node restarts at the later one instead of waiting forever. No timeout is involved.
+  restarts or bridges where the entry node flagged a restart or a bridge. A sequence stamp
+  that lacks another required input is dead once a later sequence stamp has all of them
+  (delivery is in order per topic: the missing message was published before this node
+  subscribed, or lost): the node restarts at the later one instead of waiting forever. No
+  timeout is involved.
 
 Feedback is waited for only while its source exists (``feedback_source``: the node asks
 whether a publisher is matched); without one the sample is released with that feedback at its
@@ -87,9 +93,16 @@ class Sample:
     inputs : dict
         Input name -> value (feedback at its initial value at a restart).
     restart : bool
-        First sample, or first after a hole: reset the core component before it.
+        First sample, or first after a hole longer than ``max_gap``: reset the core
+        component before it.
     hole : (int, int) or None
         Inclusive stamps skipped just before ``k`` (None: none).
+    bridge : bool
+        First sample after a gap of at most ``max_gap`` samples (a hole, or samples the core
+        refused): the core bridges it (keeps its memory) instead of restarting.
+    gap : int
+        Samples lost just before ``k`` (the hole and the refused samples before it); 0 at a
+        restart that has no hole.
     new_run : (int, int) or None
         First sample of a new run adopted from held stamps: (the old stream's next stamp,
         messages held meanwhile).
@@ -104,6 +117,8 @@ class Sample:
     hole: tuple[int, int] | None = None
     new_run: tuple[int, int] | None = None
     feedback_lost: bool = False
+    bridge: bool = False
+    gap: int = 0
 
 
 class StampJoin:
@@ -133,14 +148,19 @@ class StampJoin:
         matched: the join does not wait for that feedback and uses its initial value (no
         restart), as a node without the node that feeds it back runs open loop. None: always
         wait.
+    max_gap : int
+        Entry role: lost samples in a row that are bridged (:attr:`Sample.bridge`); more
+        restart. 0: every hole restarts. The downstream role follows the entry's flags.
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
                  max_pending: int = 100_000, *, sequence: str | None = None,
                  gap_timeout: float | None = None, horizon: int | None = None,
                  restart_after: float = 1.0,
-                 feedback_source: Callable[[str], bool] | None = None) -> None:
+                 feedback_source: Callable[[str], bool] | None = None,
+                 max_gap: int = 0) -> None:
         self.required = tuple(required)
+        self.max_gap = int(max_gap)
         self.feedback_source = feedback_source
         self.feedback = dict(feedback or {})
         self.names = (*self.required, *self.feedback)
@@ -159,6 +179,7 @@ class StampJoin:
         self._complete_since: dict[int, float] = {}
         self._seq: deque[int] = deque()        # downstream: sequence stamps, arrival order
         self._restart_at: set[int] = set()     # downstream: stamps flagged restart
+        self._bridge_at: set[int] = set()      # downstream: stamps flagged bridge
         #: Recent holes ``(first, last)``, inclusive.
         self.holes: deque[tuple[int, int]] = deque(maxlen=_HOLE_HISTORY)
         self.horizon = horizon
@@ -168,29 +189,40 @@ class StampJoin:
         self._held_t: dict[int, float] = {}          # stamp -> arrival of its first input
         self._held_seq: deque[int] = deque()          # downstream: held sequence stamps
         self._held_restart: set[int] = set()
+        self._held_bridge: set[int] = set()
         #: Messages held in the current episode, and new runs adopted so far.
         self.held_messages = 0
         self.new_runs = 0
         self._progress = -float("inf")                 # time of the last release
-        self._restart_next = False                     # the last released sample was lost
+        self._restart_next = False                     # the next sample must restart
         self._adopted: tuple[int, int] | None = None
+        # Entry role, for a bridge after samples the core refused (lost()): samples lost
+        # right before k_next, the feedback in force for them, and of the last release its
+        # gap, feedback and whether it restarted.
+        self._missing = 0
+        self._carry: dict[str, Any] | None = None
+        self._last: tuple[int, dict[str, Any], bool] = (0, {}, True)
+        #: Samples released as bridges, and as restarts after the first sample.
+        self.bridges = 0
+        self.restarts = 0
 
     def reset(self) -> None:
         """Forget everything: the next complete sample starts a run (a reset service)."""
         self.__init__(self.required, self.feedback, self.max_pending,  # type: ignore[misc]
                       sequence=self.sequence, gap_timeout=self.gap_timeout,
                       horizon=self.horizon, restart_after=self.restart_after,
-                      feedback_source=self.feedback_source)
+                      feedback_source=self.feedback_source, max_gap=self.max_gap)
 
     # -- input ---------------------------------------------------------------------------------
 
     def put(self, name: str, stamp: int, value: Any, now: float = 0.0,
-            restart: bool = False) -> Note | None:
+            restart: bool = False, bridge: bool = False) -> Note | None:
         """Store one input. Returns a one-line reason when it is ignored, else None.
 
-        ``restart`` (downstream role, sequence input only): the entry node restarted at
-        ``stamp``. A late input for a stamp inside a hole is dropped silently when it is
-        feedback (its sample was skipped on purpose) and reported when it is required.
+        ``restart``, ``bridge`` (downstream role, sequence input only): the entry node
+        restarted, or bridged a gap, at ``stamp``. A late input for a stamp inside a hole is
+        dropped silently when it is feedback (its sample was skipped on purpose) and
+        reported when it is required.
         """
         if name not in self.names:
             raise KeyError(name)
@@ -202,7 +234,7 @@ class StampJoin:
                         "late")
         if self.k_next is not None and (stamp < self.k_next or (
                 self.horizon is not None and stamp > self.k_next + self.horizon)):
-            return self._hold(name, stamp, value, now, restart)
+            return self._hold(name, stamp, value, now, restart, bridge)
         slot = self.pending.setdefault(stamp, {})
         if name in slot:
             return Note(f"{name} stamp {stamp}: duplicate; the first one is kept", "duplicate")
@@ -211,6 +243,8 @@ class StampJoin:
             self._seq.append(stamp)
             if restart:
                 self._restart_at.add(stamp)
+            elif bridge:
+                self._bridge_at.add(stamp)
         if name in self.required and all(n in slot for n in self.required):
             self._complete_since[stamp] = now
         if len(self.pending) > self.max_pending:
@@ -222,7 +256,7 @@ class StampJoin:
         return None
 
     def _hold(self, name: str, stamp: int, value: Any, now: float,
-              restart: bool) -> Note | None:
+              restart: bool, bridge: bool = False) -> Note | None:
         if name in self.feedback and self.sequence is None:
             return None                          # feedback follows the run it belongs to
         assert self.k_next is not None
@@ -237,6 +271,8 @@ class StampJoin:
             self._held_seq.append(stamp)
             if restart:
                 self._held_restart.add(stamp)
+            elif bridge:
+                self._held_bridge.add(stamp)
         if len(self.held) > self.max_pending:
             oldest = min(self.held)
             self.held.pop(oldest)
@@ -254,14 +290,17 @@ class StampJoin:
         """Make the held stamps the stream: a new run from the smallest complete one."""
         old = self.k_next if self.k_next is not None else -1
         held, held_t, seq, rst = self.held, self._held_t, self._held_seq, self._held_restart
+        brg = self._held_bridge
         count = self.held_messages
         self.pending, self._complete_since, self._seq = {}, {}, deque()
         self._restart_at, self.rejected = set(), set()
         self.held, self._held_t, self._held_seq, self._held_restart = {}, {}, deque(), set()
+        self._held_bridge = set()
         self.holes.clear()
         self.k_next = None
         self.held_messages = 0
         self._restart_next = False
+        self._missing, self._carry = 0, None
         self.new_runs += 1
         for stamp, slot in held.items():
             self.pending[stamp] = slot
@@ -269,6 +308,7 @@ class StampJoin:
                 self._complete_since[stamp] = held_t[stamp]
         self._seq = seq
         self._restart_at = rst
+        self._bridge_at = brg
         self._adopted = (old, count)
         return old
 
@@ -287,11 +327,18 @@ class StampJoin:
 
     def lost(self, stamp: int) -> None:
         """Sample ``stamp``, already released, was refused by the core (implausible): it is
-        a hole, and the next sample is a restart. The stream goes on at ``stamp + 1`` (a
-        later gap is a hole like any other, a late message for ``stamp + 1`` still counts);
-        the restart does not wait for feedback (none comes for a refused sample)."""
+        a hole. The stream goes on at ``stamp + 1`` (a later gap is a hole like any other, a
+        late message for ``stamp + 1`` still counts). The next sample bridges the gap (the
+        refused samples in a row and any hole after them, at most ``max_gap``) with the
+        feedback that was in force for ``stamp``, or restarts (the refused sample was itself
+        a restart, or the gap is longer); neither waits for feedback (none comes for a
+        refused sample)."""
         self.holes.append((stamp, stamp))
-        self._restart_next = True
+        gap, fb, restarted = self._last
+        if restarted or self.sequence is not None:   # downstream: as the entry decides
+            self._restart_next = True
+        else:
+            self._missing, self._carry = gap + 1, fb
 
     # -- release -------------------------------------------------------------------------------
 
@@ -310,9 +357,11 @@ class StampJoin:
             yield s
 
     def _release(self, k: int, restart: bool, hole: tuple[int, int] | None,
-                 lost: bool = False) -> Sample:
-        if restart:
-            # Only a jump can leave stamps below k (put refuses stamps below k_next).
+                 lost: bool = False, bridge: dict[str, Any] | None = None) -> Sample:
+        """Release sample k; ``bridge``: the feedback in force across a bridged gap."""
+        gap = self._missing + (0 if hole is None else hole[1] - hole[0] + 1)
+        if restart or hole is not None:
+            # Stamps below k: a jump, or the partial inputs of a hole's stamps.
             for j in [j for j in self.pending if j < k]:
                 self._forget(j)
         if self.rejected:
@@ -320,16 +369,39 @@ class StampJoin:
         slot = self._forget(k)
         if hole is not None:
             self.holes.append(hole)
+        first = self.k_next is None
         self.k_next = k + 1
         self._restart_next = False
+        self._missing, self._carry = 0, None
         adopted, self._adopted = self._adopted, None
-        # At a restart, feedback decided before the hole does not belong to this run.
-        return Sample(k, {**slot, **self.feedback} if restart else slot, restart, hole,
-                      adopted, lost)
+        if restart:
+            # At a restart, feedback decided before the hole does not belong to this run.
+            inputs = {**slot, **self.feedback}
+            self.restarts += not first
+        elif bridge is not None:
+            inputs = {**slot, **bridge}
+            self.bridges += 1
+        else:
+            inputs = slot
+        self._last = (gap, {n: inputs[n] for n in self.feedback if n in inputs}, restart)
+        return Sample(k, inputs, restart, hole, adopted, lost, bridge is not None,
+                      gap if (hole is not None or bridge is not None) else 0)
+
+    def _bridge_feedback(self, j: int) -> dict[str, Any] | None:
+        """The feedback in force across a gap that starts at stamp ``j`` (the carried one
+        after refused samples, else the one stamped ``j``: what the last processed sample
+        decided); None while it has not arrived."""
+        if self._carry is not None:
+            return self._carry
+        slot = dict(self.pending.get(j, {}))
+        if not self._feedback_here(slot):
+            return None
+        return {n: slot[n] for n in self.feedback}
 
     def _forget(self, k: int) -> dict[str, Any]:
         self._complete_since.pop(k, None)
         self._restart_at.discard(k)
+        self._bridge_at.discard(k)
         return self.pending.pop(k, {})
 
     def _next_entry(self, now: float) -> Sample | None:
@@ -344,8 +416,11 @@ class StampJoin:
                 return None
             return self._release(min(self._complete_since), True, None)
         if k in self._complete_since:
-            if self._restart_next:
+            if self._restart_next or self._missing > self.max_gap:
                 return self._release(k, True, None)
+            if self._missing:
+                # after refused samples: bridged with the feedback carried (none waited for)
+                return self._release(k, False, None, bridge=self._carry or {})
             if self._feedback_here(self.pending[k]):
                 return self._release(k, False, None)
             if self._feedback_overdue(k, now, self.gap_timeout):
@@ -359,7 +434,16 @@ class StampJoin:
                      and now - min(self._complete_since[j] for j in later) >= self.gap_timeout)
         if not timed_out and any(j not in self.rejected for j in range(k, s)):
             return None
-        return self._release(s, True, (k, s - 1))
+        if self._restart_next or self._missing + s - k > self.max_gap:
+            return self._release(s, True, (k, s - 1))
+        fb = self._bridge_feedback(k)
+        if fb is None:
+            # the feedback of the last processed sample has not come yet (it is on its way):
+            # wait for it as for any feedback, then give up and restart
+            if self._feedback_overdue(s, now, self.gap_timeout):
+                return self._release(s, True, (k, s - 1), lost=True)
+            return None
+        return self._release(s, False, (k, s - 1), bridge=fb)
 
     def _next_downstream(self, now: float) -> Sample | None:
         if self._held_restart:
@@ -371,6 +455,7 @@ class StampJoin:
             return None
         s = seq[0]
         slot = self.pending[s]
+        skipped = False
         if any(n not in slot for n in self.required):
             # Per-topic delivery is reliable and in order: once a later sequence stamp has
             # every required input, the missing ones of this stamp will not come (published
@@ -381,16 +466,30 @@ class StampJoin:
             while seq[0] != later:
                 self._forget(seq.popleft())
             s, slot = later, self.pending[later]
+            skipped = True
         k = self.k_next
-        restart = k is None or s in self._restart_at or s != k or self._restart_next
+        bridged = s in self._bridge_at and not skipped
+        restart = (k is None or s in self._restart_at or self._restart_next
+                   or (s != k and not bridged))
         lost = False
-        if not restart and not self._feedback_here(slot):
+        fb: dict[str, Any] | None = None
+        if not restart and bridged:
+            # across the entry's bridged gap: the feedback stamped k, decided at the last
+            # sample this node processed
+            assert k is not None
+            fb = self._bridge_feedback(k)
+            if fb is None:
+                if not self._feedback_overdue(s, now, self.restart_after):
+                    return None
+                restart = lost = True
+        elif not restart and not self._feedback_here(slot):
             if not self._feedback_overdue(s, now, self.restart_after):
                 return None
             restart = lost = True
         hole = (k, s - 1) if k is not None and s != k else None
         seq.popleft()
-        return self._release(s, restart, hole, lost)
+        self._bridge_at.discard(s)
+        return self._release(s, restart, hole, lost, None if restart else fb)
 
     def _feedback_here(self, slot: dict[str, Any]) -> bool:
         """Every feedback input of ``slot`` is here or has no publisher to wait for (then its

@@ -15,9 +15,17 @@ A node's subscription callback and the offline bag reader
    stopped for ``restart_after`` s), more than ``max_pending`` stamps ``dropped``;
 4. release (:meth:`InputStream.release`): every sample the join can decide at time ``now``, in
    stamp order, with its ``hole`` (a missing stamp is lost once a later one has been complete
-   for ``gap_timeout`` s, or at once when it was refused), ``restart`` and ``new_run``; the
-   caller's ``step`` runs it (reset at a restart) and returns False when the core refused it
-   (implausible): the join then counts that sample lost and restarts at the next one.
+   for ``gap_timeout`` s, or at once when it was refused), ``restart``, ``bridge`` and
+   ``new_run``; the caller's ``step`` runs it and returns False when the core refused it
+   (implausible): the join then counts that sample lost.
+
+A hole is not amnesia. A gap of at most ``max_gap`` lost samples (a hole, samples the core
+refused, or both in a row) is *bridged*: the sample after it is stepped after
+:meth:`~fd_monitor.core.runtime.Runtime.bridge`, which keeps the fault memory (bias estimate,
+alarm and isolation history, mode, AGEI phase) and carries the state estimate over the gap.
+Only a new run restarts from scratch (:meth:`~fd_monitor.core.runtime.Runtime.reset`): the
+first sample, a gap longer than ``max_gap``, stamps that restart lower (``new_run``), lost
+feedback in the chain (``feedback_lost``), a ``~/reset``.
 
 Reports go to the caller's ``note(kind, line, stamp)``; ``kind`` is the step's kind above,
 ``hole`` (``stamp`` is the inclusive ``(first, last)``), ``feedback_lost`` or ``new_run``.
@@ -27,18 +35,20 @@ monotonic clock; offline it is each bag record's log time in s, and ``+inf`` at 
 the bag (every decision that waits for time is taken).
 
 The defaults of the time and stamp limits (:data:`GAP_TIMEOUT`, :data:`STAMP_HORIZON`,
-:data:`RESTART_AFTER`) are declared here once: the nodes' parameters and the offline reader
-take them from here.
+:data:`RESTART_AFTER`, :data:`MAX_GAP`) are declared here once: the nodes' parameters and the
+offline reader take them from here.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
 from fd_monitor.wire.join import Sample, StampJoin
 
-__all__ = ["GAP_TIMEOUT", "InputStream", "RESTART_AFTER", "STAMP_HORIZON", "TopicOrder"]
+__all__ = ["GAP_TIMEOUT", "InputStream", "MAX_GAP", "RESTART_AFTER", "STAMP_HORIZON",
+           "TopicOrder", "gap_samples"]
 
 #: s a later sample must have been complete before a missing one is declared lost.
 GAP_TIMEOUT = 1.0
@@ -46,6 +56,14 @@ GAP_TIMEOUT = 1.0
 STAMP_HORIZON = 100_000
 #: s without progress before held stamps become a new run.
 RESTART_AFTER = 1.0
+#: s of lost samples (their count times the plant's Ts) that are bridged; longer: a restart.
+MAX_GAP = 2.0
+
+
+def gap_samples(max_gap: float, sample_time: float) -> int:
+    """The most lost samples in a row bridged: ``floor(max_gap / Ts)`` (s -> samples; a
+    rounding error of Ts does not lose a sample)."""
+    return max(0, math.floor(max_gap / sample_time + 1e-9))
 
 #: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
 NoteFn = Callable[[str, str, Any], None]
@@ -102,23 +120,23 @@ class InputStream:
             self.release(now)
 
     def stamped(self, order: TopicOrder, name: str, stamp: int, values: Any, now: float,
-                offset: int = 0, restart: bool = False) -> bool:
+                offset: int = 0, restart: bool = False, bridge: bool = False) -> bool:
         """One decoded stamped message of input ``name`` (its topic's ``order``), joined at
-        ``stamp + offset``. True when joined (samples released), False when reported and
-        dropped or held."""
+        ``stamp + offset``; ``restart``, ``bridge``: the flags of a sequence input. True when
+        joined (samples released), False when reported and dropped or held."""
         line, duplicate = order.check(stamp)
         if line is not None:
             self.note("duplicate" if duplicate else "out_of_order", line, stamp)
             if duplicate:
                 return False
         stamp += offset
-        return stamp >= 0 and self.put(name, stamp, values, now, restart)
+        return stamp >= 0 and self.put(name, stamp, values, now, restart, bridge)
 
     def put(self, name: str, stamp: int, values: Any, now: float,
-            restart: bool = False) -> bool:
+            restart: bool = False, bridge: bool = False) -> bool:
         """Join one input (already order-checked, or paired by sample-and-hold) and release
         what became ready; False when the join reported and did not join it."""
-        line = self.join.put(name, stamp, values, now, restart)
+        line = self.join.put(name, stamp, values, now, restart, bridge)
         if line is not None:
             self.note(line.kind, line, stamp if line.stamp is None else line.stamp)
             return False
@@ -141,7 +159,14 @@ class InputStream:
             elif s.hole is not None:
                 a, b = s.hole
                 span = f"stamp {a}" if a == b else f"stamps {a}..{b}"
-                self.note("hole", f"hole: no valid sample for {span}; restarted at {s.k} "
-                          f"(fresh state, feedback at initial values)", s.hole)
+                if s.bridge:
+                    what = (f"bridged at {s.k} ({s.gap} sample(s) lost, at most "
+                            f"{join.max_gap} bridged: estimates, alarm and isolation memory "
+                            f"kept)")
+                else:
+                    what = (f"restarted at {s.k} (fresh state, feedback at initial values"
+                            + (f"; {s.gap} sample(s) lost, more than {join.max_gap} bridged)"
+                               if join.sequence is None else ")"))
+                self.note("hole", f"hole: no valid sample for {span}; {what}", s.hole)
             if not self.step(s):
                 join.lost(s.k)

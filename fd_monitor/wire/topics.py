@@ -18,7 +18,7 @@ plant/y                    y (outputs)
 plant/rho                  rho (measured scheduling parameters)
 plant/mode                 mode
 plant/truth                mode, ``x.<state>``, ``f.<fault>``, ``rho.<parameter>``
-fd/state_estimate          mode, x_hat (states), y_tilde (``y~<out>``), restart
+fd/state_estimate          mode, x_hat (states), y_tilde (``y~<out>``), restart, bridge
 fd/residual                residual (``r:<out>``), w (``w:<out>``)
 fd/threshold               threshold (``R:<out>``), nominal (``rbar:<out>``)
 fd/alarm                   alarm (outputs, 0/1)
@@ -129,7 +129,7 @@ class Layout:
         *payloads : mapping of str to array_like
             Core outputs' ``payload()``; a field is taken from the first that has it.
         **extra
-            Fields given directly (``restart`` of ``fd/state_estimate``).
+            Fields given directly (``restart``, ``bridge`` of ``fd/state_estimate``).
         """
         parts = []
         srcs = (*payloads, extra)
@@ -259,7 +259,7 @@ PLANT_TRUTH = Topic("plant/truth", fields=(
 ))
 STATE_ESTIMATE = Topic("fd/state_estimate", fields=(
     Field("mode"), Field("x_hat", lambda s: tuple(s.states)),
-    Field("y_tilde", _prefixed("y~")), Field("restart"),
+    Field("y_tilde", _prefixed("y~")), Field("restart"), Field("bridge"),
 ))
 RESIDUAL = Topic("fd/residual", fields=(Field("residual", _prefixed("r:")),
                                         Field("w", _prefixed("w:"))))
