@@ -285,7 +285,7 @@ def expected_payloads(outs: Sequence[Any]) -> dict[str, Any]:
         pays = (o.observer.payload(), o.detector.payload(), o.agei.payload(),
                 o.estimator.payload())
         for t, lay in layouts.items():
-            rows[t].append(lay.encode(*pays, restart=o.k == 0))
+            rows[t].append(lay.encode(*pays, restart=o.k == 0, bridge=False))
     return {t: np.array(v, dtype=float) for t, v in rows.items()}
 
 

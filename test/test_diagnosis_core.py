@@ -212,8 +212,8 @@ def test_components_composed_by_hand_equal_monitor(system, gains):
         assert np.array_equal(m.estimator.sigma_hat, e.sigma_hat)
         assert m.agei.trigger == a.trigger
     lay = STATE_ESTIMATE.layout(system)
-    vals = lay.encode(m.observer.payload(), restart=False)
-    assert len(lay.labels) == vals.size == 1 + 3 + 3 + 1
+    vals = lay.encode(m.observer.payload(), restart=False, bridge=False)
+    assert len(lay.labels) == vals.size == 1 + 3 + 3 + 2
     assert vals[lay.index["x_hat"]].tolist() == m.observer.x_hat.tolist()
 
 

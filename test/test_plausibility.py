@@ -62,7 +62,7 @@ def test_offline_run_reports_it_and_recovers_without_alarm(plant):
     rep = InputReport()
     out = run_thresholds(sys_, g, list(range(K)), us, ys, rep)
     assert [(e["kind"], e["sample"]) for e in rep.errors] == [("implausible", 300)]
-    assert rep.restarts == [301]
+    assert rep.restarts == [] and rep.bridges == [301]   # one lost sample: bridged
     assert 300 not in out["k"] and len(out["k"]) == K - 1
     assert not out["alarm"].any()                       # later good samples: no alarm
     assert max(np.max(np.abs(v)) for v in out["estimate"].values()) < 1e-3
@@ -80,7 +80,8 @@ def test_flipped_bit_in_a_bag_is_an_input_error(plant, tmp_path):
         arrays_from("/plant/y", sys_.outputs, tr.k, y, ns)])
     s = summarize_run(run_bag(bag, "three_tank_thresholds", system=sys_))
     assert s["input_errors"] == {"implausible": [250]}
-    assert s["alarms"] == [] and s["restarts"] == [251] and s["samples"] == K - 1
+    assert s["alarms"] == [] and s["restarts"] == [] and s["bridges"] == [251]
+    assert s["samples"] == K - 1
 
 
 def test_prediction_test_factor_on_the_noise_bound():

@@ -46,7 +46,8 @@ def test_thresholds_bag_report_with_bad_input(tmp_path):
     for p in res["figures"].values():
         _png(p)
     md = (tmp_path / "summary.md").read_text()
-    assert "non_finite: [300, 301]" in md and "restarts at samples: [302, 451, 750]" in md
+    assert "non_finite: [300, 301]" in md and "restarts at samples: [750]" in md
+    assert "bridged holes (memory kept) at samples: [302, 451]" in md
     assert res["summary"]["alarms"] == []
 
 

@@ -61,31 +61,35 @@ def test_every_topic_declared_once():
 def test_layout_index_table_points_at_each_fields_labels():
     s = load_system("three_tank")
     lay = STATE_ESTIMATE.layout(s)
-    assert lay.labels == ("mode", *s.states, *(f"y~{o}" for o in s.outputs), "restart")
+    assert lay.labels == ("mode", *s.states, *(f"y~{o}" for o in s.outputs), "restart",
+                          "bridge")
     assert lay.labels[lay.index["mode"]] == "mode"
     assert lay.labels[lay.index["x_hat"]] == tuple(s.states)
     assert lay.labels[lay.index["y_tilde"]] == tuple(f"y~{o}" for o in s.outputs)
     assert lay.labels[lay.index["restart"]] == "restart"
+    assert lay.labels[lay.index["bridge"]] == "bridge"
     bias = BIAS_ESTIMATE.layout(s)
     assert bias.labels[bias.index["isolated"]] == tuple(f"iso:{o}" for o in s.outputs)
 
 
 def test_chain_topics_encode_the_core_payloads_by_field():
-    """Every field of the chain's topics is in one core output's payload (or is restart), and
+    """Every field of the chain's topics is in one core output's payload (or is restart or
+    bridge), and
     a message encoded from them decodes back to each field's values through the index."""
     s = load_system("three_tank")
     mon = Monitor(s, load_gains("three_tank_thresholds", s))
     out = mon.step(0, np.zeros(s.nu), np.array([0.4, 0.2, 0.3]))
     pays = (out.observer.payload(), out.detector.payload(), out.agei.payload(),
             out.estimator.payload())
-    keys = {k for p in pays for k in p} | {"restart"}
-    merged = {k: v for p in pays for k, v in p.items()} | {"restart": True}
+    flags = {"restart": True, "bridge": False}
+    keys = {k for p in pays for k in p} | set(flags)
+    merged = {k: v for p in pays for k, v in p.items()} | flags
     for topic in CHAIN_OUTPUTS:
         lay = topic.layout(s)
         assert {f for f, _ in lay.fields} <= keys, topic.name
-        values = lay.encode(*pays, restart=True)
+        values = lay.encode(*pays, **flags)
         # the fused node's table: each field read from the payload that holds it
-        src = (*pays, {"restart": True})
+        src = (*pays, flags)
         for i, f, scalar in lay.sources(src):
             assert f in src[i]
             assert np.ndim(src[i][f]) == 0 if scalar else np.ndim(src[i][f]) == 1
