@@ -60,7 +60,7 @@ def test_bad_messages_are_reported_and_change_nothing():
         assert spin_until(ex, lambda: len(col.msgs["/fd/bias_estimate"]) >= K, 30.0), \
             {t: len(v) for t, v in col.msgs.items()}
 
-        est = [d for d in col.decoded("/fd/state_estimate") if d.values.size == 8]
+        est = [d for d in col.decoded("/fd/state_estimate") if d.values.size == 9]
         np.testing.assert_array_equal([d.values[1:4] for d in est],
                                       [o.observer.x_hat for o in want])
         res = col.decoded("/fd/residual")
