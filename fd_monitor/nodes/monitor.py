@@ -54,6 +54,7 @@ from fd_monitor.nodes.detector import DetectorNode, ResidualReport
 from fd_monitor.nodes.fd_node import (
     COMMON_PARAMS,
     GAP_TIMEOUT,
+    MAX_GAP_PARAM,
     WARN_SHARE,
     FdNode,
     Input,
@@ -93,6 +94,7 @@ PARAMS = (
           "chain (thresholds gain files): the four nodes observer, detector, agei, "
           "bias_estimator on one executor (their own names, parameters and diagnostics)"),
     GAP_TIMEOUT,
+    MAX_GAP_PARAM,
     WARN_SHARE,
     Param("enabled", True, "thresholds: AGEI on; false: the ablation without AGEI (never "
           "triggers, no override)"),
