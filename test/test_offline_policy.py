@@ -28,7 +28,6 @@ from fd_monitor.wire.stream import (
     RESTART_AFTER,
     STAMP_HORIZON,
     TopicOrder,
-    gap_samples,
 )
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
@@ -90,7 +89,7 @@ def _bag(tmp_path, sys_, timeline) -> str:
 def _node_reference(timeline) -> list[tuple]:
     """The decisions of a live entry node: callback put + release, a 10 ms gap timer."""
     join = StampJoin(["u", "y"], gap_timeout=GAP_TIMEOUT, horizon=STAMP_HORIZON,
-                     restart_after=RESTART_AFTER, max_gap=gap_samples(MAX_GAP, TS))
+                     restart_after=RESTART_AFTER, max_gap=MAX_GAP)
     orders = {t: TopicOrder(t) for t in (PLANT_U.absolute, PLANT_Y.absolute)}
     name = {PLANT_U.absolute: "u", PLANT_Y.absolute: "y"}
     out: list[tuple] = []
@@ -138,7 +137,8 @@ def test_offline_takes_the_live_nodes_decisions(plant, tmp_path):
     assert kinds["missing"] == [[20, 24], [28, 28], [40, 40]]
     assert kinds["late"] == [40]                       # y40 came after its hole was declared
     assert kinds["held"] == [0, STRAY]                 # the stray, the new run's first
-    # holes of at most MAX_GAP s (20 samples) are bridged; only the new run restarts
+    # holes of at most MAX_GAP samples are bridged; the new run restarts
+    assert MAX_GAP >= 5
     assert rep.restarts == [0]
     assert rep.bridges == [25, 41, 29]                 # 29: decided at the end (now = inf)
     assert [s for s in seen if s[1] or s[2]] == [

@@ -18,7 +18,7 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    one registry keyed by the gain file's ``method``: ``thresholds``, ``qb``, ``hinf_sc``,
    ``hminus_switched``) on each released sample, with the side signals the runtime needs read
    from ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`: ``/plant/rho``,
-   ``/plant/mode``); a hole of at most ``MAX_GAP`` s of samples is bridged
+   ``/plant/mode``); a hole of at most ``MAX_GAP`` samples is bridged
    (:meth:`~fd_monitor.core.runtime.Runtime.bridge`: the fault memory kept, the state
    estimate carried over the gap), a longer one restarts it (``reset``: a new run); a sample
    the runtime refuses (implausible) is reported and lost, as live. Every rejected message is
@@ -65,7 +65,6 @@ from fd_monitor.wire.stream import (
     STAMP_HORIZON,
     InputStream,
     TopicOrder,
-    gap_samples,
 )
 from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY, PLANT_TRUTH, PLANT_U, PLANT_Y
 from fd_monitor.wire.topics import side_topic as _side_topic
@@ -298,7 +297,7 @@ def read_streams(bag: str | Path, system: Any,
     required = [names[t] for t in topics]
     with _bag_errors(bag):
         _join_messages(scan.messages(topics), labels, names, required, rep, keep,
-                       gap_samples(MAX_GAP, system.sample_time))
+                       MAX_GAP)
     return us, ys, sides, rep
 
 
@@ -505,7 +504,7 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so
     every gain-file method runs; the side signals it needs are read from
     ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`). The runtime bridges a
-    hole in the stamps of at most ``MAX_GAP`` s (``bridge``) and restarts (``reset``) after a
+    hole in the stamps of at most ``MAX_GAP`` samples (``bridge``) and restarts (``reset``) after a
     longer one.
 
     Parameters
@@ -585,11 +584,11 @@ def _runtime_step(rt: Any, nu: int, outs: list[Any],
         v = s.inputs
         if s.restart:
             rt.reset()
-        elif s.bridge:
-            rt.bridge(s.k)
+        u, side = v["u"] if nu else no_u, {n: v[n] for n in rt.side_inputs} or None
         try:
-            o = rt.step(s.k, v["u"] if nu else no_u, v["y"],
-                        {n: v[n] for n in rt.side_inputs} or None)
+            if s.bridge:
+                rt.bridge(s.k, u, v["y"], side)
+            o = rt.step(s.k, u, v["y"], side)
         except MessageError as exc:
             # an implausible sample is refused like a NaN message (read_streams has already
             # left every other invalid message out)
@@ -620,9 +619,9 @@ def _adapted_streams(bag: str | Path, adapter: Any, system: Any
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
                 side: Any = None, truth: Any = None,
-                max_gap: float = MAX_GAP) -> dict[str, Any]:
+                max_gap: int = MAX_GAP) -> dict[str, Any]:
     """A runtime over samples ``ks`` (``us[k]``, ``ys[k]``, ``side[name][k]``); a hole of at
-    most ``max_gap`` s of samples is bridged, a longer one restarts, as live.
+    most ``max_gap`` samples is bridged, a longer one restarts, as live.
 
     Returns the per-sample fields of a :class:`BagRun`. A sample the runtime refuses as
     implausible (:mod:`fd_monitor.core.plausibility`) is reported in ``rep`` and left out,
@@ -653,7 +652,7 @@ def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
         _refused(rep, k, exc)
 
     tr = rt.run(ks, us, ys, side or None, on_refused=refuse,
-                max_gap=gap_samples(max_gap, rt.system.sample_time))
+                max_gap=max_gap)
     rep.restarts.extend(tr.restarts)
     rep.bridges.extend(tr.bridges)
     return _fields(rt, tr, truth)

@@ -189,28 +189,41 @@ class Monitor:
         self._trigger = NO_TRIGGER
         self._override = [math.nan] * self.system.ny
 
-    def bridge(self, k: int) -> None:
-        """The next sample is ``k``; the samples since the last one are lost (a short hole).
+    def bridge(self, k: int, u: Any, y: Any) -> None:
+        """The next sample is ``(k, u_k, y_k)``; the samples since the last one are lost (a
+        short hole). :meth:`step` on it follows.
 
-        The observer re-initialises x^ from the next compensated measurement, ``x^_k = y_k -
-        sigma^`` (the paper's ``x^_0 = y~_0``: bias-corrected, so an accommodated bias is not
-        absorbed), keeping its mode estimate; the residual filters start again in the steady
-        state of their first input, as at the first sample (``r_k = 0``). Keeping their
-        history instead would break the cancellation of consecutive noise samples the
-        thresholds rely on (``y~_k - x^_k`` is 0 at the bridge, not ``v_k - J v_{k-1}``): a
-        false alarm one sample in a few hundred bridges on three_tank. AGEI keeps its phase
-        (and its override stays in force); the
-        estimator keeps sigma^, its start K_d and isolation, re-anchors its state on the
-        compensated measurement (or, before detection, holds its delayed buffer over the
-        gap); the feedback in force (sigma^, trigger, override: what the last sample decided)
-        is used at k. Nothing before the first sample.
+        * The observer re-initialises x^ from the next compensated measurement, ``x^_k =
+          y_k - sigma^`` (the paper's ``x^_0 = y~_0``: bias-corrected, so an accommodated
+          bias is not absorbed), keeping its mode estimate.
+        * The residual filters start again in the steady state of their first input, as at
+          the first sample (``r_k = 0``). Keeping their history instead breaks the
+          cancellation of consecutive noise samples the thresholds rely on (``y~_k - x^_k``
+          is 0 at the bridge, not ``v_k - J v_{k-1}``): on three_tank_bad_input the one
+          bridged sample alarmed h3 five samples later.
+        * AGEI keeps its phase (its override stays in force).
+        * The estimator keeps sigma^, K_d and its isolation, and predicts its state through
+          the gap (or, before detection, fills its delayed buffer): see
+          :meth:`~fd_monitor.core.bias_estimator.BiasEstimator.bridge`.
+        * The feedback in force (sigma^, trigger, override: what the last sample decided) is
+          used at k.
+
+        Nothing before the first sample.
+
+        Raises
+        ------
+        MessageError
+            A sample :meth:`step` would refuse (invalid; implausible: out of the plant's
+            range); nothing has changed.
         """
-        if self._k_next is None:
+        k, uu, yy = validate_sample(self.system, k, u, y)
+        self.observer.plausibility.check(k, uu, yy)
+        if self._k_next is None or k < self._k_next:
             return
         self.observer.bridge()
         self.detector.reset()
-        self.estimator.bridge(k)
-        self._k_next = max(self._k_next, int(k))
+        self.estimator.bridge(k, uu, yy)
+        self._k_next = k
 
     def step(self, k: int, u: Any, y: Any) -> MonitorOutput:
         """Process sample k.

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.batch import BatchResult
+from fd_monitor.core.gap import gap_values
 from fd_monitor.core.kalman import kalman_gains
 from fd_monitor.core.plant import SampledPlant, zoh
 from fd_monitor.core.plausibility import Plausibility
@@ -186,16 +187,23 @@ class QBObserver:
         q = self._plant.next_mode(q, xn[None], uu[None], "autonomous")
         self.x, self.mode = xn, int(q[0])
 
-    def bridge(self, k: int) -> None:
-        """The next sample is ``k`` (those between are lost): predict through the gap with
-        the last u and y held (zero-order hold, the value in force), so x^ -- the
-        fault-model states with it -- and the mode estimate carry over. Nothing before the
-        first sample."""
-        if self.k is None or self._held is None:
+    def bridge(self, k: int, u: Any, y: Any) -> None:
+        """The next sample is ``(k, u_k, y_k)``, those between are lost: predict through the
+        gap, (13a)-(13b) once per lost sample on u and y interpolated between the last
+        sample and this one (:mod:`fd_monitor.core.gap`), so x^ -- the fault-model states
+        with it -- and the mode estimate carry over. Nothing before the first sample; an
+        implausible sample raises before anything changes.
+        """
+        uu = _as_array(u, (self.system.nu,), "u")
+        yy = _as_array(y, (self.system.ny,), "y")
+        self.plausibility.check(k, uu, yy)
+        if self.k is None or self._held is None or int(k) <= self.k + 1:
             return
-        for _ in range(self.k + 1, int(k)):
-            self._advance(*self._held)
-        self.k = max(self.k, int(k) - 1)
+        u0, y0 = self._held
+        missing = int(k) - self.k - 1
+        for uj, yj in zip(gap_values(u0, uu, missing), gap_values(y0, yy, missing)):
+            self._advance(uj, yj)
+        self.k = int(k) - 1
 
     def residual(self, mode: int, x_hat: np.ndarray, y: Any) -> np.ndarray:
         """(ny,) residual ``r = y - C_mode x_hat`` (Remark 1), output units."""

@@ -51,6 +51,7 @@ import numpy as np
 
 from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.envelope import CertifiedRegion
+from fd_monitor.core.gap import gap_values
 from fd_monitor.core.generalized_observer import GeneralizedObserver
 from fd_monitor.core.monitor import Monitor, validate_sample
 from fd_monitor.core.monitor import run_batch as monitor_run_batch
@@ -218,21 +219,33 @@ class Runtime:
         """Restart from scratch (the next sample may have any index)."""
         raise NotImplementedError
 
-    def bridge(self, k: int) -> None:
-        """The next sample is ``k``; the samples between the last one stepped and ``k`` are
-        lost (a short hole): carry the run over them.
+    def bridge(self, k: int, u: Any, y: Any,
+               side: Mapping[str, Any] | None = None) -> None:
+        """The next sample is ``(k, u_k, y_k)``; the samples between the last one stepped and
+        ``k`` are lost (a short hole): carry the run over them. :meth:`step` on the same
+        sample follows.
 
-        The state estimate is carried over the gap (predicted through it, or re-initialised
-        from the next measurement, per method); the fault memory survives: bias estimate,
-        alarm and isolation history, the mode estimate, AGEI's phase, thresholds stay armed.
-        A bridge raises no alarm by itself. Before any sample (or right after
-        :meth:`reset`) it does nothing. Called again before the same ``k`` (the sample was
-        refused and the next one bridges a longer gap) it carries on from where it stopped.
+        The state estimate is carried over the gap, per method: re-initialised from the
+        next measurement (``thresholds``), or predicted through it by the observer's own
+        update on u, y (and rho) interpolated between the last sample and this one
+        (:mod:`fd_monitor.core.gap`). The fault memory survives: bias estimate, alarm and
+        isolation history, the mode estimate, AGEI's phase. A bridge raises no alarm by
+        itself (``hinf_sc``, ``hminus_switched``: after more than one lost sample the
+        thresholds are armed again ``settle_s`` later, as after a start). Before any
+        sample (or right after :meth:`reset`) it does nothing.
 
         Parameters
         ----------
         k : int
             The next sample's index (greater than the last one stepped).
+        u, y, side
+            The next sample's values, as :meth:`step` takes them.
+
+        Raises
+        ------
+        MessageError
+            A sample :meth:`step` would refuse (invalid, implausible, a side signal
+            missing); nothing has changed.
         """
         raise NotImplementedError
 
@@ -332,8 +345,8 @@ class Runtime:
             restarts). Without it the error propagates.
         max_gap : int
             Lost samples in a row that are bridged (the stream readers pass
-            :func:`fd_monitor.wire.stream.gap_samples` of ``MAX_GAP``, as the nodes do); 0:
-            every hole restarts.
+            :data:`fd_monitor.wire.stream.MAX_GAP`, as the nodes do); 0: every hole
+            restarts.
 
         Returns
         -------
@@ -347,16 +360,18 @@ class Runtime:
         bridges: list[int] = []
         prev: int | None = None
         for kk in ks:
+            bridge = prev is not None and 0 < kk - prev - 1 <= max_gap
             if prev is not None and kk != prev + 1:
-                if 0 < kk - prev - 1 <= max_gap:
-                    self.bridge(kk)
+                if bridge:
                     bridges.append(kk)
                 else:
                     self.reset()
                     restarts.append(kk)
             try:
-                o = self.step(kk, us(kk), ys(kk),
-                              {n: f(kk) for n, f in sides.items()} if sides else None)
+                sd = {n: f(kk) for n, f in sides.items()} if sides else None
+                if bridge:
+                    self.bridge(kk, us(kk), ys(kk), sd)
+                o = self.step(kk, us(kk), ys(kk), sd)
             except MessageError as exc:
                 if on_refused is None:
                     raise
@@ -492,10 +507,12 @@ class ThresholdsRuntime(Runtime):
         """See :meth:`Runtime.reset`."""
         self.monitor.reset()
 
-    def bridge(self, k: int) -> None:
+    def bridge(self, k: int, u: Any, y: Any,
+               side: Mapping[str, Any] | None = None) -> None:
         """:meth:`~fd_monitor.core.monitor.Monitor.bridge`: x^ re-initialised from the next
-        compensated measurement (the paper's x^_0 = y~_0), everything else kept."""
-        self.monitor.bridge(k)
+        compensated measurement (the paper's x^_0 = y~_0), the residual filters started
+        again, the fault memory kept."""
+        self.monitor.bridge(k, u, y)
 
     def step(self, k: int, u: Any, y: Any,
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
@@ -572,11 +589,14 @@ class QBRuntime(Runtime):
         """A new observer (x^ = 0, the plant's initial mode)."""
         self.observer = QBObserver(self.system, self.gains)
 
-    def bridge(self, k: int) -> None:
-        """The observer predicts through the gap on the last u and y held
-        (:meth:`~fd_monitor.core.qb.QBObserver.bridge`): x^ (the fault-model states with it)
-        and the mode estimate carry over."""
-        self.observer.bridge(k)
+    def bridge(self, k: int, u: Any, y: Any,
+               side: Mapping[str, Any] | None = None) -> None:
+        """The observer predicts through the gap (:meth:`~fd_monitor.core.qb.QBObserver.bridge`):
+        x^ (the fault-model states with it) and the mode estimate carry over."""
+        last = self.observer.k
+        validate_sample(self.system, k, u, y)
+        if last is not None and int(k) > last + 1:
+            self.observer.bridge(int(k), u, y)
 
     def step(self, k: int, u: Any, y: Any,
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
@@ -684,15 +704,30 @@ class HinfScRuntime(Runtime):
         self._k_next: int | None = None
         self._held: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
 
-    def bridge(self, k: int) -> None:
-        """Every generator predicts through the gap on the last u, y (and rho) held, as
-        the bank runs between samples (zero-order hold); thresholds stay armed."""
-        if self._k_next is None or self._held is None:
+    def bridge(self, k: int, u: Any, y: Any,
+               side: Mapping[str, Any] | None = None) -> None:
+        """Every generator predicts through the gap on u, y (and rho) interpolated
+        (:mod:`fd_monitor.core.gap`); after more than one lost sample the thresholds are
+        armed again ``settle`` samples later (the interpolation error, decaying with the
+        observer, is not covered by the thresholds)."""
+        k, uu, yy = validate_sample(self.system, k, u, y)
+        self._plaus.check(k, uu, yy)
+        if self._k_next is None or self._held is None or k <= self._k_next:
             return
-        uu, yy, rho = self._held
-        for j in range(self._k_next, int(k)):
-            self.bank.step(j, uu, yy, rho)
-        self._k_next = max(self._k_next, int(k))
+        rho = None
+        if self.lpv:
+            model = self.bank.model
+            rho = np.clip(self._rho(k, yy, side), model.rho_min, model.rho_max)
+        u0, y0, r0 = self._held
+        missing = k - self._k_next
+        rhos = (gap_values(r0, rho, missing) if r0 is not None and rho is not None
+                else iter([None] * missing))
+        for j, uj, yj, rj in zip(range(self._k_next, k), gap_values(u0, uu, missing),
+                                 gap_values(y0, yy, missing), rhos):
+            self.bank.step(j, uj, yj, rj)
+        if missing > 1:
+            self._k0 = k
+        self._k_next = k
 
     def _rho(self, k: int, y: np.ndarray, side: Mapping[str, Any] | None) -> np.ndarray:
         model = self.bank.model
@@ -796,15 +831,28 @@ class HminusSwitchedRuntime(Runtime):
         self._k_next: int | None = None
         self._held: tuple[np.ndarray, np.ndarray] | None = None
 
-    def bridge(self, k: int) -> None:
-        """The observer predicts through the gap on the last u and y held (its mode by the
-        plant's guards, or held as measured); threshold stays armed."""
-        if self._k_next is None or self._held is None:
+    def bridge(self, k: int, u: Any, y: Any,
+               side: Mapping[str, Any] | None = None) -> None:
+        """The observer predicts through the gap on u and y interpolated
+        (:mod:`fd_monitor.core.gap`; the mode by the plant's guards, or held as last
+        measured); after more than one lost sample the threshold is armed again ``settle``
+        samples later."""
+        k, uu, yy = validate_sample(self.system, k, u, y)
+        self._plaus.check(k, uu, yy)
+        self._measured_mode(k, uu, side)          # a missing side signal: refused here
+        if self._k_next is None or self._held is None or k <= self._k_next:
             return
-        uu, yy = self._held
-        for j in range(self._k_next, int(k)):
-            self._advance(j, uu, yy)
-        self._k_next = max(self._k_next, int(k))
+        u0, y0 = self._held
+        missing = k - self._k_next
+        for j, uj, yj in zip(range(self._k_next, k), gap_values(u0, uu, missing),
+                             gap_values(y0, yy, missing)):
+            if self.mode_source == "input":       # a mode is held, not interpolated
+                i = self.system.inputs.index("mode")
+                uj[i] = u0[i]
+            self._advance(j, uj, yj)
+        if missing > 1:
+            self._k0 = k
+        self._k_next = k
 
     def _measured_mode(self, k: int, uu: np.ndarray,
                        side: Mapping[str, Any] | None) -> float | None:

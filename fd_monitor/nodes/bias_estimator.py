@@ -133,9 +133,10 @@ class BiasEstimatorNode(BiasReport, FdNode):
         self.estimator.reset()
         self._last_active, self._last_isolated = False, []
 
-    def bridge(self, k: int) -> None:
-        """sigma^, K_d and isolation kept over a bridged gap (Monitor.bridge)."""
-        self.estimator.bridge(k)
+    def bridge(self, k: int, inputs: dict[str, Any]) -> None:
+        """sigma^, K_d and isolation kept over a bridged gap, the state predicted through it
+        (Monitor.bridge)."""
+        self.estimator.bridge(k, inputs["u"], inputs["y"])
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """u_k, y_k, q^_k, alarm_k, AGEI row at k -> sigma^_{k+1}, isolation flags."""

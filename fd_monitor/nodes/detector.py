@@ -201,7 +201,7 @@ class DetectorNode(ResidualReport, FdNode):
             self.detector = ResidualDetector(self.system, as_gains(self.system,
                                                                    self.gain_file))
 
-    def bridge(self, k: int) -> None:
+    def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """The residual filters start again over a bridged gap (Monitor.bridge); the override
         in force and the alarm episode count are kept."""
         if isinstance(self.detector, ResidualDetector):

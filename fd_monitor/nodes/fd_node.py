@@ -71,7 +71,6 @@ from fd_monitor.wire.stream import (
     STAMP_HORIZON,
     InputStream,
     TopicOrder,
-    gap_samples,
 )
 from fd_monitor.wire.topics import Layout, Topic
 
@@ -87,10 +86,10 @@ GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have be
                     "before a missing one is declared lost (a hole: restart at the next valid "
                     "sample); absorbs out-of-order publication", low=0.001, high=3600.0)
 #: The longest hole bridged, of every node that joins plant/u and plant/y.
-MAX_GAP_PARAM = Param("max_gap", MAX_GAP, "s of lost samples (their count times Ts) that are "
-                      "bridged: the run goes on with its estimates, alarm and isolation "
-                      "memory; a longer hole restarts the run (fresh state)", low=0.0,
-                      high=3600.0)
+MAX_GAP_PARAM = Param("max_gap", MAX_GAP, "lost samples in a row that are bridged: the run "
+                      "goes on with its estimates, alarm and isolation memory; a longer hole "
+                      "restarts the run (fresh state); 0: every hole restarts", low=0,
+                      high=1000000)
 #: The per-channel WARN level of every node that detects.
 WARN_SHARE = Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its "
                    "threshold", read_only=False, low=0.0, high=1.0)
@@ -479,7 +478,7 @@ class FdNode(LifecycleNode):
         """
         self.inputs = tuple(inputs)
         seq = [i.name for i in inputs if i.sequence]
-        max_gap = getattr(self.params, "max_gap", 0.0)
+        max_gap = int(getattr(self.params, "max_gap", 0))
         self.join = StampJoin([i.name for i in inputs if i.initial is None],
                               {i.name: i.initial for i in inputs if i.initial is not None},
                               self.params.max_pending, sequence=seq[0] if seq else None,
@@ -487,7 +486,7 @@ class FdNode(LifecycleNode):
                               horizon=self.params.stamp_horizon,
                               restart_after=self.params.restart_after,
                               feedback_source=self._feedback_source,
-                              max_gap=gap_samples(max_gap, self.system.sample_time))
+                              max_gap=max_gap)
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
@@ -694,10 +693,10 @@ class FdNode(LifecycleNode):
         or restarts)."""
         if s.restart:
             self.reset()
-        elif s.bridge:
-            self.bridge(s.k)
         self.restarting, self.bridging = s.restart, s.bridge
         try:
+            if s.bridge:
+                self.bridge(s.k, s.inputs)
             self.process(s.k, s.inputs)
         except ImplausibleError as exc:
             # Refused by the core (an implausible value): reported like a bad message and a
@@ -711,10 +710,12 @@ class FdNode(LifecycleNode):
         """Reset the core component as :meth:`~fd_monitor.core.monitor.Monitor.reset` does
         (subclasses); called before every restart sample."""
 
-    def bridge(self, k: int) -> None:
-        """Carry the core component over lost samples before sample ``k``, as
-        :meth:`~fd_monitor.core.monitor.Monitor.bridge` does (subclasses; default: nothing
-        to carry, its state simply goes on); called before every bridge sample."""
+    def bridge(self, k: int, inputs: dict[str, Any]) -> None:
+        """Carry the core component over lost samples before sample ``k`` (its joined
+        ``inputs`` follow in :meth:`process`), as
+        :meth:`~fd_monitor.core.runtime.Runtime.bridge` does (subclasses; default: nothing
+        to carry, its state simply goes on); called before every bridge sample. Raises
+        :class:`~fd_monitor.model.errors.ImplausibleError` for a sample the core refuses."""
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:  # pragma: no cover
         """Process sample k (subclasses)."""

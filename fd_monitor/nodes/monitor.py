@@ -216,10 +216,16 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
         offline run restarts it."""
         self.runtime.reset()
 
-    def bridge(self, k: int) -> None:
+    def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """Carry the runtime over a bridged gap (its memory kept), as the offline run
         does."""
-        self.runtime.bridge(k)
+        rt = self.runtime
+        u = inputs["u"] if self.system.nu else _NO_INPUT
+        side = {n: inputs[n] for n in rt.side_inputs} if rt.side_inputs else None
+        try:
+            rt.bridge(k, u, inputs["y"], side)
+        except MessageError as exc:
+            raise ImplausibleError(str(exc)) from None
 
     def _layouts(self, out: Any) -> list[Any]:
         """Each output topic's layout (the generic state estimate's from x^'s shape at the

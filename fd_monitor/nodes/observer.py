@@ -12,7 +12,7 @@ With a ``qb`` gain file it runs :class:`~fd_monitor.core.qb.QBObserver` on ``/pl
 the plant has inputs) and ``/plant/y`` and publishes the same layout (y~ = y).
 
 The observer is the chain's entry: it declares the holes in the data (a rejected message, or
-a later sample complete for ``gap_timeout`` s) and bridges (at most ``max_gap`` s of lost
+a later sample complete for ``gap_timeout`` s) and bridges (at most ``max_gap`` lost
 samples) or restarts at the next valid sample, as the offline runner does
 (:func:`fd_monitor.analysis.offline.run_bag`).
 """
@@ -158,12 +158,13 @@ class ObserverNode(EstimateReport, FdNode):
         else:
             self.observer.reset()                # Monitor.reset
 
-    def bridge(self, k: int) -> None:
+    def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """Carry the observer over a bridged gap, as the fused runtime does: the hybrid
         observer re-initialises x^ from the next compensated measurement (mode kept), the QB
-        observer predicts through the gap on the last u and y held."""
+        observer predicts through the gap (u and y interpolated)."""
         if isinstance(self.observer, QBObserver):
-            self.observer.bridge(k)
+            u = inputs["u"] if self.system.nu else np.zeros(0)
+            self.observer.bridge(k, u, inputs["y"])
         elif self.observer is not None:
             self.observer.bridge()
 

@@ -41,14 +41,13 @@ offline reader take them from here.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
 from fd_monitor.wire.join import Sample, StampJoin
 
 __all__ = ["GAP_TIMEOUT", "InputStream", "MAX_GAP", "RESTART_AFTER", "STAMP_HORIZON",
-           "TopicOrder", "gap_samples"]
+           "TopicOrder"]
 
 #: s a later sample must have been complete before a missing one is declared lost.
 GAP_TIMEOUT = 1.0
@@ -56,14 +55,8 @@ GAP_TIMEOUT = 1.0
 STAMP_HORIZON = 100_000
 #: s without progress before held stamps become a new run.
 RESTART_AFTER = 1.0
-#: s of lost samples (their count times the plant's Ts) that are bridged; longer: a restart.
-MAX_GAP = 2.0
-
-
-def gap_samples(max_gap: float, sample_time: float) -> int:
-    """The most lost samples in a row bridged: ``floor(max_gap / Ts)`` (s -> samples; a
-    rounding error of Ts does not lose a sample)."""
-    return max(0, math.floor(max_gap / sample_time + 1e-9))
+#: Lost samples in a row that are bridged (the run goes on, its memory kept); more: a restart.
+MAX_GAP = 10
 
 #: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
 NoteFn = Callable[[str, str, Any], None]
