@@ -303,3 +303,91 @@ def test_join_notes_carry_their_kind():
         assert j.put("u", k, "u") is None
     note = j.put("u", 3, "u")                          # a 4th incomplete stamp: 0 dropped
     assert (note.kind, note.stamp) == ("dropped", 0)
+
+
+# -- a hole is not amnesia (issue 19 item 2): bridges --------------------------------------
+
+
+def bridged(j, now=0.0):
+    return [(s.k, s.restart, s.bridge, s.gap, s.hole, s.inputs.get("fb")) for s in j.ready(now)]
+
+
+def test_entry_short_hole_is_bridged_with_the_feedback_in_force():
+    """A hole of at most max_gap stamps: the next sample is a bridge (no restart), with the
+    feedback stamped at the hole's first stamp (what the last processed sample decided);
+    a longer one restarts with the initial feedback."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=1.0, max_gap=3)
+    feed(j, 0)
+    assert bridged(j) == [(0, True, False, 0, None, FB0)]
+    j.put("fb", 1, "fb1")                              # decided at 0, for 1
+    j.reject(1)
+    j.reject(2)
+    feed(j, 3)
+    assert bridged(j) == [(3, False, True, 2, (1, 2), "fb1")]
+    assert j.put("fb", 2, "late") is None              # inside the hole: dropped
+    j.put("fb", 4, "fb4")
+    for k in (4, 5, 6, 7):
+        j.reject(k)
+    feed(j, 8)                                         # 4 lost stamps > max_gap
+    assert bridged(j) == [(8, True, False, 4, (4, 7), FB0)]
+    assert (j.bridges, j.restarts) == (1, 1)
+
+
+def test_entry_bridge_waits_for_the_feedback_of_the_last_sample():
+    """The hole is decided before the feedback of the last processed sample arrived: the
+    bridge waits for it (it is on its way), and gives up after gap_timeout (a restart with
+    lost feedback), as for any feedback."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=1.0, max_gap=3)
+    feed(j, 0)
+    bridged(j)
+    j.reject(1)
+    feed(j, 2, now=0.1)
+    assert bridged(j, 0.2) == []                       # fb for 1 not here yet
+    j.put("fb", 1, "fb1")
+    assert bridged(j, 0.3) == [(2, False, True, 1, (1, 1), "fb1")]
+    j.reject(3)
+    feed(j, 4, now=1.0)
+    assert bridged(j, 1.5) == []
+    out = list(j.ready(2.0))
+    assert [(s.k, s.restart, s.bridge, s.feedback_lost) for s in out] == [(4, True, False,
+                                                                           True)]
+
+
+def test_entry_refused_samples_are_bridged_with_the_feedback_carried():
+    """Samples the core refused (lost) count in the gap; the sample after them bridges with
+    the feedback that was in force for the refused one (no new feedback comes for a refused
+    sample) and does not wait; refused samples and a hole together beyond max_gap restart.
+    A refused restart sample makes the next one a restart again."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=1.0, max_gap=2)
+    feed(j, 0)
+    bridged(j)
+    j.put("fb", 1, "fb1")
+    feed(j, 1)
+    (s1,) = bridged(j)
+    j.lost(s1[0])                                      # 1 refused by the core
+    feed(j, 2)
+    assert bridged(j) == [(2, False, True, 1, None, "fb1")]
+    j.lost(2)                                          # refused again: the gap grows
+    j.reject(3)
+    feed(j, 4)
+    assert bridged(j) == [(4, True, False, 3, (3, 3), FB0)]   # 2 refused + 1 lost > 2
+    j.lost(4)                                          # a refused restart
+    feed(j, 5)
+    assert [s[:3] for s in bridged(j)] == [(5, True, False)]
+
+
+def test_downstream_bridges_where_the_entry_bridged():
+    """Downstream: a sequence stamp flagged bridge after skipped stamps is a bridge with the
+    feedback stamped at the first skipped one; unflagged skips restart."""
+    j = StampJoin(["est", "r"], {"fb": FB0}, sequence="est")
+    j.put("est", 0, "e0", restart=True)
+    j.put("r", 0, "r0")
+    assert [s[:3] for s in bridged(j)] == [(0, True, False)]
+    j.put("fb", 1, "fb1")                              # decided at 0, for 1
+    j.put("est", 3, "e3", bridge=True)                 # the entry lost 1, 2
+    j.put("r", 3, "r3")
+    assert bridged(j) == [(3, False, True, 2, (1, 2), "fb1")]
+    j.put("fb", 4, "fb4")
+    j.put("est", 6, "e6")                              # skipped without a flag: restart
+    j.put("r", 6, "r6")
+    assert [s[:3] for s in bridged(j)] == [(6, True, False)]
