@@ -133,3 +133,51 @@ def test_live_monitor_runs_any_gain_file_like_analyze(tmp_path, name):
         assert got[topic].labels == offline.channels, topic
         np.testing.assert_array_equal(got[topic].stamps, offline.k, err_msg=topic)
         np.testing.assert_array_equal(got[topic].values, want, err_msg=topic)
+
+
+#: A one-sample and a 10-sample hole in three_tank_bias_h1, after h1 is isolated (1217).
+HOLES = [(1300, 1300), (1600, 1609)]
+
+
+@pytest.mark.parametrize("layout", ["monitor", "five_processes"])
+def test_live_bridges_keep_the_isolation(tmp_path, layout):
+    """A hole is not amnesia, over DDS (issue 19 item 2): three_tank_bias_h1 (+0.03 m on h1,
+    isolated from sample 1217) replayed with a one-sample hole at 1300 and a 10-sample hole
+    at 1600..1609 into the fused monitor and into the five-process chain. Both holes are
+    bridged (no restart): h1 stays isolated through them with its estimate, nothing else is
+    isolated, and every residual and bias estimate equals the offline run's."""
+    from test_bridge import _holed_bag
+
+    from fd_monitor.model.system import load_system
+
+    spec = LIB["three_tank_bias_h1"]
+    system = load_system("three_tank")
+    bag = _holed_bag(spec.folder, tmp_path / "holes", HOLES)
+    offline = run_bag(bag, spec.gains, system=system)
+    assert offline.inputs.bridges == [1301, 1610] and offline.inputs.restarts == []
+    n = len(offline.k)
+    nodes = ["monitor"] if layout == "monitor" else ["observer", "detector", "agei",
+                                                     "bias_estimator"]
+    procs = [Proc(["run", x, "--ros-args", "-p", "log_throttle:=0.0",
+                   *(["-p", "layout:=chain"] if x == "detector" else [])]) for x in nodes]
+    until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
+    rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
+    replay_through(procs, rec, bag, ["/plant/u", "/plant/y"],
+                   wait_subscribers=1 if layout == "monitor" else 2)
+    got = read_bag(tmp_path / "rec", TOPICS)
+    st, be = got["/fd/state_estimate"], got["/fd/bias_estimate"]
+    np.testing.assert_array_equal(st.stamps, offline.k)
+    assert st.stamps[st.column("restart") > 0.5].tolist() == [0]
+    assert st.stamps[st.column("bridge") > 0.5].tolist() == [1301, 1610]
+    # bias estimates are stamped k + 1 (the sample they are used at)
+    np.testing.assert_array_equal(be.stamps, offline.k + 1)
+    np.testing.assert_array_equal(be.column("h1"), offline.estimate["h1"])
+    iso = be.column("iso:h1") > 0.5
+    after = be.stamps > 1217
+    assert iso[after].all() and np.all(be.column("h1")[after] > 0.02)
+    assert not (be.column("iso:h2") > 0.5).any() and not (be.column("iso:h3") > 0.5).any()
+    res = got["/fd/residual"]
+    np.testing.assert_array_equal(res.values[:, :system.ny], offline.signal)
+    log = "".join(p.output() for p in procs)
+    assert "bridged at 1301" in log and "bridged at 1610" in log
+    assert "isolated nothing" not in log
