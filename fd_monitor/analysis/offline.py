@@ -322,7 +322,7 @@ def _join_messages(messages: Iterable[tuple[str, int, Any]],
                 rep.errors.append({"kind": "missing", "topic": _UY, "sample": [lo, hi],
                                    "message": f"no message for stamps {lo}..{hi} "
                                               f"({hi - lo + 1} samples)"})
-        elif kind not in ("new_run", "feedback_lost"):   # restarts: in rep.restarts
+        elif kind not in ("new_run", "feedback_lost", "bridge"):  # in rep.restarts, bridges
             rep.errors.append({"kind": kind, "topic": where[0], "sample": stamp,
                                "message": line})
 

@@ -123,7 +123,7 @@ COMMON_PARAMS = (
 HOLD_WAIT = 0.1
 
 #: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
-_WARN_ONLY = frozenset(("out_of_order", "hole", "feedback_lost", "new_run"))
+_WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run"))
 
 #: Parameters that take effect when set (the others are read-only).
 RUNTIME_PARAMS = ("gains", "stale_timeout", "diagnostics_period", "log_throttle",

@@ -28,7 +28,8 @@ first sample, a gap longer than ``max_gap``, stamps that restart lower (``new_ru
 feedback in the chain (``feedback_lost``), a ``~/reset``.
 
 Reports go to the caller's ``note(kind, line, stamp)``; ``kind`` is the step's kind above,
-``hole`` (``stamp`` is the inclusive ``(first, last)``), ``feedback_lost`` or ``new_run``.
+``hole`` (``stamp`` is the inclusive ``(first, last)``; bridged or restarted), ``bridge`` (a
+bridge after samples the core refused, no hole), ``feedback_lost`` or ``new_run``.
 A node logs the line and reports it on ``/diagnostics``; the offline reader turns it into an
 :class:`~fd_monitor.analysis.offline.InputReport` entry. Live, ``now`` is the node's
 monotonic clock; offline it is each bag record's log time in s, and ``+inf`` at the end of
@@ -161,5 +162,9 @@ class InputStream:
                             + (f"; {s.gap} sample(s) lost, more than {join.max_gap} bridged)"
                                if join.sequence is None else ")"))
                 self.note("hole", f"hole: no valid sample for {span}; {what}", s.hole)
+            elif s.bridge:
+                self.note("bridge", f"bridged at {s.k} after {s.gap} refused sample(s) (at "
+                          f"most {join.max_gap} bridged: estimates, alarm and isolation "
+                          f"memory kept)", s.k)
             if not self.step(s):
                 join.lost(s.k)
