@@ -154,9 +154,10 @@ class InputStream:
                 a, b = s.hole
                 span = f"stamp {a}" if a == b else f"stamps {a}..{b}"
                 if s.bridge:
-                    what = (f"bridged at {s.k} ({s.gap} sample(s) lost, at most "
-                            f"{join.max_gap} bridged: estimates, alarm and isolation memory "
-                            f"kept)")
+                    limit = (f"at most {join.max_gap} bridged" if join.sequence is None
+                             else "bridged as the entry node did")
+                    what = (f"bridged at {s.k} ({s.gap} sample(s) lost, {limit}: estimates, "
+                            f"alarm and isolation memory kept)")
                 else:
                     what = (f"restarted at {s.k} (fresh state, feedback at initial values"
                             + (f"; {s.gap} sample(s) lost, more than {join.max_gap} bridged)"
