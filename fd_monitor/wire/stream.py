@@ -161,7 +161,7 @@ class InputStream:
                 else:
                     what = (f"restarted at {s.k} (fresh state, feedback at initial values"
                             + (f"; {s.gap} sample(s) lost, more than {join.max_gap} bridged)"
-                               if join.sequence is None else ")"))
+                               if join.sequence is None and s.gap > join.max_gap else ")"))
                 self.note("hole", f"hole: no valid sample for {span}; {what}", s.hole)
             elif s.bridge:
                 self.note("bridge", f"bridged at {s.k} after {s.gap} refused sample(s) (at "
