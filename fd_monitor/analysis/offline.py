@@ -8,8 +8,9 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    (:class:`fd_monitor.wire.stream.InputStream`: decode, per-topic order check, the entry
    role of :class:`~fd_monitor.wire.join.StampJoin`) with the time ``now`` = the record's
    log time in s, the nodes' default ``gap_timeout``, ``stamp_horizon`` and
-   ``restart_after``, and ``now = +inf`` at the end of the bag. So a bag gives the samples,
-   holes, restarts and new runs the live entry node gives when the bag is replayed into it:
+   ``restart_after``, ``max_gap``, and ``now = +inf`` at the end of the bag. So a bag gives
+   the samples, holes, bridges, restarts and new runs the live entry node gives when the bag
+   is replayed into it:
    a message that does not decode (NaN/Inf, wrong length, bad layout) is reported and its
    stamp lost, duplicates are reported (the first is kept), out-of-order stamps are reported
    and joined in stamp order when they come within ``gap_timeout``, holes are reported as
