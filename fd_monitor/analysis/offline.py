@@ -319,10 +319,11 @@ def _join_messages(messages: Iterable[tuple[str, int, Any]],
         if kind == "hole":                       # its stamps minus the refused ones
             a, b = stamp
             inside = sorted(j for j in refused if a <= j <= b)
+            decided = line.split("; ", 1)[1].split(" (", 1)[0]   # bridged / restarted at k
             for lo, hi in _gaps([a - 1, b + 1], inside):
                 rep.errors.append({"kind": "missing", "topic": _UY, "sample": [lo, hi],
                                    "message": f"no message for stamps {lo}..{hi} "
-                                              f"({hi - lo + 1} samples)"})
+                                              f"({hi - lo + 1} samples); {decided}"})
         elif kind not in ("new_run", "feedback_lost", "bridge"):  # in rep.restarts, bridges
             rep.errors.append({"kind": kind, "topic": where[0], "sample": stamp,
                                "message": line})
