@@ -59,6 +59,11 @@ def test_live_chain_refuses_1e300_and_recovers():
         assert spin_until(ex, lambda: any(
             s.level == WARN and f"y at sample {BAD}: h2 = 1e+300" in s.message
             and "implausible" in s.message for s in col.statuses("observer: input")), 10.0)
+        # the bridge is reported and counted on /diagnostics
+        assert spin_until(ex, lambda: any(
+            f"bridged at {BAD + 1} after 1 refused sample(s)" in s.message
+            and {kv.key: kv.value for kv in s.values}.get("bridged") == "1"
+            for s in col.statuses("observer: input")), 10.0)
         ex.shutdown()
         for n in [*nodes, col.node, drv]:
             n.destroy_node()
