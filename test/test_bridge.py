@@ -272,9 +272,9 @@ def test_offline_stream_and_run_over_stamps_agree(tmp_path):
 
 
 def _holed_bag(src, dest, holes):
-    """A copy of bag ``src``'s /plant/u, /plant/y and /plant/truth without the messages of
-    the stamps in ``holes`` (inclusive runs)."""
-    topics = read_bag(src, ["/plant/u", "/plant/y", "/plant/truth"])
+    """A copy of bag ``src``'s ``/plant/*`` topics without the messages of the stamps in
+    ``holes`` (inclusive runs)."""
+    topics = {t: a for t, a in read_bag(src).items() if t.startswith("/plant/")}
     out = []
     for t in topics.values():
         keep = np.array([not any(a <= k <= b for a, b in holes) for k in t.stamps])

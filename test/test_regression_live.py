@@ -181,3 +181,40 @@ def test_live_bridges_keep_the_isolation(tmp_path, layout):
     log = "".join(p.output() for p in procs)
     assert "bridged at 1301" in log and "bridged at 1610" in log
     assert "isolated nothing" not in log
+
+
+@pytest.mark.parametrize("name", ["thesis_6_5_overlap", "farhat_koenig_fault"])
+def test_live_monitor_bridges_registry_runtimes_like_analyze(tmp_path, name):
+    """The fused monitor on an hinf_sc bank with measured rho (/plant/rho) and on the
+    switched generalized observer (/plant/mode), replayed with a one-sample and a 10-sample
+    hole on every /plant topic: both bridged, and every residual, threshold (armed again
+    settle_s after the 10-sample hole where the gain file has a settling time: Farhat &
+    Koenig) and alarm equals analyze's, sample for sample."""
+    from test_bridge import _holed_bag
+
+    from fd_monitor.core.runtime import runtime_for
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import load_system
+
+    spec = LIB[name]
+    system = load_system(load_gains(spec.gains, verify=False).system_name)
+    gf = load_gains(spec.gains, system)
+    k_end = int(read_bag(spec.folder, ["/plant/y"])["/plant/y"].stamps[-1])
+    holes = [(k_end // 2, k_end // 2), (3 * k_end // 4, 3 * k_end // 4 + 9)]
+    bag = _holed_bag(spec.folder, tmp_path / "holes", holes)
+    offline = run_bag(bag, spec.gains, system=system)
+    assert offline.inputs.bridges == [b + 1 for _a, b in holes]
+    n = len(offline.k)
+    side = [f"/plant/{s}" for s in runtime_for(system, gf).side_inputs]
+    topics = ["/fd/residual", "/fd/threshold", "/fd/alarm"]
+    procs = [Proc(["run", "monitor", "--ros-args", "-p", f"system:={system.name}",
+                   "-p", f"gains:={spec.gains}"])]
+    until = [a for t in topics for a in ("--until", f"{t}={n}")]
+    rec = Proc(["record", *topics, "-o", str(tmp_path / "rec"), *until])
+    replay_through(procs, rec, bag, [*(["/plant/u"] if system.nu else []), "/plant/y", *side],
+                   wait_subscribers=1)
+    got = read_bag(tmp_path / "rec", topics)
+    for topic, want in (("/fd/residual", offline.signal), ("/fd/threshold", offline.threshold),
+                        ("/fd/alarm", offline.alarm.astype(float))):
+        np.testing.assert_array_equal(got[topic].stamps, offline.k, err_msg=topic)
+        np.testing.assert_array_equal(got[topic].values, want, err_msg=topic)
