@@ -11,9 +11,9 @@ and offline.
 * **Time of a message**: its header stamp where the topic's type has one (stamp 0 is a
   stamp), else its receive time (the bag's log time offline). The grid runs on the *clock
   topic*'s kind of time (the adapter's first output); a receive-time topic beside a stamped
-  clock is moved onto the clock's time by interpolation between the clock messages received
-  just before and just after it (so a command sent just before or a few ms after a
-  measurement keeps its place, whatever the two clocks' rates: a replay at 4x, sim time).
+  clock belongs to the sample of the last clock message received before it (a command
+  answers the measurement before it; after a lost clock message the sample is interpolated
+  by receive time), whatever the two clocks' rates (a replay at 4x, sim time).
 * **Grid phase**: from the first :data:`WARMUP` clock messages (the circular mean of their
   phases modulo ``Ts``, or ``Ts/m`` for a clock ``m`` times faster), then tracked with gain
   1/:data:`TRACK` per clock message, so a driver's clock drift and stamp jitter do not move
@@ -47,6 +47,7 @@ reported once in :attr:`GridSampler.notes`. Memory is bounded by the decision wi
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from collections import deque
@@ -61,6 +62,8 @@ __all__ = ["Gap", "GridSample", "GridSampler", "NewRun", "RUN_AHEAD", "RUN_BACK"
 WARMUP = 16
 #: Phase tracking gain 1/TRACK per clock message (after the warm-up).
 TRACK = 64
+#: Clock messages remembered to place header-less messages (at least).
+CLOCK_HISTORY = 256
 #: s the stream moves on past a sample before a topic not yet heard for it is held (a topic
 #: that stopped, or one delivered in a batch behind the others: an executor under a backlog
 #: hands over one topic's queue before the next's).
@@ -214,8 +217,6 @@ class GridSampler:
         self.k_base = 0                      # k of slot 0 of this run
         #: Receive-time messages waiting for the next clock message: (topic, receive, values).
         self._moved_q: deque[tuple[str, int, dict[str, float]]] = deque()
-        self._clock_rs: tuple[int, int] | None = None      # last clock (receive, stamp)
-        self._clock_rate = 1.0                              # d stamp / d receive
         self._reset_run()
 
     # -- run state ---------------------------------------------------------------------------
@@ -231,8 +232,9 @@ class GridSampler:
         self._acc: dict[str, dict[int, list[float]]] = {c: {} for c in self.channels}
         self._held: dict[str, tuple[int, float] | None] = {c: None for c in self.channels}
         self._stray: list[tuple[str, int, int, dict[str, float]]] = []
-        self._clock_rs = None
-        self._clock_rate = 1.0
+        self._clock_r: list[int] = []        # recent clock messages: receive times, and
+        self._clock_s: list[int] = []        # their stamps
+        self._clock_steps: deque[int] = deque(maxlen=31)
         for t in self.topics.values():
             t.max_slot, t.counts = None, {}
 
@@ -261,30 +263,59 @@ class GridSampler:
         tp.last_stamp = stamp_ns
         if self._moved[topic]:
             self._moved_q.append((topic, receive_ns, dict(values)))
+            if self._clock_r and receive_ns <= self._clock_r[-1]:
+                self._map_moved(False)           # handed over after a later clock message
             return
         if topic == self.clock and tp.header:
-            self._map_moved(receive_ns, stamp_ns)
+            self._clock_in(receive_ns, stamp_ns)
+            self._map_moved(False)
         self._accept(topic, stamp_ns if tp.header else receive_ns, receive_ns, dict(values))
 
-    def _map_moved(self, receive_ns: int | None, stamp_ns: int | None) -> None:
-        """Place the receive-time messages received before a clock message at
-        ``(receive_ns, stamp_ns)`` (None: the end, every one) on the clock's time."""
-        prev, q = self._clock_rs, self._moved_q
-        if receive_ns is not None and stamp_ns is not None and prev is not None \
-                and receive_ns > prev[0]:
-            rate = (stamp_ns - prev[1]) / (receive_ns - prev[0])
-            if rate > 0:
-                self._clock_rate = rate
-        while q and (receive_ns is None or q[0][1] <= receive_ns):
-            topic, r, values = q.popleft()
-            if prev is not None:
-                t = prev[1] + round((r - prev[0]) * self._clock_rate)
-            else:                                # before the first clock message
-                assert receive_ns is not None and stamp_ns is not None
-                t = stamp_ns - (receive_ns - r)
+    def _clock_in(self, receive_ns: int, stamp_ns: int) -> None:
+        """A clock message's (receive, stamp): the history header-less messages are placed
+        by, and its receive period (per sample: a slower clock's step over its samples)."""
+        rs, ss = self._clock_r, self._clock_s
+        if rs and receive_ns > rs[-1] and stamp_ns > ss[-1]:
+            n = max(1, round((stamp_ns - ss[-1]) / self.ts_ns))
+            self._clock_steps.append((receive_ns - rs[-1]) // n)
+        if not rs or receive_ns >= rs[-1]:
+            rs.append(receive_ns)
+            ss.append(stamp_ns)
+            if len(rs) > 2 * CLOCK_HISTORY:      # keep the recent ones (amortised)
+                del rs[:CLOCK_HISTORY], ss[:CLOCK_HISTORY]
+
+    def _map_moved(self, final: bool) -> None:
+        """Place the waiting receive-time messages that the clock has passed (``final``:
+        every one) on the clock's time.
+
+        Such a message belongs to the sample of the last clock message received before it
+        (a command answers the measurement before it: the order two topics are received in
+        is what a header-less message says about time), so its time is that message's
+        stamp; when the clock skipped samples (a lost message) the sample is interpolated
+        by receive time between the clock messages around it. Only receive times decide,
+        not the order messages are handed over in."""
+        rs, ss, q = self._clock_r, self._clock_s, self._moved_q
+        if not q or not rs:
+            return
+        steps = self._clock_steps
+        period = sorted(steps)[len(steps) // 2] if steps else None
+        ts = self.ts_ns
+        waiting: deque[tuple[str, int, dict[str, float]]] = deque()
+        for topic, r, values in q:
+            if not final and r > rs[-1]:
+                waiting.append((topic, r, values))
+                continue
+            i = bisect.bisect_right(rs, r) - 1
+            if i < 0:                            # before every clock message kept
+                t = ss[0] - round(ts)
+            else:
+                ahead = (r - rs[i]) / period if period else 0.0    # samples after it
+                if i + 1 < len(rs):              # not into the next clock message's sample
+                    span = max(1, round((rs[i + 1] - rs[i]) / period)) if period else 1
+                    ahead = min(ahead, span - 1)
+                t = ss[i] + round(max(0, math.floor(ahead)) * ts)
             self._accept(topic, t, r, values)
-        if receive_ns is not None and stamp_ns is not None:
-            self._clock_rs = (receive_ns, stamp_ns)
+        self._moved_q = waiting
 
     def _accept(self, topic: str, t: int, receive_ns: int, values: dict[str, float]) -> None:
         msg = (topic, t, receive_ns, values)
@@ -347,13 +378,20 @@ class GridSampler:
             m = self._harmonic
             r = m * x - math.floor(m * x + 0.5)
             self.t0_frac += self.ts_ns / m * r / TRACK
-        if tp.last_t is not None and t > tp.last_t:
-            tp.steps.append(t - tp.last_t)
+        # the topic's rate: a moved topic's in receive time against the clock's receive period
+        # (its mapped times are whole samples), any other's in its own time against Ts
+        tt, unit = t, self.ts_ns
+        if self._moved[topic]:
+            steps = self._clock_steps
+            tt = receive_ns
+            unit = sorted(steps)[len(steps) // 2] if steps else self.ts_ns
+        if tp.last_t is not None and tt > tp.last_t:
+            tp.steps.append(tt - tp.last_t)
             if len(tp.steps) >= 5:
                 med = sorted(tp.steps)[len(tp.steps) // 2]
-                tp.per_slot = max(1, round(self.ts_ns / med)) if med < 0.75 * self.ts_ns else 1
-                tp.period = max(1, round(med / self.ts_ns)) if med > 1.5 * self.ts_ns else 1
-        tp.last_t = t
+                tp.per_slot = max(1, round(unit / med)) if med < 0.75 * unit else 1
+                tp.period = max(1, round(med / unit)) if med > 1.5 * unit else 1
+        tp.last_t = tt
         if j < self.next_slot:
             self._late(tp, j, values)
         else:
@@ -459,8 +497,7 @@ class GridSampler:
     def flush(self) -> None:
         """Decide every slot seen (the live silence of ``hold_wait`` s, or its replay
         offline): a topic not heard by now is held or stale."""
-        if self._clock_rs is not None:
-            self._map_moved(None, None)
+        self._map_moved(True)
         if self.t0_int is None and self._warm:
             if self._warm_clock:
                 self._start_grid()
