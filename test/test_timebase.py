@@ -275,3 +275,17 @@ def test_bad_timing_keys_in_an_adapter_file_are_one_line():
                        r"outputs\[0\]\.decimate: expected last or mean")):
         with pytest.raises(AdapterError, match=text):
             parse_adapter(doc, "a.yaml")
+
+
+def test_no_history_cap_a_150_s_bag_is_read_whole(tmp_path):
+    """The former adapter join kept the last 10,000 messages of a held topic: a 150 s bag
+    analysed as 10,000 samples, the bias injected at 30 s "detected" at 0.29 s."""
+    from fd_monitor.commands.simulate import simulate_to_bag
+
+    simulate_to_bag("dc_motor_bias_velocity", tmp_path / "m", duration=150.0,
+                    adapter="dc_motor")
+    run = run_bag(tmp_path / "m", GAINS, system=load_system(PLANT), adapter="dc_motor")
+    assert run.inputs.sample_counts() == {"present": 15000, "used": 15000, "skipped": {}}
+    np.testing.assert_array_equal(run.k, np.arange(15000))
+    first = int(run.k[run.alarm.any(axis=1)][0])
+    assert 3000 <= first <= 3010, first            # the bias starts at 30 s (sample 3000)

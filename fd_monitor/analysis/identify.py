@@ -196,9 +196,18 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
         raise BagError(f"{bag}: no such bag")
     if adapter is not None:
         s = read_adapted(path, adapter, sample_time=sample_time)
-        if s.errors:
-            warnings.warn(f"{bag}: {len(s.errors)} message(s) skipped; the first: "
-                          f"{s.errors[0][1]}", FdMonitorWarning, stacklevel=2)
+        c = s.counts
+        gaps = {r: sum(n.values()) for r, n in c["gaps"].items()}
+        odd = {kind: sum(c.get(kind, {}).values())
+               for kind in ("late", "duplicate", "stray", "decimated")}
+        if s.errors or gaps or c["held"] or sample_time is None:
+            warnings.warn(
+                f"{bag}: {s.sample_time_note}; {c['samples']} samples"
+                + "".join(f", {n} {r} gaps" for r, n in gaps.items())
+                + "".join(f", {n} held ({ch})" for ch, n in c["held"].items())
+                + "".join(f", {n} {kind} messages" for kind, n in odd.items() if n)
+                + (f"; the first note: {s.errors[0][1]}" if s.errors else ""),
+                FdMonitorWarning, stacklevel=2)
         ds = Dataset(str(bag), tuple(s.inputs), tuple(s.outputs), np.asarray(s.k),
                      np.asarray(s.u, dtype=float), np.asarray(s.y, dtype=float),
                      float(s.sample_time), None, _bag_sha256(path), ("inputs", "outputs"))
