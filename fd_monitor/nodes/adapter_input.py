@@ -27,7 +27,7 @@ import numpy as np
 
 from fd_monitor.nodes.bag_nodes import message_class
 from fd_monitor.nodes.common import DataInput, Param, pub_events
-from fd_monitor.wire.adapters import Adapter, AdapterJoin, encode, feed, load_adapter
+from fd_monitor.wire.adapters import HOLD_WAIT, Adapter, AdapterJoin, encode, feed, load_adapter
 
 __all__ = ["ADAPTER_PARAM", "AdapterInput", "RobotPublishers"]
 
@@ -58,10 +58,11 @@ class AdapterInput:
     source : str
         The adapter file.
     hold_wait : float
-        s a sample waits for a later message of each held topic.
+        s of silence after which what waits is decided
+        (:data:`~fd_monitor.wire.adapters.HOLD_WAIT`).
     """
 
-    def __init__(self, node: Any, source: str, hold_wait: float) -> None:
+    def __init__(self, node: Any, source: str, hold_wait: float = HOLD_WAIT) -> None:
         self.node = node
         self.adapter: Adapter = load_adapter(source).for_system(node.system)
         self.join = AdapterJoin(self.adapter, float(node.system.sample_time), hold_wait)

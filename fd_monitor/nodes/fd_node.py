@@ -480,7 +480,7 @@ class FdNode(LifecycleNode):
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
         self.adapter_input = None
         if getattr(self.params, "adapter", ""):
-            self.adapter_input = AdapterInput(self, self.params.adapter, HOLD_WAIT)
+            self.adapter_input = AdapterInput(self, self.params.adapter)
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
             cb = self._callback(inp)

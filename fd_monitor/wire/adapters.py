@@ -104,7 +104,7 @@ DEFAULT_MAX_HOLD_INPUT = 0.5
 DEFAULT_MAX_HOLD_OUTPUT = 0.0
 #: s a live sample waits in silence before the topics not heard are held (offline: the same
 #: rule on the bag's log times).
-HOLD_WAIT = 0.1
+HOLD_WAIT = 0.5
 
 #: Short forms of ``field`` (Odometry, TwistStamped) -> the full path.
 _SHORT = {

@@ -67,7 +67,7 @@ CLOCK_HISTORY = 256
 #: s the stream moves on past a sample before a topic not yet heard for it is held (a topic
 #: that stopped, or one delivered in a batch behind the others: an executor under a backlog
 #: hands over one topic's queue before the next's).
-WAIT = 0.5
+WAIT = 2.0
 #: s: a clock stamp this far behind the decided samples starts a new run (if confirmed).
 RUN_BACK = 1.0
 #: s: a clock stamp this far ahead of the newest starts a new run (if confirmed).
@@ -153,8 +153,7 @@ class _Topic:
     header: bool                           # its time is its header stamp
     max_slot: int | None = None            # highest slot seen this run
     counts: dict[int, int] = field(default_factory=dict)  # undecided slot -> messages
-    steps: deque[int] = field(default_factory=lambda: deque(maxlen=31))
-    last_t: int | None = None
+    filled: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=31))
     last_stamp: int | None = None
     per_slot: int = 1                      # messages per sample (a faster topic)
     period: int = 1                        # samples per message (a slower topic)
@@ -234,7 +233,6 @@ class GridSampler:
         self._stray: list[tuple[str, int, int, dict[str, float]]] = []
         self._clock_r: list[int] = []        # recent clock messages: receive times, and
         self._clock_s: list[int] = []        # their stamps
-        self._clock_steps: deque[int] = deque(maxlen=31)
         for t in self.topics.values():
             t.max_slot, t.counts = None, {}
 
@@ -273,11 +271,8 @@ class GridSampler:
 
     def _clock_in(self, receive_ns: int, stamp_ns: int) -> None:
         """A clock message's (receive, stamp): the history header-less messages are placed
-        by, and its receive period (per sample: a slower clock's step over its samples)."""
+        by."""
         rs, ss = self._clock_r, self._clock_s
-        if rs and receive_ns > rs[-1] and stamp_ns > ss[-1]:
-            n = max(1, round((stamp_ns - ss[-1]) / self.ts_ns))
-            self._clock_steps.append((receive_ns - rs[-1]) // n)
         if not rs or receive_ns >= rs[-1]:
             rs.append(receive_ns)
             ss.append(stamp_ns)
@@ -295,11 +290,8 @@ class GridSampler:
         by receive time between the clock messages around it. Only receive times decide,
         not the order messages are handed over in."""
         rs, ss, q = self._clock_r, self._clock_s, self._moved_q
-        if not q or not rs:
-            return
-        steps = self._clock_steps
-        period = sorted(steps)[len(steps) // 2] if steps else None
-        ts = self.ts_ns
+        if not q or not rs or (self.t0_int is None and not final):
+            return                               # placed on the grid once it has a phase
         waiting: deque[tuple[str, int, dict[str, float]]] = deque()
         for topic, r, values in q:
             if not final and r > rs[-1]:
@@ -307,13 +299,29 @@ class GridSampler:
                 continue
             i = bisect.bisect_right(rs, r) - 1
             if i < 0:                            # before every clock message kept
-                t = ss[0] - round(ts)
+                t = ss[0] - round(self.ts_ns)
+            elif i + 1 < len(rs) and self.t0_int is not None:
+                # between two clock messages: the earlier one's sample, or (samples lost
+                # between them) the one its receive time falls in; slots of the grid, so
+                # stamp jitter does not count as a lost sample
+                a, b = round(self._slot(ss[i])), round(self._slot(ss[i + 1]))
+                off = 0
+                if b - a > 1 and rs[i + 1] > rs[i]:
+                    off = min(b - a - 1, math.floor((r - rs[i]) / (rs[i + 1] - rs[i])
+                                                    * (b - a)))
+                t = self.t0_int + round(self.t0_frac + (a + off) * self.ts_ns)
+            elif i >= 1 and self.t0_int is not None:
+                # after the last one (the end of the data): its sample, or for a slower
+                # clock the one its receive time falls in before the next clock message is due
+                a, b = round(self._slot(ss[i - 1])), round(self._slot(ss[i]))
+                off = 0
+                if b > a and rs[i] > rs[i - 1]:
+                    per = (rs[i] - rs[i - 1]) / (b - a)
+                    off = max(0, min(self.topics[self.clock].period - 1,
+                                     math.floor((r - rs[i]) / per)))
+                t = self.t0_int + round(self.t0_frac + (b + off) * self.ts_ns)
             else:
-                ahead = (r - rs[i]) / period if period else 0.0    # samples after it
-                if i + 1 < len(rs):              # not into the next clock message's sample
-                    span = max(1, round((rs[i + 1] - rs[i]) / period)) if period else 1
-                    ahead = min(ahead, span - 1)
-                t = ss[i] + round(max(0, math.floor(ahead)) * ts)
+                t = ss[i]
             self._accept(topic, t, r, values)
         self._moved_q = waiting
 
@@ -351,6 +359,7 @@ class GridSampler:
         warm, self._warm, self._warm_clock = self._warm, [], 0
         for msg in warm:
             self._place(*msg)
+        self._map_moved(False)
 
     def _slot(self, t: int) -> float:
         assert self.t0_int is not None
@@ -378,20 +387,6 @@ class GridSampler:
             m = self._harmonic
             r = m * x - math.floor(m * x + 0.5)
             self.t0_frac += self.ts_ns / m * r / TRACK
-        # the topic's rate: a moved topic's in receive time against the clock's receive period
-        # (its mapped times are whole samples), any other's in its own time against Ts
-        tt, unit = t, self.ts_ns
-        if self._moved[topic]:
-            steps = self._clock_steps
-            tt = receive_ns
-            unit = sorted(steps)[len(steps) // 2] if steps else self.ts_ns
-        if tp.last_t is not None and tt > tp.last_t:
-            tp.steps.append(tt - tp.last_t)
-            if len(tp.steps) >= 5:
-                med = sorted(tp.steps)[len(tp.steps) // 2]
-                tp.per_slot = max(1, round(unit / med)) if med < 0.75 * unit else 1
-                tp.period = max(1, round(med / unit)) if med > 1.5 * unit else 1
-        tp.last_t = tt
         if j < self.next_slot:
             self._late(tp, j, values)
         else:
@@ -413,6 +408,7 @@ class GridSampler:
 
     def _late(self, tp: _Topic, j: int, values: dict[str, float]) -> None:
         self._count(f"late:{tp.name}")
+        self._rate(tp, j, 1)                     # it counts for the topic's rate
         self._note("late", tp.name, f"{tp.name}: a message for sample {self.k_base + j} came "
                    f"after that sample was decided (more than {self.wait} sample(s) late): "
                    f"used as the held value from then on")
@@ -444,6 +440,25 @@ class GridSampler:
 
     # -- decisions ---------------------------------------------------------------------------
 
+    def _rate(self, tp: _Topic, j: int, n: int) -> None:
+        """Learn a topic's rate on the grid from its decided slots: messages per sample (the
+        median count of its non-empty samples) and samples per message (the median distance
+        between them). On the grid, not in its own time: a bursty publisher's receive times
+        say nothing about its rate."""
+        f = tp.filled
+        if f and f[-1][0] >= j:                  # a late message of a decided sample
+            for i in range(len(f) - 1, -1, -1):
+                if f[i][0] == j:
+                    f[i] = (j, f[i][1] + n)
+                    break
+        else:
+            f.append((j, n))
+        if len(tp.filled) >= 5:
+            f = list(tp.filled)
+            tp.per_slot = sorted(c for _, c in f)[len(f) // 2]
+            gaps = sorted(b[0] - a[0] for a, b in itertools.pairwise(f))
+            tp.period = gaps[len(gaps) // 2]
+
     def _closed(self, tp: _Topic, j: int) -> bool:
         """Whether ``tp`` can still bring a value for slot j: not once it is past j, or has
         sent its messages of j, or (a slower topic) its next message is not due before
@@ -463,7 +478,9 @@ class GridSampler:
             self._out.append(self._sample(j))
             self.next_slot = j + 1
             for tp in self.topics.values():
-                tp.counts.pop(j, None)
+                n = tp.counts.pop(j, 0)
+                if n:
+                    self._rate(tp, j, n)
 
     def _sample(self, j: int) -> GridSample | Gap:
         k = self.k_base + j
