@@ -193,8 +193,8 @@ class GridSampler:
         ref = bool(header[clock])
         self.topics = {t: _Topic(t, tuple(ch), ref and bool(header[t]))
                        for t, ch in topics.items()}
-        # a receive-time topic beside a stamped clock: moved by the clock's delay floor (a
-        # stamped topic beside a receive-time clock uses its receive time: one kind of time)
+        # a receive-time topic beside a stamped clock: placed by the clock messages around it
+        # (a stamped topic beside a receive-time clock uses its receive time: one kind)
         self._moved = {t: ref and not header[t] for t in topics}
         self.channels = tuple(c for t in self.topics.values() for c in t.channels)
         self.max_hold = {c: float(max_hold.get(c, 0.0)) for c in self.channels}
@@ -304,7 +304,7 @@ class GridSampler:
                 # between two clock messages: the earlier one's sample, or (samples lost
                 # between them) the one its receive time falls in; slots of the grid, so
                 # stamp jitter does not count as a lost sample
-                a, b = round(self._slot(ss[i])), round(self._slot(ss[i + 1]))
+                a, b = self._slot_of(ss[i]), self._slot_of(ss[i + 1])
                 off = 0
                 if b - a > 1 and rs[i + 1] > rs[i]:
                     off = min(b - a - 1, math.floor((r - rs[i]) / (rs[i + 1] - rs[i])
@@ -313,7 +313,7 @@ class GridSampler:
             elif i >= 1 and self.t0_int is not None:
                 # after the last one (the end of the data): its sample, or for a slower
                 # clock the one its receive time falls in before the next clock message is due
-                a, b = round(self._slot(ss[i - 1])), round(self._slot(ss[i]))
+                a, b = self._slot_of(ss[i - 1]), self._slot_of(ss[i])
                 off = 0
                 if b > a and rs[i] > rs[i - 1]:
                     per = (rs[i] - rs[i - 1]) / (b - a)
@@ -364,6 +364,10 @@ class GridSampler:
     def _slot(self, t: int) -> float:
         assert self.t0_int is not None
         return ((t - self.t0_int) - self.t0_frac) / self.ts_ns
+
+    def _slot_of(self, t: int) -> int:
+        """The sample (slot of this run) of time ``t``: the nearest grid instant."""
+        return math.floor(self._slot(t) + 0.5)
 
     def _place(self, topic: str, t: int, receive_ns: int, values: dict[str, float]) -> None:
         tp = self.topics[topic]
@@ -453,8 +457,7 @@ class GridSampler:
                     break
         else:
             f.append((j, n))
-        if len(tp.filled) >= 5:
-            f = list(tp.filled)
+        if len(f) >= 5:
             tp.per_slot = sorted(c for _, c in f)[len(f) // 2]
             gaps = sorted(b[0] - a[0] for a, b in itertools.pairwise(f))
             tp.period = gaps[len(gaps) // 2]
