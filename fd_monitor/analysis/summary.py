@@ -25,7 +25,7 @@ from fd_monitor.wire.bags import read_bag
 from fd_monitor.wire.topics import ALARM, BIAS_ESTIMATE, PLANT_TRUTH, STATE_ESTIMATE
 
 __all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "mode_tracking",
-           "outputs_of_run",
+           "outputs_of_run", "region_mark",
            "read_bag_truth", "recorded_outputs", "segments", "settled_modes", "summarize",
            "summarize_run", "transitions", "true_biases", "truth_at", "truth_facts"]
 
@@ -220,6 +220,45 @@ def outputs_of_run(run: Any) -> Outputs:
                    restarts=list(run.inputs.restarts))
 
 
+def region_mark(outside: np.ndarray, starts: np.ndarray, a: int, b: int
+                ) -> tuple[bool, np.ndarray, int]:
+    """Whether the alarm episode of samples ``a..b`` lies outside the certified region.
+
+    A gain file's fault-free guarantee holds for a run that stays inside its region, and the
+    monitor carries an excursion in its memory until it restarts (the residual filter's window,
+    the estimated mode, a bias estimate started by an alarm raised outside the region; the
+    README's campaign shows alarms 200 s after the plant came back inside, from a 1.5 mm bias
+    estimate started outside). So the episode is outside when the region was left at any
+    sample from the run's last (re)start up to ``b``.
+
+    Parameters
+    ----------
+    outside : numpy.ndarray
+        (K, r) signed excess per sample (0 inside), the runtime's ``outside``.
+    starts : numpy.ndarray
+        Sample indices (into ``outside``) where the monitor restarted, ascending.
+    a, b : int
+        First and last sample index of the episode.
+
+    Returns
+    -------
+    outside : bool
+    worst : numpy.ndarray
+        (r,) the largest excess during the episode, or, when the episode itself is inside,
+        before it since the (re)start (zeros when never outside).
+    at : int
+        Sample index of ``worst``.
+    """
+    s0 = int(starts[np.searchsorted(starts, a, side="right") - 1]) if np.any(starts <= a) else 0
+    part = outside[a:b + 1]
+    if not np.any(part != 0.0) and np.any(outside[s0:a] != 0.0):
+        part, first = outside[s0:a], s0
+    else:
+        first = a
+    j = int(np.argmax(np.abs(part).max(axis=1)))
+    return bool(np.any(part != 0.0)), part[j], first + j
+
+
 def summarize_run(run: Any) -> dict[str, Any]:
     """The summary of an offline run (:class:`fd_monitor.analysis.offline.BagRun`), as the
     library's expectations check it.
@@ -262,6 +301,7 @@ def analyze_run(run: Any) -> dict[str, Any]:
     k = run.k
     dt = float(system.sample_time)
     alarms = []
+    starts = np.searchsorted(k, np.asarray(run.inputs.restarts, dtype=int))
     for i, name in enumerate(run.channels):
         for a, b in episodes(run.alarm[:, i]):
             ep: dict[str, Any] = {"channel": name, "first_sample": int(k[a]),
@@ -269,10 +309,10 @@ def analyze_run(run: Any) -> dict[str, Any]:
                                   "samples": int(b - a + 1)}
             if run.outside is not None:
                 # alarms are raised everywhere, but guaranteed only inside the region
-                part = run.outside[a:b + 1]
-                worst = part[np.argmax(np.abs(part).max(axis=1))]
-                ep["outside_certified_region"] = bool(np.any(part != 0.0))
-                ep["outside_detail"] = describe_excess(run.region_names, worst)
+                out, worst, at = region_mark(run.outside, starts, a, b)
+                ep["outside_certified_region"] = out
+                ep["outside_detail"] = describe_excess(run.region_names, worst) + (
+                    "" if at >= a else f" at sample {int(k[at])}, before this alarm")
             alarms.append(ep)
     alarms.sort(key=lambda e: (e["first_sample"], e["channel"]))
     names = system.mode_names
