@@ -68,7 +68,7 @@ if want farhat_koenig_hminus_switched; then
   fdm design hminus_switched farhat_koenig -o $gains/farhat_koenig_hminus_switched.yaml \
     > /dev/null
 fi
-# --- "Sensor-bias diagnosis chain": scenario design (~35 s) and declared envelope (~9 s)
+# --- "Sensor-bias diagnosis chain": scenario design (~10 s) and declared envelope (~9 s)
 if want three_tank_thresholds; then
   step three_tank_thresholds
   fdm design thresholds three_tank -o $gains/three_tank_thresholds.yaml > /dev/null

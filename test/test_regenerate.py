@@ -5,7 +5,7 @@ tolerances it states (decoded values, never bytes). Stored paths are relative.
 
 Parts: the QB designs and the whole bag library with its expected.yaml run in the normal suite
 (~25 s); the H-infinity banks and the identified robot plant under ``slow`` (~25 s); the rest
-(Farhat & Koenig ~15 s, three_tank_thresholds ~35 s, three_tank_envelope ~10 s), or
+(Farhat & Koenig ~15 s, three_tank_thresholds ~10 s, three_tank_envelope ~10 s), or
 everything at once, with ``FD_MONITOR_REGENERATE_ALL=1``::
 
     FD_MONITOR_REGENERATE_ALL=1 .venv/bin/python -m pytest test/test_regenerate.py -k all
