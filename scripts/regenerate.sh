@@ -13,7 +13,8 @@
 # regenerated is the shipped copy; shipped names resolve in OUT/config first
 # (FD_MONITOR_CONFIG), so the bags are made with the regenerated gain files. Compare OUT with
 # the shipped files within tolerance: python scripts/compare_regenerated.py OUT
-# (test/test_regenerate.py does both).
+# (test/test_regenerate.py does both). Runs .venv/bin/python (scripts/setup.sh makes it), or
+# $PYTHON.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 out="$root"
@@ -21,7 +22,7 @@ targets=()
 while [ $# -gt 0 ]; do
   case "$1" in
     -o) out="$2"; shift 2 ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
     *) targets+=("$1"); shift ;;
   esac
 done
