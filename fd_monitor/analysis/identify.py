@@ -580,7 +580,12 @@ def identify(fit: Sequence[Dataset], holdout: Sequence[Dataset] = (), *, name: s
     Re, qe = (Rv, qv) if held else (Rf, qf)     # what validation and bounds are taken from
     candidates = _fit_candidates(Rf, qf, Re, qe, tab, model, modes, estimator, fit_inputs,
                                  sparsity, max_radius)
-    best = min(candidates, key=lambda c: (c["rms"], c["parameters"]))
+    # Equal fits (RMS within 1e-9 relative: round-off, e.g. `sparse` keeping every term of
+    # `affine`) go to the fewer parameters, then the first candidate, so the pick does not
+    # depend on the last bits of a machine's floating-point sums.
+    rms0 = min(c["rms"] for c in candidates)
+    best = min(candidates, key=lambda c: (c["rms"] if c["rms"] > rms0 * (1 + 1e-9) else 0.0,
+                                          c["parameters"]))
     Ms = best["models"]
     bnd = _bounds(Ms, Rf, qf, Re, qe, margin, W, held)
     env = _envelope([Rf, Rv], [qf, qv], tab.names, inputs, outputs)

@@ -267,8 +267,9 @@ def summarize_run(run: Any) -> dict[str, Any]:
     -------
     dict
         :func:`summarize`'s fields, and ``bag``, ``gains``, ``method``, ``input_errors``
-        (kind -> stamps), ``transient_s``, ``channels`` (the runtime's alarm channels) and
-        ``estimate_kind`` (what ``bias_estimate`` estimates).
+        (kind -> stamps), ``transient_s``, ``channels`` (the runtime's alarm channels),
+        ``estimate_kind`` (what ``bias_estimate`` estimates) and ``isolates`` (False for a
+        detect-only runtime, which reports no isolation).
     """
     s = summarize(outputs_of_run(run), run.transient)
     return {"bag": run.bag, "gains": run.gains, "method": run.method,
@@ -277,7 +278,8 @@ def summarize_run(run: Any) -> dict[str, Any]:
             "mode_segments": s["mode_segments"],
             "input_errors": run.inputs.by_kind(), "restarts": s["restarts"],
             "transient_s": run.transient, "channels": list(run.channels),
-            "estimate_kind": run.estimate_kind}
+            "estimate_kind": run.estimate_kind,
+            "isolates": run.isolated is not None or bool(run.isolating)}
 
 
 def analyze_run(run: Any) -> dict[str, Any]:

@@ -102,13 +102,16 @@ _NEG = {">": "<=", ">=": "<", "<": ">=", "<=": ">", "==": None}
 
 
 def default_scenarios(system: System) -> list[str]:
-    """Shipped scenarios ``<plant>_*.yaml`` of ``system`` (design region)."""
-    names: list[str] = []
+    """Shipped scenarios ``<plant>_*.yaml`` of ``system`` (design region), each name once: the
+    first config folder holding it wins, as for every shipped name (``$FD_MONITOR_CONFIG``
+    before the checkout's)."""
+    found: dict[str, str] = {}
     for d in config_dirs():
         sd = d / "scenarios"
         if sd.is_dir():
-            names += sorted(str(p) for p in sd.glob(f"{system.name}_*.yaml"))
-    return names
+            for p in sorted(sd.glob(f"{system.name}_*.yaml")):
+                found.setdefault(p.name, str(p))
+    return [found[n] for n in sorted(found)]
 
 
 def _jacobian(plant: SampledPlant, q: int, x: np.ndarray, u: np.ndarray,

@@ -38,7 +38,7 @@ import numpy as np
 import yaml
 
 from fd_monitor.model.errors import GainFileError
-from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.paths import find_config_file, path_for_file, resolve_for_file
 from fd_monitor.model.system import System
 from fd_monitor.model.yaml_io import read_yaml
 
@@ -86,6 +86,13 @@ class GainFile:
     results: Mapping[str, Any]
     certificate: Mapping[str, Any]
     certificate_status: str = "unchecked"
+
+    @property
+    def design_file(self) -> Path | None:
+        """The design file the gains were made from (``parameters.design_file``, stored
+        relative to the gain file's folder), or None when the design used none."""
+        stored = self.parameters.get("design_file")
+        return resolve_for_file(stored, self.path) if stored else None
 
     @property
     def id(self) -> str:
@@ -267,11 +274,18 @@ def save_gains(path: str | Path, method: str, system: System, parameters: Mappin
     system : System
         The plant designed for (its name and SHA-256 are recorded).
     parameters, results, certificate, solver : mapping
-        Values may be numpy arrays.
+        Values may be numpy arrays. ``parameters.design_file`` is stored relative to the gain
+        file's folder (:func:`fd_monitor.model.paths.path_for_file`); read it back with
+        :attr:`GainFile.design_file`.
     """
     if method not in CERTIFICATE_CHECKS:
         raise GainFileError(f"{path}: method: expected one of {sorted(CERTIFICATE_CHECKS)}, "
                             f"got {method!r}")
+    parameters = dict(parameters)
+    if parameters.get("design_file"):
+        # every path a gain file stores is relative to its own folder (POSIX), so a shipped
+        # file holds in the checkout, in share/fd_monitor/config and in any copy of the tree
+        parameters["design_file"] = path_for_file(parameters["design_file"], path)
     doc = {
         "format_version": FORMAT_VERSION,
         "method": method,
