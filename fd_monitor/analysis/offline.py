@@ -51,8 +51,7 @@ from fd_monitor.model.errors import (
     NonFiniteError,
     WrongLengthError,
 )
-from fd_monitor.model.gains import GainFile, load_gains
-from fd_monitor.model.system import load_system
+from fd_monitor.model.gains import GainFile, gain_system, load_gains
 from fd_monitor.wire.adapters import read_adapted
 from fd_monitor.wire.bags import arrays_from_raw, messages_from_raw, read_raw
 from fd_monitor.wire.conversions import decode, readable_stamp
@@ -109,7 +108,15 @@ class InputReport:
             s = e["sample"]
             out.setdefault(e["kind"], []).append(-1 if s is None else
                                                  list(s) if isinstance(s, tuple) else s)
-        return {k: sorted(v) for k, v in out.items()}
+        return {k: sorted(v, key=_stamp_order) for k, v in out.items()}
+
+
+def _stamp_order(s: Any) -> tuple[int, int]:
+    """Sort key of a :meth:`InputReport.by_kind` entry: a stamp k as ``(k, k)``, a run
+    ``[first, last]`` as ``(first, last)``, so stamps (-1: none) and runs of one kind (an
+    adapter's "no command before it" skip beside a hole) sort together by their first
+    stamp."""
+    return (int(s[0]), int(s[-1])) if isinstance(s, list) else (int(s), int(s))
 
 
 #: Input-error kind of each MessageError class (the first that matches); any other: malformed.
@@ -483,7 +490,7 @@ def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, An
     """The gain file and its plant (the plant file named by the gain file)."""
 
     raw = load_gains(gains_source, None, verify=False)
-    system = load_system(raw.system_name)
+    system = gain_system(raw)
     return system, load_gains(gains_source, system)
 
 
@@ -530,7 +537,7 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     if isinstance(gains, GainFile):
         gf = gains
         if system is None:
-            system = load_system(gf.system_name)
+            system = gain_system(gf)
     elif system is None:
         system, gf = _load_system_for(bag, gains)
     else:

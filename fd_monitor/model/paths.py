@@ -13,7 +13,7 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["check_output", "config_dirs", "config_dir", "default_gain_path", "find_config_file",
-           "repo_root"]
+           "path_for_file", "repo_root", "resolve_for_file"]
 
 
 def repo_root() -> Path | None:
@@ -131,3 +131,38 @@ def check_output(path: str | Path, what: str, error: type[Exception], *, folder:
     except OSError as exc:
         raise error(f"{what} {p}: cannot write there: {exc.strerror or exc}") from None
     return p
+
+
+def path_for_file(path: str | Path, anchor_file: str | Path) -> str:
+    """How a file stores ``path``: relative to ``anchor_file``'s own folder, with POSIX
+    separators (so the pair can be moved, checked in or copied to another machine together).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to refer to.
+    anchor_file : str or pathlib.Path
+        The file that stores the reference (it need not exist yet).
+
+    Returns
+    -------
+    str
+        E.g. ``../systems/motor.yaml``; an absolute POSIX path where no relative one exists
+        (another drive).
+    """
+    target = Path(os.path.abspath(path))
+    folder = Path(os.path.abspath(anchor_file)).parent
+    try:
+        rel = os.path.relpath(target, folder)
+    except ValueError:  # another drive (Windows): no relative path
+        return target.as_posix()
+    return Path(rel).as_posix()
+
+
+def resolve_for_file(stored: str, anchor_file: str | Path) -> Path:
+    """The path a file stored with :func:`path_for_file`, resolved against ``anchor_file``'s
+    folder (an absolute ``stored`` is taken as it is)."""
+    p = Path(stored)
+    if p.is_absolute():
+        return p
+    return Path(os.path.normpath(Path(os.path.abspath(anchor_file)).parent / p))

@@ -1,0 +1,180 @@
+"""Every command speaks adapters (issue 19, item 4): `analyze`, `report`, `evaluate`, `validate`
+on a robot's own bag and adapter file, and a plant found from its gain file. Bags are written
+into tmp_path (the simulated dc_motor as ros2_control publishes it, README "Monitor your own
+robot"); the commands run in-process through the CLI's `main`."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+import yaml
+
+from fd_monitor.analysis.offline import InputReport
+from fd_monitor.commands.cli import main
+from fd_monitor.model.paths import config_dir, path_for_file, resolve_for_file
+
+GAINS = "dc_motor_identified_thresholds"
+JOINT_STATES, COMMANDS = "/joint_states", "/effort_controller/commands"
+
+
+def _cli(capsys, *args):
+    """(status, stdout, stderr) of ``python -m fd_monitor ARGS`` run in this process."""
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _robot_bag(tmp_path, name="motor", scenario="dc_motor_bias_velocity", seconds=3.0,
+               drop=()):
+    """A simulated dc_motor bag on the robot's topics, with the ``(topic, i)``-th messages of
+    ``drop`` left out (a lost message)."""
+    from fd_monitor.commands.simulate import simulate_to_bag
+    from fd_monitor.wire.bags import BagWriter, read_raw
+
+    full = tmp_path / f"{name}_full"
+    simulate_to_bag(scenario, full, seed=3, duration=seconds, adapter="dc_motor")
+    if not drop:
+        return full
+    out = tmp_path / name
+    w = BagWriter(out)
+    seen: dict[str, int] = {}
+    for topic, ty, t, data in read_raw(full):
+        i = seen.get(topic, 0)
+        seen[topic] = i + 1
+        if (topic, i) in drop:
+            continue
+        w.add_topic(topic, ty)
+        w.write_raw(topic, t, bytes(data))
+    w.close()
+    return out
+
+
+# -- analyze: a skip without a stamp beside a hole -------------------------------------------
+
+
+def test_by_kind_orders_stamps_and_runs_of_one_kind():
+    rep = InputReport([
+        {"kind": "missing", "topic": "/y", "sample": (40, 42), "message": ""},
+        {"kind": "missing", "topic": "/y", "sample": None, "message": ""},
+        {"kind": "missing", "topic": "/y", "sample": 7, "message": ""},
+        {"kind": "missing", "topic": "/y", "sample": [3, 5], "message": ""},
+        {"kind": "duplicate", "topic": "/y", "sample": 9, "message": ""},
+        {"kind": "duplicate", "topic": "/y", "sample": 2, "message": ""}])
+    # the format stays: stamps as ints (-1: none), runs as [first, last], by first stamp
+    assert rep.by_kind() == {"missing": [-1, [3, 5], 7, [40, 42]], "duplicate": [2, 9]}
+
+
+def test_analyze_a_robot_bag_with_a_skipped_sample_and_a_hole(tmp_path, capsys):
+    # no command before the first JointState (skipped, no sample number) and JointState 100
+    # lost (a hole): `analyze --adapter` crashed on sorting the two (TypeError)
+    bag = _robot_bag(tmp_path, drop={(COMMANDS, 0), (JOINT_STATES, 100)})
+    code, out, err = _cli(capsys, "analyze", bag, "--gains", GAINS, "--adapter", "dc_motor",
+                          "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    kinds = [(e["kind"], e["sample"]) for e in doc["input_errors"]]
+    assert ("missing", None) in kinds, kinds
+    assert any(k == "missing" and isinstance(s, list) for k, s in kinds), kinds
+    code, out, err = _cli(capsys, "analyze", bag, "--gains", GAINS, "--adapter", "dc_motor")
+    assert code == 0, err
+    assert "no /effort_controller/commands received before it" in out
+
+
+# -- the plant of a gain file: recorded by path when it is not a shipped one -----------------
+
+
+def test_path_for_file_is_relative_to_the_anchor_and_posix(tmp_path):
+    anchor = tmp_path / "gains" / "g.yaml"
+    plant = tmp_path / "plants" / "sub" / "motor.yaml"
+    stored = path_for_file(plant, anchor)
+    assert stored == "../plants/sub/motor.yaml"
+    assert resolve_for_file(stored, anchor) == plant
+    assert resolve_for_file(str(plant), tmp_path / "x.yaml") == plant   # absolute: as is
+
+
+def _own_plant(tmp_path):
+    """The identified motor as a plant file of the user's (another name, not shipped)."""
+    src = (config_dir() / "systems" / "dc_motor_identified.yaml").read_text()
+    plant = tmp_path / "plants" / "motor.yaml"
+    plant.parent.mkdir(parents=True)
+    plant.write_text(src.replace("\nname: dc_motor_identified\n", "\nname: my_motor\n"))
+    return plant
+
+
+def test_analyze_finds_a_designed_plant_from_the_gain_file(tmp_path, capsys):
+    plant = _own_plant(tmp_path)
+    gains = tmp_path / "gains" / "motor_thresholds.yaml"
+    code, _out, err = _cli(capsys, "design", "thresholds", plant, "--envelope", "declared",
+                           "-o", gains)
+    assert code == 0, err
+    doc = yaml.safe_load(gains.read_text())
+    assert doc["system"]["file"] == "../plants/motor.yaml"     # relative, POSIX
+    bag = _robot_bag(tmp_path, seconds=1.0)
+    code, out, err = _cli(capsys, "analyze", bag, "--gains", gains, "--adapter", "dc_motor",
+                          "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["plant"] == "my_motor" and res["samples"] == 100
+    # the gain file and its plant moved together: still found
+    moved = tmp_path / "elsewhere"
+    shutil.copytree(tmp_path / "plants", moved / "plants")
+    shutil.copytree(tmp_path / "gains", moved / "gains")
+    shutil.rmtree(tmp_path / "plants")
+    code, out, err = _cli(capsys, "analyze", bag, "--gains", moved / "gains" / gains.name,
+                          "--adapter", "dc_motor", "--json")
+    assert code == 0, err
+    # the gain file without its plant: the error says how to give it
+    code, _out, err = _cli(capsys, "analyze", bag, "--gains", gains, "--adapter", "dc_motor")
+    assert code == 2
+    assert err.count("\n") == 1 and "system.file" in err and "--system" in err, err
+    code, _out, err = _cli(capsys, "analyze", bag, "--gains", gains, "--adapter", "dc_motor",
+                           "--system", moved / "plants" / "motor.yaml")
+    assert code == 0, err
+
+
+def test_a_plant_found_by_name_is_not_recorded_and_old_gain_files_verify(tmp_path, capsys):
+    from fd_monitor.model.gains import gain_system, load_gains
+
+    gains = tmp_path / "g.yaml"
+    code, _out, err = _cli(capsys, "design", "thresholds", "dc_motor_identified",
+                           "--envelope", "declared", "-o", gains)
+    assert code == 0, err
+    assert "file" not in yaml.safe_load(gains.read_text())["system"]
+    # a shipped gain file (no system.file) still verifies and finds its plant by name
+    gf = load_gains(GAINS, verify=False)
+    assert gf.system_file == "" and gain_system(gf).name == "dc_motor_identified"
+    load_gains(GAINS, gain_system(gf))
+
+
+def test_unknown_plant_without_a_recorded_file_names_system(tmp_path, capsys):
+    from fd_monitor.model.gains import load_gains, write_gain_doc
+
+    # a gain file written before plant files were recorded, for a plant that is not shipped
+    plant = _own_plant(tmp_path)
+    gains = tmp_path / "g.yaml"
+    assert _cli(capsys, "design", "thresholds", plant, "--envelope", "declared", "-o",
+                gains)[0] == 0
+    doc = yaml.safe_load(gains.read_text())
+    del doc["system"]["file"]
+    write_gain_doc(gains, doc)
+    assert load_gains(gains, verify=True).system_file == ""
+    bag = _robot_bag(tmp_path, seconds=0.5)
+    code, _out, err = _cli(capsys, "analyze", bag, "--gains", gains, "--adapter", "dc_motor")
+    assert code == 2
+    assert "designed for plant my_motor, which is not a shipped plant" in err
+    assert "--system PLANT.yaml" in err, err
+
+
+def test_bad_system_file_key_is_one_line(tmp_path):
+    from fd_monitor.model.errors import GainFileError
+    from fd_monitor.model.gains import load_gains, write_gain_doc
+
+    doc = yaml.safe_load((config_dir() / "gains" / f"{GAINS}.yaml").read_text())
+    doc["system"]["file"] = 3
+    write_gain_doc(tmp_path / "g.yaml", doc)
+    with pytest.raises(GainFileError, match=r"g.yaml: system.file: expected the plant file's "
+                                            r"path"):
+        load_gains(tmp_path / "g.yaml")
+
