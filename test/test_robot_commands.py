@@ -6,6 +6,7 @@ robot"); the commands run in-process through the CLI's `main`."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -248,3 +249,71 @@ def test_evaluate_refuses_a_gain_file_of_another_plant(capsys):
     assert err.count("\n") == 1, err
     assert ("designed for dc_motor_identified, scenario three_tank_nominal is for three_tank, "
             "and their inputs differ") in err, err
+
+
+# -- validate: an adapter file on its own, and a dry run over a bag --------------------------
+
+
+@pytest.mark.parametrize("adapter", sorted(SHIPPED))
+def test_validate_recognises_a_shipped_adapter_file(capsys, adapter):
+    path = config_dir() / "adapters" / f"{adapter}.yaml"
+    code, out, err = _cli(capsys, "validate", path)      # was "name: expected the plant's name"
+    assert code == 0, err
+    assert out.startswith(f"valid adapter {path}:"), out
+    code, out, err = _cli(capsys, "validate", adapter, "--adapter", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["valid"] and doc["clock_topic"] == JOINT_STATES
+    assert {(c["channel"], c["role"]) for c in doc["channels"]} == {("effort", "input"),
+                                                                    ("velocity", "output")}
+
+
+@pytest.mark.parametrize("text, match", [
+    ("outputs:\n  - {channel: velocity, topic: /js, type: sensor_msgs/JointState, joint: m,"
+     " field: speed}\n",
+     r"bad\.yaml: outputs\[0\]\.field: 'speed' is not a field of sensor_msgs/msg/JointState"),
+    ("outputs:\n  - {channel: velocity, topic: /js, type: sensor_msgs/Imu}\n",
+     r"bad\.yaml: outputs\[0\]\.type: 'sensor_msgs/Imu': expected one of"),
+    ("inputs: 3\noutputs: []\n", r"bad\.yaml: inputs: expected a list of channel mappings"),
+    ("inputs:\n  - {channel: effort, topic: /c, type: std_msgs/Float64MultiArray}\n"
+     "outputs:\n  - {channel: v, topic: /v, type: std_msgs/Float64}\n",
+     r"bad\.yaml: inputs\[0\]: expected exactly one of label"),
+])
+def test_validate_a_bad_adapter_file_is_one_line_naming_the_key(tmp_path, capsys, text,
+                                                                 match):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("format_version: 1\n" + text)
+    code, out, err = _cli(capsys, "validate", bad)
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("fd_monitor: error: "), err
+    assert re.search(match, err), err
+
+
+def test_validate_dry_run_shows_how_a_bag_pairs_into_samples(tmp_path, capsys):
+    # 300 JointStates: the first has no command before it (skipped), the 101st is lost
+    bag = _robot_bag(tmp_path, drop={(COMMANDS, 0), (JOINT_STATES, 100)})
+    code, out, err = _cli(capsys, "validate", "dc_motor", "--adapter", "--bag", bag,
+                          "--system", "dc_motor_identified", "--json")
+    assert code == 0, err
+    dry = json.loads(out)["dry_run"]
+    assert dry["messages"] == {COMMANDS: 299, JOINT_STATES: 299}
+    assert dry["sample_time"] == 0.01 and dry["sample_time_from"] == "plant dc_motor_identified"
+    # 299 clock messages, one skipped: 298 samples over k 0..298 with one hole
+    assert (dry["samples"], dry["k_first"], dry["k_last"]) == (298, 0, 298)
+    assert dry["holes"] == [{"first": 99, "last": 99, "samples": 1}]
+    assert dry["counts"] == {"hole": 1, "missing": 1}
+    assert "no /effort_controller/commands received before it" in dry["skipped"][0]["message"]
+    # each sample: the command in force at its JointState (the held input)
+    assert [f["k"] for f in dry["first_samples"]] == [0, 1, 2, 3, 4]
+    code, out, err = _cli(capsys, "validate", config_dir() / "adapters" / "dc_motor.yaml",
+                          "--bag", bag)
+    assert code == 0, err
+    assert "298 samples, k 0..298; 1 hole, 1 missing" in out
+    assert "hole     k 99..99: no sample (1)" in out
+    assert "sample clock  header.stamp  299" in out and "held          receive time  299" in out
+    # a plant's channels that the file does not map, and --bag on a plant file
+    code, _out, err = _cli(capsys, "validate", "dc_motor", "--adapter", "--system",
+                           "three_tank")
+    assert code == 2 and "inputs: no mapping for q1, q2, v13" in err
+    code, _out, err = _cli(capsys, "validate", "three_tank", "--bag", bag)
+    assert code == 2 and "--bag: only for an adapter file" in err
