@@ -317,3 +317,51 @@ def test_validate_dry_run_shows_how_a_bag_pairs_into_samples(tmp_path, capsys):
     assert code == 2 and "inputs: no mapping for q1, q2, v13" in err
     code, _out, err = _cli(capsys, "validate", "three_tank", "--bag", bag)
     assert code == 2 and "--bag: only for an adapter file" in err
+
+
+# -- record --adapter: the robot's topics and what the monitor said about them ---------------
+
+
+@pytest.mark.ros
+def test_record_adapter_records_robot_topics_fd_outputs_and_diagnostics(tmp_path, capsys):
+    from ros_util import Proc, wait_graph
+
+    from fd_monitor.wire.bags import bag_topics
+    from fd_monitor.wire.topics import CHAIN_OUTPUTS, DIAGNOSTICS
+
+    plant, bag, n = load_gains(GAINS, verify=False).system_name, tmp_path / "rec", 300
+    fd = [t.absolute for t in CHAIN_OUTPUTS]
+    monitor = Proc(["run", "monitor", "--ros-args", "-p", f"system:={plant}", "-p",
+                    f"gains:={GAINS}", "-p", "adapter:=dc_motor", "-p",
+                    "diagnostics_period:=0.2"])
+    # no TOPIC: the adapter's topics, fd/* and /diagnostics (it recorded the robot's only)
+    rec = Proc(["record", "--adapter", "dc_motor", "-o", str(bag), "--until",
+                f"{JOINT_STATES}={n}", "--until", f"/fd/alarm={n}", "--until",
+                f"{DIAGNOSTICS.absolute}=1"])
+    with monitor, rec:
+        assert wait_graph([*fd, DIAGNOSTICS.absolute], 60.0, nodes=["monitor"]), \
+            (monitor.output(), rec.output())
+        # the simulated motor, 3 s paced at 4 x real time; it starts once the monitor and
+        # the recorder subscribe its topics
+        with Proc(["run", "plant_sim", "--ros-args", "-p", "scenario:=dc_motor_nominal",
+                   "-p", "adapter:=dc_motor", "-p", "rate_factor:=4.0", "-p",
+                   f"duration:={n / 100:.1f}", "-p", "min_subscribers_y:=2", "-p",
+                   "min_subscribers_u:=2", "-p", "publish_truth:=false"]) as sim:
+            assert sim.wait(120) == 0, sim.output()
+            assert rec.wait(120) == 0, (rec.output(), monitor.output())
+    topics = bag_topics(bag)
+    assert topics[JOINT_STATES] == ("sensor_msgs/msg/JointState", n), topics
+    assert topics[COMMANDS] == ("std_msgs/msg/Float64MultiArray", n), topics
+    assert topics["/fd/alarm"][1] == n and topics["/fd/residual"][1] >= n - 1, topics
+    assert topics[DIAGNOSTICS.absolute][1] >= 1, topics
+    assert not any(t.startswith("/plant/") for t in topics), topics
+    # the recorded bag through the same adapter: every sample, no alarm (fault free)
+    code, out, err = _cli(capsys, "analyze", bag, "--gains", GAINS, "--adapter", "dc_motor",
+                          "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["samples"] == n and doc["alarms"] == [], (doc["samples"], doc["alarms"])
+    code, out, err = _cli(capsys, "report", bag, "--gains", GAINS, "--adapter", "dc_motor",
+                          "-o", tmp_path / "report", "--json")
+    assert code == 0, err
+    assert json.loads(out)["alarms"] == []
