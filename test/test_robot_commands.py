@@ -175,7 +175,7 @@ def test_analyze_finds_a_designed_plant_from_the_gain_file(tmp_path, capsys):
 
 
 def test_a_plant_found_by_name_is_not_recorded_and_old_gain_files_verify(tmp_path, capsys):
-    from fd_monitor.model.gains import gain_system, load_gains
+    from fd_monitor.model.system import gain_system
 
     gains = tmp_path / "g.yaml"
     code, _out, err = _cli(capsys, "design", "thresholds", "dc_motor_identified",

@@ -130,7 +130,7 @@ def monitored_plant(gains: GainFile, scenario: Scenario, system: System | None =
     scenario : Scenario
         Simulates P = ``scenario.system``.
     system : System, optional
-        The gain file's plant M when it is not P (:func:`fd_monitor.model.gains.gain_system`).
+        The gain file's plant M when it is not P (:func:`fd_monitor.model.system.gain_system`).
 
     Raises
     ------

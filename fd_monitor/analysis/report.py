@@ -37,7 +37,8 @@ from fd_monitor.analysis.library import expected_path, load_expected
 from fd_monitor.analysis.offline import run_bag
 from fd_monitor.analysis.summary import episodes, summarize_run, truth_at, truth_facts
 from fd_monitor.model.errors import BagError, FdMonitorError
-from fd_monitor.model.gains import gain_system, load_gains
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.system import gain_system
 
 __all__ = ["bag_report", "campaign_report", "figure_residuals", "figure_modes", "figure_bias",
            "figure_qb_bound"]

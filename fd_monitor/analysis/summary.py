@@ -252,7 +252,11 @@ def analyze_run(run: Any) -> dict[str, Any]:
         ``{sample, time}``, or None), ``transitions_estimated``, ``transitions_true`` (or
         None), ``mode_agreement`` (or None), ``isolated``, ``bias_estimate``,
         ``input_errors`` (every rejected or suspicious input message: ``{kind, topic, sample,
-        message}``) and ``restarts`` (samples where the monitor restarted after a hole).
+        message}``), ``restarts`` (samples where the monitor restarted), ``sample_counts``
+        (``present``, ``used``, ``skipped``: reason -> samples;
+        :meth:`~fd_monitor.analysis.offline.InputReport.sample_counts`) and ``time_base``
+        (a robot bag read through an adapter: the sample time and where it came from, held
+        samples per channel, gaps, late/duplicate/stray/decimated messages per topic).
     """
     system = run.system
     k = run.k
@@ -291,6 +295,8 @@ def analyze_run(run: Any) -> dict[str, Any]:
         "bias_estimate": summary["bias_estimate"],
         "input_errors": list(run.inputs.errors),
         "restarts": list(run.inputs.restarts),
+        "sample_counts": run.inputs.sample_counts(),
+        "time_base": dict(run.inputs.timebase),
     }
 
 

@@ -129,7 +129,8 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     GainFileError
         Gain file missing, for another plant, or its certificate fails.
     """
-    from fd_monitor.model.gains import gain_system, load_gains
+    from fd_monitor.model.gains import load_gains
+    from fd_monitor.model.system import gain_system
 
     raw = load_gains(gains_source, verify=False)
     system = gain_system(raw, system_source)
@@ -161,6 +162,18 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
             "method": gains.method, "agei": agei, **analyze_run(run)}
 
 
+def samples_line(doc: dict[str, Any]) -> str:
+    """``analyze``'s one line on samples: present, used, skipped per reason, held."""
+    c = doc["sample_counts"]
+    why = ", ".join(f"{n} {k}" for k, n in c["skipped"].items())
+    held = doc["time_base"].get("held", {})
+    return (f"samples: {c['present']} present, {c['used']} used, "
+            + (f"skipped: {why}" if why else "none skipped")
+            + ("; held from an earlier sample: " + ", ".join(f"{ch} {n}"
+                                                               for ch, n in held.items())
+               if held else ""))
+
+
 def _region_cell(a: dict[str, Any]) -> str:
     if "outside_certified_region" not in a:
         return "n/a (no region in gain file)"
@@ -179,6 +192,9 @@ def run(args: argparse.Namespace) -> int:
           f"{doc['samples']} samples, AGEI {'on' if doc['agei'] else 'off'})")
     first = "none" if det is None else f"sample {det['sample']} (t = {det['time']:.1f} s)"
     print(f"first detection: {first}")
+    print(samples_line(doc))
+    if doc["time_base"].get("sample_time_note"):
+        print(doc["time_base"]["sample_time_note"])
     print()
     if doc["alarms"]:
         print_table([(a["channel"], a["first_sample"], f"{a['time']:.1f}", a["last_sample"],

@@ -21,8 +21,9 @@ from fd_monitor.analysis.evaluate import run_campaign
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.core.runtime import runtime_class
 from fd_monitor.model.errors import FdMonitorError
-from fd_monitor.model.gains import gain_system, load_gains
+from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import check_horizon, load_scenario
+from fd_monitor.model.system import gain_system
 
 __all__ = ["add_arguments", "run"]
 

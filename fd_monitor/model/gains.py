@@ -16,8 +16,8 @@ A gain file is YAML with human-readable matrices (nested lists)::
 A gain file for another plant (a different SHA-256) is refused. A plant that cannot be found
 by its name (not a shipped one: an identified or hand-written plant file elsewhere) is
 recorded by path as ``system.file``, and the plant is found from it
-(:func:`gain_system`): like every path stored in a gain file, relative to the gain file's own
-folder with POSIX separators, resolved against it when read
+(:func:`fd_monitor.model.system.gain_system`): like every path stored in a gain file,
+relative to the gain file's own folder with POSIX separators, resolved against it when read
 (:func:`~fd_monitor.model.paths.path_for_file`,
 :func:`~fd_monitor.model.paths.resolve_for_file`). The certificate is checked
 by the method's ``check_certificate(system, gains)`` in ``fd_monitor.core`` (numpy only), so
@@ -44,13 +44,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from fd_monitor.model.errors import GainFileError, SystemFileError
+from fd_monitor.model.errors import GainFileError
 from fd_monitor.model.paths import find_config_file, path_for_file, resolve_for_file
-from fd_monitor.model.system import System, load_system
+from fd_monitor.model.system import System
 from fd_monitor.model.yaml_io import read_yaml
 
-__all__ = ["GainFile", "CERTIFICATE_CHECKS", "check_digest", "gain_digest", "gain_system",
-           "gains_from_doc", "load_gains",
+__all__ = ["GainFile", "CERTIFICATE_CHECKS", "check_digest", "gain_digest", "gains_from_doc",
+           "load_gains",
            "save_gains", "to_plain", "from_plain", "write_gain_doc"]
 
 FORMAT_VERSION = 1
@@ -79,11 +79,11 @@ class GainFile:
     results : dict
         Matrices and vectors as numpy arrays, scalars as floats.
     certificate : dict
-    certificate_status : str
-        ``verified`` once ``load_gains`` re-checked it, ``unchecked`` otherwise.
     system_file : str
         The plant file the gain file records (``system.file``), resolved against the gain
         file's folder; ``""`` when it records none (a plant found by its name).
+    certificate_status : str
+        ``verified`` once ``load_gains`` re-checked it, ``unchecked`` otherwise.
     """
 
     path: str
@@ -95,8 +95,8 @@ class GainFile:
     parameters: Mapping[str, Any]
     results: Mapping[str, Any]
     certificate: Mapping[str, Any]
-    certificate_status: str = "unchecked"
     system_file: str = ""
+    certificate_status: str = "unchecked"
 
     @property
     def id(self) -> str:
@@ -304,52 +304,12 @@ def _plant_file(system: System, gain_path: str | Path) -> dict[str, str]:
     if not src.is_file():
         return {}
     try:
-        by_name = find_config_file(system.name, "systems", SystemFileError)
-    except SystemFileError:
+        by_name = find_config_file(system.name, "systems", GainFileError)
+    except GainFileError:
         by_name = None
     if by_name is not None and by_name.resolve() == src.resolve():
         return {}
     return {"file": path_for_file(src, gain_path)}
-
-
-def gain_system(gains: GainFile, source: str | Path | None = None,
-                option: str = "--system") -> System:
-    """The plant a gain file was designed for.
-
-    Looked up, in this order: ``source`` when given; the plant file the gain file records
-    (``system.file``); the plant's name among the shipped plants. Whether it is the plant
-    the gain file was designed for is checked by :func:`load_gains` (its SHA-256).
-
-    Parameters
-    ----------
-    gains : GainFile
-        Loaded (``verify=False`` is enough).
-    source : str or pathlib.Path, optional
-        A plant file or a shipped name given by the user.
-    option : str
-        How the user gives a plant file (named in the error): ``--system``,
-        ``-p system:=``.
-
-    Raises
-    ------
-    SystemFileError
-        A bad plant file; or no plant found, the message naming ``option``.
-    """
-    if source is not None:
-        return load_system(source)
-    if gains.system_file:
-        if not Path(gains.system_file).is_file():
-            raise SystemFileError(
-                f"{gains.path}: system.file: plant file {gains.system_file} (of plant "
-                f"{gains.system_name}) not found: moved? give it with {option} PLANT.yaml")
-        return load_system(gains.system_file)
-    try:
-        return load_system(gains.system_name)
-    except SystemFileError:
-        raise SystemFileError(
-            f"{gains.path}: designed for plant {gains.system_name}, which is not a shipped "
-            f"plant and the gain file records no plant file: give it with {option} "
-            f"PLANT.yaml") from None
 
 
 def load_gains(source: str | Path, system: System | None = None, *,
@@ -432,6 +392,6 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
                 raise GainFileError(f"{path}: malformed results or certificate: "
                                     f"{type(exc).__name__}: {exc}") from None
             gf = GainFile(gf.path, gf.method, gf.system_name, gf.system_sha256, gf.created,
-                          gf.solver, gf.parameters, gf.results, gf.certificate, "verified",
-                          gf.system_file)
+                          gf.solver, gf.parameters, gf.results, gf.certificate, gf.system_file,
+                          "verified")
     return gf

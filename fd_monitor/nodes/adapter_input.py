@@ -2,9 +2,11 @@
 
 :class:`AdapterInput` subscribes the topics an adapter file maps (``sensor_msgs/JointState``,
 ``nav_msgs/Odometry``, ``geometry_msgs/Twist``, ``std_msgs/Float64``, ...) and feeds the
-samples of the one join (:class:`fd_monitor.wire.adapters.AdapterJoin`: sample clock from the
-outputs' stamps, inputs held) into a node's stamp join as ``u`` and ``y``, so everything after
-it (holes, restarts, the runtime step, diagnostics) is the node's usual path. Subscriptions
+events of the one time base (:class:`fd_monitor.wire.adapters.AdapterJoin` on
+:mod:`fd_monitor.wire.timebase`: every channel sampled onto the plant's grid) into the node's
+input policy as ``u`` and ``y`` with :func:`~fd_monitor.wire.adapters.feed` -- the function
+the offline reader calls -- so everything after it (gaps, new runs, the runtime step,
+diagnostics) is the node's usual path. Subscriptions
 meet reliable and best-effort volatile publishers (:class:`~fd_monitor.nodes.common.DataInput`).
 A message the adapter cannot read (unknown joint, missing field, NaN, another type) is one
 line, logged (throttled) and reported WARN on the node's ``input`` channel; the node keeps
@@ -25,7 +27,7 @@ import numpy as np
 
 from fd_monitor.nodes.bag_nodes import message_class
 from fd_monitor.nodes.common import DataInput, Param, pub_events
-from fd_monitor.wire.adapters import Adapter, AdapterJoin, encode, load_adapter
+from fd_monitor.wire.adapters import Adapter, AdapterJoin, encode, feed, load_adapter
 
 __all__ = ["ADAPTER_PARAM", "AdapterInput", "RobotPublishers"]
 
@@ -84,19 +86,21 @@ class AdapterInput:
             node.inactive_dropped += 1
             return
         now = time.monotonic()
-        self.join.put(topic, msg, time.monotonic_ns(), now)
+        self.join.put(topic, msg, time.time_ns(), now)
         self._release(now)
 
     def _release(self, now: float | None = None) -> None:
         node = self.node
         if not node.active:
             return
-        for _kind, line in self.join.take_errors():
-            node.bad_input(line)
-        for s in self.join.ready(time.monotonic() if now is None else now):
-            if self.nu:
-                node.on_input("u", s.k, s.u)
-            node.on_input("y", s.k, s.y)
+        if now is None:                          # the timer: a silence decides what waits
+            now = time.monotonic()
+            self.join.advance(now)
+        joined = False
+        for e in self.join.events():
+            joined = feed(node.stream, e, now, bool(self.nu)) or joined
+        if joined:
+            node._input_ok()
         for _kind, line in self.join.take_errors():
             node.bad_input(line)
 
