@@ -73,19 +73,18 @@ def test_by_kind_orders_stamps_and_runs_of_one_kind():
 
 
 def test_analyze_a_robot_bag_with_a_skipped_sample_and_a_hole(tmp_path, capsys):
-    # no command before the first JointState (skipped, no sample number) and JointState 100
-    # lost (a hole): `analyze --adapter` crashed on sorting the two (TypeError)
+    # no command before the first JointState and JointState 100 lost: `analyze --adapter`
+    # crashed on sorting a sample without a stamp beside a run of missing samples (TypeError)
     bag = _robot_bag(tmp_path, drop={(COMMANDS, 0), (JOINT_STATES, 100)})
     code, out, err = _cli(capsys, "analyze", bag, "--gains", GAINS, "--adapter", "dc_motor",
                           "--json")
     assert code == 0, err
     doc = json.loads(out)
-    kinds = [(e["kind"], e["sample"]) for e in doc["input_errors"]]
-    assert ("missing", None) in kinds, kinds
-    assert any(k == "missing" and isinstance(s, list) for k, s in kinds), kinds
+    kinds = {(e["kind"], tuple(e["sample"])) for e in doc["input_errors"]}
+    assert kinds == {("no_value", (0, 0)), ("stale", (100, 100))}, kinds
     code, out, err = _cli(capsys, "analyze", bag, "--gains", GAINS, "--adapter", "dc_motor")
     assert code == 0, err
-    assert "no /effort_controller/commands received before it" in out
+    assert "samples: 300 present, 298 used" in out, out
 
 
 # -- report: a robot's bag -----------------------------------------------------------------
@@ -297,20 +296,25 @@ def test_validate_dry_run_shows_how_a_bag_pairs_into_samples(tmp_path, capsys):
     assert code == 0, err
     dry = json.loads(out)["dry_run"]
     assert dry["messages"] == {COMMANDS: 299, JOINT_STATES: 299}
-    assert dry["sample_time"] == 0.01 and dry["sample_time_from"] == "plant dc_motor_identified"
-    # 299 clock messages, one skipped: 298 samples over k 0..298 with one hole
-    assert (dry["samples"], dry["k_first"], dry["k_last"]) == (298, 0, 298)
-    assert dry["holes"] == [{"first": 99, "last": 99, "samples": 1}]
-    assert dry["counts"] == {"hole": 1, "missing": 1}
-    assert "no /effort_controller/commands received before it" in dry["skipped"][0]["message"]
-    # each sample: the command in force at its JointState (the held input)
-    assert [f["k"] for f in dry["first_samples"]] == [0, 1, 2, 3, 4]
+    assert dry["sample_time"] == 0.01
+    assert dry["sample_time_note"] == "sample time 0.01 s: the plant's (dc_motor_identified)"
+    # 300 grid samples: k 0 has no command yet, k 100 lost its JointState (outputs are not
+    # held): 298 used
+    assert (dry["samples_present"], dry["samples_used"]) == (300, 298)
+    assert (dry["k_first"], dry["k_last"]) == (0, 299)
+    assert dry["gaps"] == [
+        {"reason": "no_value", "channel": "effort", "first": 0, "last": 0, "samples": 1},
+        {"reason": "stale", "channel": "velocity", "first": 100, "last": 100, "samples": 1}]
+    assert dry["counts"] == {"no_value": 1, "stale": 1} and dry["new_runs"] == []
+    # each sample: the command in force at its JointState
+    assert [f["k"] for f in dry["first_samples"]] == [1, 2, 3, 4, 5]
     code, out, err = _cli(capsys, "validate", config_dir() / "adapters" / "dc_motor.yaml",
                           "--bag", bag)
     assert code == 0, err
-    assert "298 samples, k 0..298; 1 hole, 1 missing" in out
-    assert "hole     k 99..99: no sample (1)" in out
-    assert "sample clock  header.stamp  299" in out and "held          receive time  299" in out
+    assert "samples: 300 present (k 0..299), 298 used; 1 no_value, 1 stale" in out, out
+    assert "stale     velocity: k 100..100 (1 sample)" in out, out
+    assert "snapped to a round value" in out, out          # Ts from the stamps
+    assert "clock (grid phase)  header.stamp  299" in out, out
     # a plant's channels that the file does not map, and --bag on a plant file
     code, _out, err = _cli(capsys, "validate", "dc_motor", "--adapter", "--system",
                            "three_tank")

@@ -5,10 +5,11 @@ An adapter file (:mod:`fd_monitor.wire.adapters`: ``inputs``/``outputs`` lists o
 ``{channel, topic, type, ...}`` mappings) is recognised by its content, or named with
 ``--adapter``, and checked on its own (:func:`~fd_monitor.wire.adapters.parse_adapter`); with
 ``--bag BAG`` it is a dry run of the offline reader
-(:func:`~fd_monitor.wire.adapters.read_adapted`) over the bag: how its messages pair into
-samples (the sample clock and the held topics with their message counts), the samples and
-their k range, the sample time used, every hole and every message or sample left out, with
-counts per reason. ``--system`` checks the mapping against a plant (and takes its sample
+(:func:`~fd_monitor.wire.adapters.read_adapted`, the nodes' time base) over the bag: how its
+messages pair into samples (per topic its role and what times it, its messages; the first
+samples), the sample time used and where it came from, the samples present and used and
+their k range, every gap (reason, channel, k run), held sample, new run and message left out,
+with counts per reason. ``--system`` checks the mapping against a plant (and takes its sample
 time); ``--sample-time`` overrides it.
 """
 
@@ -135,68 +136,94 @@ def _is_adapter_file(source: str) -> bool:
 
 
 def adapter_summary(adapter: Any) -> dict[str, Any]:
-    """An adapter file's channels and topics: per channel its role, topic, type and field;
-    per topic whether it is the sample clock or held, and what times it (header stamp or
-    receive time)."""
+    """An adapter file's channels and topics: per channel its role, topic, type, field,
+    ``max_hold`` (s) and ``decimate``; per topic whether it phases the grid (the clock) and
+    what times it (header stamp or receive time); ``wait`` (s)."""
     from fd_monitor.wire.adapters import ADAPTER_TYPES
 
     return {
         "file": adapter.source,
         "clock_topic": adapter.clock_topic,
         "channels": [{"channel": c.name, "role": role, "topic": c.topic, "type": c.msgtype,
-                      "field": c.where[len(c.topic):]}
-                     for role, chans in (("input", adapter.inputs),
-                                         ("output", adapter.outputs)) for c in chans],
+                      "field": c.where[len(c.topic):],
+                      "max_hold": default if c.max_hold is None else c.max_hold,
+                      "decimate": c.decimate}
+                     for role, chans, default in (
+                         ("input", adapter.inputs, adapter.hold_inputs),
+                         ("output", adapter.outputs, adapter.hold_outputs)) for c in chans],
+        "wait": adapter.wait,
         "topics": [{"topic": t, "type": ty,
-                    "role": "sample clock" if t == adapter.clock_topic else "held",
+                    "role": "clock (grid phase)" if t == adapter.clock_topic else "sampled",
                     "time": "header.stamp" if ADAPTER_TYPES[ty][0] else "receive time"}
                    for t, ty in adapter.topics.items()],
     }
 
 
-def _runs(ks: np.ndarray) -> list[tuple[int, int]]:
-    """Inclusive runs ``(first, last)`` of the indices missing between sorted ``ks``."""
-    gaps = np.flatnonzero(np.diff(ks) > 1)
-    return [(int(ks[i]) + 1, int(ks[i + 1]) - 1) for i in gaps]
+def _runs(ks: list[int]) -> list[tuple[int, int]]:
+    """Sorted indices -> inclusive runs ``(first, last)`` of consecutive ones."""
+    out: list[tuple[int, int]] = []
+    for k in ks:
+        if out and k == out[-1][1] + 1:
+            out[-1] = (out[-1][0], k)
+        else:
+            out.append((k, k))
+    return out
 
 
 def adapter_dry_run(adapter: Any, bag: str, system: Any = None,
                     sample_time: float | None = None) -> dict[str, Any]:
-    """How a robot bag's messages pair into samples through ``adapter`` (the offline reader,
-    :func:`~fd_monitor.wire.adapters.read_adapted`, run and described).
+    """How a robot bag's messages pair into samples through ``adapter``: the offline reader
+    (:func:`~fd_monitor.wire.adapters.read_adapted`, the live nodes' time base) run and
+    described.
 
     Returns
     -------
     dict
-        ``bag``, ``messages`` (topic -> count of the mapped topics), ``sample_time`` (s) and
-        ``sample_time_from`` (``--sample-time``, the plant, or the clock's stamps),
-        ``samples``, ``k_first``, ``k_last``, ``holes`` (``[{first, last, samples}]``),
-        ``skipped`` (``[{kind, message}]``: messages and samples left out), ``counts``
-        (reason -> count: ``hole`` counts missing samples, every other kind its entries),
-        ``first_samples`` (``[{k, t, u, y}]``, t in s since the first sample).
+        ``bag``; ``messages`` (topic -> messages the reader took); ``sample_time`` (s) and
+        ``sample_time_note`` (where it came from); ``samples_present`` (grid samples from
+        the first to the last), ``samples_used`` (with a value of every channel), ``k_first``,
+        ``k_last``; ``gaps`` (``[{reason, channel, first, last, samples}]``: runs of samples
+        not usable, ``stale`` or ``no_value``); ``held`` (channel -> samples that used a
+        held value); ``new_runs`` (first sample of each); ``skipped`` (``[{kind, message}]``:
+        messages left out and the first note of each kind); ``counts`` (reason -> count:
+        gap samples per reason, messages per kind, new runs); ``first_samples``
+        (``[{k, t, u, y}]``, t in s since the first sample).
     """
     from fd_monitor.wire.adapters import read_adapted
-    from fd_monitor.wire.bags import bag_topics
 
     if not Path(bag).exists():
         raise FdMonitorError(f"--bag {bag}: no such bag")
     s = read_adapted(bag, adapter, sample_time=sample_time, system=system)
-    present = bag_topics(bag)
-    holes = [{"first": a, "last": b, "samples": b - a + 1} for a, b in _runs(s.k)]
-    counts: Counter[str] = Counter(kind for kind, _line in s.errors)
-    if holes:
-        counts["hole"] = sum(h["samples"] for h in holes)
+    by: dict[tuple[str, str], list[int]] = {}
+    for k, reason, channel in s.gaps:
+        by.setdefault((reason, channel), []).append(int(k))
+    gaps = [{"reason": r, "channel": c, "first": a, "last": b, "samples": b - a + 1}
+            for (r, c), ks in sorted(by.items()) for a, b in _runs(sorted(set(ks)))]
+    gap_ks = sorted({int(k) for k, _r, _c in s.gaps})
+    # samples per gap reason (a sample with two stale channels counts once), messages per
+    # kind: per topic (late, duplicate, stray, decimated) and the bad ones (by their kind)
+    counts: Counter[str] = Counter(r for _k, r in {(int(k), r) for k, r, _c in s.gaps})
+    for key, val in s.counts.items():
+        if key in ("samples", "gaps", "held", "new_runs", "messages") or \
+                not isinstance(val, Mapping):
+            continue
+        for name, n in val.items():
+            counts[name if key == "bad_messages" else key] += int(n)
+    if s.new_runs:
+        counts["new_run"] = len(s.new_runs)
+    k_all = [int(k) for k in s.k] + gap_ks
     return {
         "bag": str(bag),
-        "messages": {t: present.get(t, ("", 0))[1] for t in adapter.topics},
+        "messages": dict(s.counts.get("messages", {})),
         "sample_time": float(s.sample_time),
-        "sample_time_from": ("--sample-time" if sample_time is not None else
-                             f"plant {system.name}" if system is not None else
-                             f"the stamps of {s.clock_topic} (median step)"),
-        "samples": len(s.k),
-        "k_first": int(s.k[0]),
-        "k_last": int(s.k[-1]),
-        "holes": holes,
+        "sample_time_note": s.sample_time_note,
+        "samples_present": len(s.k) + len(gap_ks),
+        "samples_used": len(s.k),
+        "k_first": min(k_all),
+        "k_last": max(k_all),
+        "gaps": gaps,
+        "held": dict(s.counts.get("held", {})),
+        "new_runs": [int(k) for k in s.new_runs],
         "skipped": [{"kind": kind, "message": line} for kind, line in s.errors],
         "counts": dict(sorted(counts.items())),
         "first_samples": [{"k": int(s.k[i]), "t": float(s.t[i]),
@@ -232,17 +259,18 @@ def _validate_adapter(args: argparse.Namespace) -> int:
         return 0
     print(f"valid adapter {ad.source}: {len(ad.inputs)} input(s), {len(ad.outputs)} "
           f"output(s)" + ("" if system is None else f", the channels of plant {system.name}")
-          + f"; sample clock {ad.clock_topic}")
+          + f"; clock topic (grid phase) {ad.clock_topic}")
     print()
-    print_table([(c["channel"], c["role"], c["topic"], c["type"], c["field"])
-                 for c in summary["channels"]],
-                header=("channel", "role", "topic", "type", "field"))
+    print_table([(c["channel"], c["role"], c["topic"], c["type"], c["field"],
+                  f"{c['max_hold']:g}", c["decimate"]) for c in summary["channels"]],
+                header=("channel", "role", "topic", "type", "field", "max_hold_s",
+                        "decimate"))
     if dry is None:
         return 0
     print()
-    print(f"dry run over {dry['bag']}: every {ad.clock_topic} message is a sample, the other "
-          f"topics are held (latest value before it)")
-    print_table([(t["topic"], t["role"], t["time"], dry["messages"][t["topic"]])
+    print(f"dry run over {dry['bag']}: every channel sampled onto the grid k Ts phased on "
+          f"{ad.clock_topic} (the value in force at each grid instant; held up to max_hold)")
+    print_table([(t["topic"], t["role"], t["time"], dry["messages"].get(t["topic"], 0))
                  for t in summary["topics"]], header=("topic", "role", "time", "messages"))
     print()
     print_table([(f["k"], f"{f['t']:.6f}",
@@ -250,12 +278,14 @@ def _validate_adapter(args: argparse.Namespace) -> int:
                  for f in dry["first_samples"]],
                 header=("k", "t_s", *_columns(ad)), title="first samples")
     print()
-    print(f"sample time {dry['sample_time']:.9g} s (from {dry['sample_time_from']}); "
-          f"{dry['samples']} samples, k {dry['k_first']}..{dry['k_last']}; "
-          + (", ".join(f"{n} {r}" for r, n in dry["counts"].items()) or "no hole, nothing "
-             "skipped"))
-    rows = ([("hole", f"k {h['first']}..{h['last']}: no sample ({h['samples']})")
-             for h in dry["holes"]]
+    print(dry["sample_time_note"])
+    print(f"samples: {dry['samples_present']} present (k {dry['k_first']}..{dry['k_last']}), "
+          f"{dry['samples_used']} used; "
+          + (", ".join(f"{n} {r}" for r, n in dry["counts"].items()) or "nothing skipped")
+          + "".join(f"; {n} held ({c})" for c, n in dry["held"].items()))
+    rows = ([(g["reason"], f"{g['channel']}: k {g['first']}..{g['last']} ({g['samples']} "
+                           f"sample{'s' if g['samples'] > 1 else ''})") for g in dry["gaps"]]
+            + [("new_run", f"a new run from k {k}") for k in dry["new_runs"]]
             + [(e["kind"], e["message"]) for e in dry["skipped"]])
     if rows:
         print()
