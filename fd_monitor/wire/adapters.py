@@ -568,8 +568,11 @@ class AdapterJoin:
     def put(self, topic: str, msg: Any, receive_ns: int, now: float | None = None) -> None:
         """Decode one message and place it on the grid; a bad one is added to
         :attr:`errors` (one line) and dropped. ``now`` (s): arrival time (bag log time
-        offline); a silence of ``hold_wait`` before it decides the pending samples first."""
-        self.advance(now)
+        offline; None: no time, no silence rule); a silence of ``hold_wait`` before it
+        decides the pending samples first."""
+        if now is not None:
+            self.advance(now)
+            self._last = now
         try:
             r = decode_message(self.adapter, topic, msg, receive_ns)
         except AdaptedMessageError as exc:
@@ -579,12 +582,10 @@ class AdapterJoin:
         self.sampler.put(r.topic, r.stamp_ns, r.receive_ns, r.values)
 
     def advance(self, now: float | None) -> None:
-        """Time ``now`` (s) passed: after ``hold_wait`` s of silence, decide what is pending
-        (None: the end of the data, decide everything)."""
+        """Time ``now`` (s) passed: ``hold_wait`` s after the last message, decide what is
+        pending (None: the end of the data, decide everything)."""
         if now is None or (self._last is not None and now - self._last >= self.hold_wait):
             self.sampler.flush()
-        if now is not None:
-            self._last = now
 
     def events(self, final: bool = False) -> list[AdaptedEvent]:
         """Samples, gaps and new runs decided so far (``final``: the end of the data)."""
