@@ -369,3 +369,19 @@ def test_record_adapter_records_robot_topics_fd_outputs_and_diagnostics(tmp_path
                           "-o", tmp_path / "report", "--json")
     assert code == 0, err
     assert json.loads(out)["alarms"] == []
+
+
+def test_evaluate_refuses_a_model_with_another_sample_time(tmp_path, capsys):
+    # a model of the motor at Ts = 0.02 s: its plant file is found from its gain file
+    # (system.file), and it is not a model of dc_motor (Ts 0.01 s)
+    plant = _own_plant(tmp_path)
+    plant.write_text(plant.read_text().replace("\nsample_time: 0.01\n", "\nsample_time: 0.02\n"))
+    gains = tmp_path / "g.yaml"
+    code, _out, err = _cli(capsys, "design", "thresholds", plant, "--envelope", "declared",
+                           "-o", gains)
+    assert code == 0, err
+    code, _out, err = _cli(capsys, "evaluate", gains, "-s", "dc_motor_nominal", "--runs", 1,
+                           "--no-progress")
+    assert code == 2 and err.count("\n") == 1, err
+    assert ("designed for my_motor, scenario dc_motor_nominal is for dc_motor, and their "
+            "sample times differ (my_motor: 0.02, dc_motor: 0.01)") in err, err

@@ -149,7 +149,7 @@ def monitored_plant(gains: GainFile, scenario: Scenario, system: System | None =
                             f"--system)")
     mine: tuple[Any, ...] = (tuple(system.inputs), tuple(system.outputs), system.sample_time)
     theirs: tuple[Any, ...] = (tuple(plant.inputs), tuple(plant.outputs), plant.sample_time)
-    for what, a, b in zip(("inputs", "outputs", "sample time"), mine, theirs):
+    for what, a, b in zip(("inputs", "outputs", "sample times"), mine, theirs):
         if a != b:
             raise GainFileError(f"{where}, and their {what} differ ({system.name}: {a}, "
                                 f"{plant.name}: {b}): not a model of it")
