@@ -68,9 +68,12 @@ class AdapterInput:
         self.nu = len(self.adapter.inputs)
         for topic, ty in self.adapter.topics.items():
             cls = message_class(ty)
-            node._entities.append(DataInput(node, cls, topic,
-                                            lambda msg, topic=topic: self._on_msg(topic, msg),
-                                            node._graph_note))
+            # with the DDS MessageInfo: a header-less message's time is when its publisher
+            # sent it (source timestamp), not when this executor got round to it
+            node._entities.append(DataInput(
+                node, cls, topic, lambda msg, info=None, topic=topic: self._on_msg(topic, msg,
+                                                                                   info),
+                node._graph_note, with_info=True))
         node._entities.append(node.create_timer(hold_wait / 2, self._release))
         node._entities.append(node.create_timer(GRAPH_CHECK, self._check_types))
         self._type_notes: set[str] = set()
@@ -80,13 +83,14 @@ class AdapterInput:
         """The subscribed topics, resolved."""
         return [self.node.resolve_topic_name(t) for t in self.adapter.topics]
 
-    def _on_msg(self, topic: str, msg: Any) -> None:
+    def _on_msg(self, topic: str, msg: Any, info: Any = None) -> None:
         node = self.node
         if not node.active:
             node.inactive_dropped += 1
             return
         now = time.monotonic()
-        self.join.put(topic, msg, time.time_ns(), now)
+        sent = int(info["source_timestamp"]) if info is not None else time.time_ns()
+        self.join.put(topic, msg, sent, now)
         self._release(now)
 
     def _release(self, now: float | None = None) -> None:

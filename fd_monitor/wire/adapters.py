@@ -706,7 +706,7 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
                  sample_time: float | None = None, system: Any = None) -> AdaptedStreams:
     """Read a robot's bag through an adapter: the samples the live node would process.
 
-    The messages go, in bag order with the log time as ``now``, through
+    The messages go, in log-time order with the log time as ``now``, through
     :class:`AdapterJoin` (the live node's code); see :mod:`fd_monitor.wire.timebase`.
 
     Parameters
@@ -745,7 +745,9 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
             raise BagError(f"{bag}: {rec[0]} is recorded as {rec[1]}, the adapter "
                            f"{ad.source} maps it as {want[rec[0]]}")
         records.append(rec)
-    messages = list(messages_from_raw(bag, records))
+    # in log-time order, as a player replays them (a recorder under a backlog writes one
+    # topic's queue before the next's)
+    messages = sorted(messages_from_raw(bag, records), key=lambda m: m[1])
     if sample_time is None:
         stamps = []
         for topic, t, msg in messages:
@@ -786,8 +788,9 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
 
 def encode(adapter: Adapter, stamp_ns: int, u: Sequence[float], y: Sequence[float],
            make: Callable[..., Any]) -> list[tuple[str, str, Any]]:
-    """The robot's messages carrying one sample: ``[(topic, msgtype, message)]``, inputs'
-    topics first (a command is sent before the measurement it acts on is read).
+    """The robot's messages carrying one sample: ``[(topic, msgtype, message)]``, the
+    measurement's topics first: as in a real loop, the measurement y_k is read, then the
+    command u_k answering it is sent (the time base places both in sample k).
 
     Parameters
     ----------
@@ -804,7 +807,7 @@ def encode(adapter: Adapter, stamp_ns: int, u: Sequence[float], y: Sequence[floa
     vals = {c.name: float(v) for c, v in zip(adapter.inputs, u)}
     vals.update({c.name: float(v) for c, v in zip(adapter.outputs, y)})
     by_topic: dict[str, list[Channel]] = {}
-    for c in (*adapter.inputs, *adapter.outputs):
+    for c in (*adapter.outputs, *adapter.inputs):
         by_topic.setdefault(c.topic, []).append(c)
     out = []
     for topic, chans in by_topic.items():
@@ -893,7 +896,8 @@ def write_adapted(writer: Any, adapter: Adapter, k: Sequence[int], u: np.ndarray
                   y: np.ndarray, stamps_ns: Sequence[int]) -> None:
     """Write samples as the robot's messages into an open
     :class:`~fd_monitor.wire.bags.BagWriter` (``simulate --adapter``): per sample the
-    inputs' topics, then the outputs', header stamps and bag times ``stamps_ns``.
+    outputs' topics, then the inputs' (:func:`encode`), header stamps and bag times
+    ``stamps_ns``.
 
     Parameters
     ----------

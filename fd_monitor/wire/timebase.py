@@ -27,11 +27,13 @@ and offline.
   most the channel's ``max_hold`` (s); older, the channel is *stale* and sample k is a gap.
   A channel never received is ``no_value``: a gap too.
 * **When k is decided**: once every topic is *closed* for k (it has a message in a later
-  slot, or as many in slot k as it sends per sample), or the stream has moved
-  :attr:`GridSampler.wait` samples past k (a slower topic: its last value is held), or at the
-  end (offline) / after ``hold_wait`` s of silence (live, :meth:`GridSampler.ready` with
-  ``final``). A message for a decided slot is ``late`` (reported; it is the held value from
-  then on when it is newer).
+  slot, or as many in slot k as it sends per sample, or -- a slower topic -- its next message
+  is not due yet), or the stream has moved :attr:`GridSampler.wait` samples past k (a topic
+  that stopped, or one delivered late in a batch), or at the end (offline) / after
+  ``hold_wait`` s of silence (live, :meth:`GridSampler.flush`). The decision depends on the
+  data, not on when it arrived, so the interleaving of topics (which differs live and in a
+  bag) does not change a sample. A message for a decided slot is ``late`` (reported; it is
+  the held value from then on when it is newer).
 * **A new run**: the clock jumping back by more than :data:`RUN_BACK` s or ahead by more than
   :data:`RUN_AHEAD` s, confirmed by the next clock message (a single stray stamp is reported
   and dropped), ends the run: the sampler releases what it has, emits a :class:`NewRun` and
@@ -59,8 +61,10 @@ __all__ = ["Gap", "GridSample", "GridSampler", "NewRun", "RUN_AHEAD", "RUN_BACK"
 WARMUP = 16
 #: Phase tracking gain 1/TRACK per clock message (after the warm-up).
 TRACK = 64
-#: s the stream moves on past a sample before a topic not yet heard for it is held.
-WAIT = 0.05
+#: s the stream moves on past a sample before a topic not yet heard for it is held (a topic
+#: that stopped, or one delivered in a batch behind the others: an executor under a backlog
+#: hands over one topic's queue before the next's).
+WAIT = 0.5
 #: s: a clock stamp this far behind the decided samples starts a new run (if confirmed).
 RUN_BACK = 1.0
 #: s: a clock stamp this far ahead of the newest starts a new run (if confirmed).
@@ -149,7 +153,8 @@ class _Topic:
     steps: deque[int] = field(default_factory=lambda: deque(maxlen=31))
     last_t: int | None = None
     last_stamp: int | None = None
-    per_slot: int = 1
+    per_slot: int = 1                      # messages per sample (a faster topic)
+    period: int = 1                        # samples per message (a slower topic)
 
 
 class GridSampler:
@@ -347,6 +352,7 @@ class GridSampler:
             if len(tp.steps) >= 5:
                 med = sorted(tp.steps)[len(tp.steps) // 2]
                 tp.per_slot = max(1, round(self.ts_ns / med)) if med < 0.75 * self.ts_ns else 1
+                tp.period = max(1, round(med / self.ts_ns)) if med > 1.5 * self.ts_ns else 1
         tp.last_t = t
         if j < self.next_slot:
             self._late(tp, j, values)
@@ -401,8 +407,12 @@ class GridSampler:
     # -- decisions ---------------------------------------------------------------------------
 
     def _closed(self, tp: _Topic, j: int) -> bool:
-        return tp.max_slot is not None and (tp.max_slot > j or tp.counts.get(j, 0)
-                                            >= tp.per_slot)
+        """Whether ``tp`` can still bring a value for slot j: not once it is past j, or has
+        sent its messages of j, or (a slower topic) its next message is not due before
+        j + 1 (one slot of margin for jitter)."""
+        m = tp.max_slot
+        return m is not None and (m > j or tp.counts.get(j, 0) >= tp.per_slot
+                                  or j < m + tp.period - 1)
 
     def _decide(self, final: bool) -> None:
         if self.newest is None:
