@@ -52,7 +52,7 @@ from fd_monitor.model.errors import (
     WrongLengthError,
 )
 from fd_monitor.model.gains import GainFile, load_gains
-from fd_monitor.model.system import load_system
+from fd_monitor.model.system import gain_system
 from fd_monitor.wire.adapters import Adapter, feed, load_adapter, read_adapted
 from fd_monitor.wire.bags import arrays_from_raw, messages_from_raw, read_raw
 from fd_monitor.wire.conversions import decode, readable_stamp
@@ -522,7 +522,7 @@ def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, An
     """The gain file and its plant (the plant file named by the gain file)."""
 
     raw = load_gains(gains_source, None, verify=False)
-    system = load_system(raw.system_name)
+    system = gain_system(raw)
     return system, load_gains(gains_source, system)
 
 
@@ -569,7 +569,7 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     if isinstance(gains, GainFile):
         gf = gains
         if system is None:
-            system = load_system(gf.system_name)
+            system = gain_system(gf)
     elif system is None:
         system, gf = _load_system_for(bag, gains)
     else:
