@@ -3,6 +3,7 @@
 Run from the repository root::
 
     python benchmarks/campaign_envelope.py [--setpoints 60] [--seeds 5] [--fault-runs 20]
+                                           [--fault-free-only] [--gains GAINS ...]
 
 Fault-free runs at set points spread over the whole declared envelope (not the design
 scenarios): h1 and h2 references drawn uniformly in [0.05, 0.65] m, changed twice per run, the
@@ -10,8 +11,10 @@ bypass valve toggled at random times; measurement noise and modelling uncertaint
 bounds (``distribution: extreme``, every sample at a vertex of the noise box). Prints
 
 1. fault-free: runs with a false alarm, alarm samples, samples outside the certified region,
-   for the envelope design (``three_tank_envelope``) and today's scenario design
-   (``three_tank_thresholds``);
+   and the alarm episodes inside the region and marked ``outside_certified_region`` (the
+   marking of ``analyze``: :func:`fd_monitor.analysis.summary.region_mark`), for the envelope
+   design (``three_tank_envelope``) and the scenario design (``three_tank_thresholds``, the
+   default gain file of the nodes and the demo); ``--fault-free-only`` stops here;
 2. detection: abrupt bias on each sensor at t = 200 s, per magnitude, the fraction of runs
    with an alarm after the fault (and false alarms before it), and the smallest magnitude
    detected in every run, per sensor and design.
@@ -28,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.analysis.summary import episodes, region_mark
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.monitor import run_batch
 from fd_monitor.core.simulator import simulate_batch
@@ -66,7 +70,8 @@ def fault_free(system: System, gains: dict[str, Any], setpoints: int, seeds: int
                seed0: int) -> dict[str, dict[str, int]]:
     """Table 1: per design, runs with a false alarm, alarm samples, samples outside."""
     out = {name: {"runs": 0, "runs_with_alarm": 0, "alarm_samples": 0,
-                  "samples_outside": 0} for name in gains}
+                  "samples_outside": 0, "episodes_inside": 0, "episodes_outside": 0}
+           for name in gains}
     for i in range(setpoints):
         sc = envelope_scenario(system, seed0 + i)
         tr = simulate_batch(sc, [seed0 + 1000 * i + j for j in range(seeds)])
@@ -78,9 +83,16 @@ def fault_free(system: System, gains: dict[str, Any], setpoints: int, seeds: int
             o["runs_with_alarm"] += int(a.any(axis=1).sum())
             o["alarm_samples"] += int(a.sum())
             region = CertifiedRegion.from_results(system, gf.results)
-            if region is not None:
-                ex = region.excess(res.mode_hat, res.x_hat, tr.u)
-                o["samples_outside"] += int(np.any(ex != 0.0, axis=-1).sum())
+            if region is None:
+                o["episodes_inside"] = -1
+                continue
+            ex = region.excess(res.mode_hat, res.x_hat, tr.u)
+            o["samples_outside"] += int(np.any(ex != 0.0, axis=-1).sum())
+            for r in range(a.shape[0]):
+                for c in range(res.alarm.shape[2]):
+                    for e0, e1 in episodes(res.alarm[r, :, c]):
+                        marked = region_mark(ex[r], np.zeros(0, int), e0, e1)[0]
+                        o["episodes_outside" if marked else "episodes_inside"] += 1
     return out
 
 
@@ -115,19 +127,28 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5, help="noise seeds per set point")
     ap.add_argument("--fault-runs", type=int, default=20, help="runs per detection cell")
     ap.add_argument("--seed0", type=int, default=2000)
+    ap.add_argument("--fault-free-only", action="store_true",
+                    help="only the fault-free table (~2 min per gain file)")
+    ap.add_argument("--gains", action="append", default=None, metavar="GAINS",
+                    help="gain file (repeatable; default three_tank_envelope and "
+                         "three_tank_thresholds)")
     args = ap.parse_args()
     system = load_system("three_tank")
-    gains = {n: load_gains(n, system) for n in ("three_tank_envelope",
-                                                 "three_tank_thresholds")}
+    gains = {n: load_gains(n, system) for n in (args.gains or ("three_tank_envelope",
+                                                                "three_tank_thresholds"))}
     t0 = time.perf_counter()
     ff = fault_free(system, gains, args.setpoints, args.seeds, args.seed0)
     print(f"fault-free, set points over the envelope, noise at its bounds "
           f"({time.perf_counter() - t0:.0f} s)")
     print(f"{'gain file':24s} {'runs':>5s} {'runs w/ alarm':>13s} {'alarm samples':>13s} "
-          f"{'samples outside region':>22s}")
+          f"{'samples outside region':>22s} {'alarm episodes inside':>21s} "
+          f"{'marked outside':>14s}")
     for n, o in ff.items():
+        inside = "n/a" if o["episodes_inside"] < 0 else str(o["episodes_inside"])
         print(f"{n:24s} {o['runs']:5d} {o['runs_with_alarm']:13d} {o['alarm_samples']:13d} "
-              f"{o['samples_outside']:22d}")
+              f"{o['samples_outside']:22d} {inside:>21s} {o['episodes_outside']:14d}")
+    if args.fault_free_only:
+        return
     t0 = time.perf_counter()
     dt = detection(system, gains, args.fault_runs, args.seed0)
     print(f"\nabrupt bias at t = {FAULT_TIME:.0f} s: detection rate (false-alarm rate before "

@@ -143,40 +143,45 @@ def _put(join, ad, t_ns, u=None, y=None, now=None, recv=None):
             join.put(topic, msg, t_ns if recv is None else recv, now)
 
 
-def test_join_holds_inputs_and_clocks_samples_by_the_output_stamps():
+def test_join_samples_every_channel_onto_the_grid():
+    """The time base (wire/timebase.py) on a hand-made stream: the grid's phase from the
+    clock's stamps, a command 2 ms after its measurement is that sample's, a lost measurement
+    is a gap, a sample with no command yet is ``no_value``, the same stamp twice a duplicate."""
     ad = _motor_adapter()
     j = AdapterJoin(ad, 0.01)
     ms = 1_000_000
-    _put(j, ad, 5 * ms, y=1.0)             # no command yet: reported, skipped
-    _put(j, ad, 7 * ms, u=0.5)
-    _put(j, ad, 10 * ms, y=2.0)            # held u = 0.5
-    _put(j, ad, 20 * ms, y=3.0)            # still 0.5 (zero-order hold)
-    _put(j, ad, 20 * ms, u=0.75)           # same time as the sample: its input (bag order)
-    _put(j, ad, 24 * ms, y=9.0)            # within Ts/2 of 20 ms: a duplicate
-    _put(j, ad, 50 * ms, y=4.0)            # 30, 40 ms missing: a hole in k
-    _put(j, ad, 15 * ms, y=5.0, recv=60 * ms)   # the stamps went back: a new stream after
-    _put(j, ad, 25 * ms, y=6.0, recv=70 * ms)   # a one-sample hole
+    for k in range(20):
+        if k == 7:
+            continue                                  # measurement 7 lost
+        t = 10**15 + k * 10 * ms + (ms if k % 2 else -ms)    # +-1 ms jitter
+        _put(j, ad, t, y=float(k), recv=t)
+        if k == 3:
+            _put(j, ad, t, y=99.0, recv=t + ms)       # the same stamp again
+        if k >= 2:
+            _put(j, ad, 10**15 + k * 10 * ms + 2 * ms, u=10.0 + k)   # 2 ms after y_k
     out = j.ready()
-    assert [(s.k, float(s.u[0]), float(s.y[0])) for s in out] == [
-        (0, 0.5, 2.0), (1, 0.75, 3.0), (4, 0.75, 4.0), (6, 0.75, 5.0), (7, 0.75, 6.0)]
-    kinds = [k for k, _ in j.take_errors()]
-    assert kinds == ["missing", "duplicate", "out_of_order"]
+    got = {s.k: (float(s.u[0]), float(s.y[0])) for s in out}
+    assert sorted(got) == [k for k in range(20) if k not in (0, 1, 7)]
+    assert all(got[k] == (10.0 + k, float(k)) for k in got)
+    c = j.counts()
+    assert c["gaps"] == {"no_value": {"effort": 2}, "stale": {"velocity": 1}}
+    assert c["duplicate"] == {"/js": 1}
+    assert [k for k, _ in j.take_errors()] == ["duplicate"]
 
 
-def test_live_join_waits_for_a_later_input_or_hold_wait():
+def test_live_join_decides_on_data_or_after_a_silence():
     ad = _motor_adapter()
     j = AdapterJoin(ad, 0.01, hold_wait=0.1)
     ms = 1_000_000
-    _put(j, ad, 0, u=0.5, now=0.0)
-    _put(j, ad, 10 * ms, y=2.0, now=0.01)
-    assert j.ready(now=0.02) == []               # the command of this sample may be on its way
-    _put(j, ad, 10 * ms, u=0.6, now=0.021, recv=11 * ms)   # arrives after y: not for this sample
-    (s,) = j.ready(now=0.022)
-    assert (s.k, float(s.u[0])) == (0, 0.5)
-    _put(j, ad, 20 * ms, y=3.0, now=0.03)
-    assert j.ready(now=0.05) == []
-    (s,) = j.ready(now=0.131)                    # no later command: released after hold_wait
-    assert (s.k, float(s.u[0])) == (1, 0.6)
+    for k in range(16):                               # the warm-up: the grid's phase
+        _put(j, ad, k * 10 * ms, y=float(k), now=k * 0.01)
+        _put(j, ad, k * 10 * ms, u=0.5, now=k * 0.01 + 0.001, recv=k * 10 * ms + ms)
+    assert [s.k for s in j.ready(now=0.151)] == list(range(15))   # 15: its command is in,
+    _put(j, ad, 160 * ms, y=16.0, now=0.16)          # but sample 15 may get more: decided
+    assert [s.k for s in j.ready(now=0.161)] == [15]  # when topic data for 16 arrive
+    assert j.ready(now=0.2) == []                     # 16: its command may be on the way
+    (s,) = j.ready(now=0.261)                         # a silence of hold_wait: held
+    assert (s.k, float(s.u[0]), s.held) == (16, 0.5, ("effort",))
 
 
 def test_bag_through_the_adapter_equals_the_simulation(tmp_path):

@@ -110,9 +110,12 @@ def test_shipped_envelope_gain_file_states_how_bounds_were_obtained():
     region = CertifiedRegion.from_results(system, gf.results)
     assert region is not None
     np.testing.assert_array_equal(region.state_hi, system.envelope.state_hi)
-    # the scenario design predates the region: no claim, no check
-    assert CertifiedRegion.from_results(
-        system, load_gains("three_tank_thresholds", system).results) is None
+    # the scenario design states the region it sampled (the bounding box of its design runs
+    # widened by its tube) and says its bounds there are sampled
+    sc = load_gains("three_tank_thresholds", system)
+    assert sc.results["envelope"]["source"] == "scenarios"
+    assert [h["method"] for h in sc.results["envelope"]["remainder"]] == ["sampled"] * 4
+    assert CertifiedRegion.from_results(system, sc.results) is not None
 
 
 def test_excess_is_signed_and_described():

@@ -19,14 +19,15 @@ from fd_monitor.wire.bags import read_bag
 
 LIB = load_library()
 NEW = ["three_tank_lpv_leaks_abrupt", "three_tank_lpv_leaks_incipient", "f16xl_overlap",
-       "farhat_koenig_fault", "thesis_5_3_overlap", "thesis_6_5_overlap"]
+       "farhat_koenig_fault", "thesis_5_3_overlap", "thesis_6_5_overlap", "thesis_4_7_overlap"]
 #: fault -> onset sample (first non-zero truth sample), from the scenarios
 ONSETS = {"three_tank_lpv_leaks_abrupt": {"leak1": 1000, "leak2": 1500, "leak3": 2000},
           "three_tank_lpv_leaks_incipient": {"leak1": 1001, "leak2": 1501, "leak3": 2001},
           "f16xl_overlap": {"f_delta": 500, "f_wg": 1200, "f_theta": 2000},
           "farhat_koenig_fault": {"f": 300},
           "thesis_5_3_overlap": {"f1": 700, "f2": 1200},
-          "thesis_6_5_overlap": {"f1": 700, "f2": 1200}}
+          "thesis_6_5_overlap": {"f1": 700, "f2": 1200},
+          "thesis_4_7_overlap": {"f1": 700, "f2": 1200}}
 
 
 def test_library_holds_the_new_bags_with_their_methods():
@@ -34,7 +35,8 @@ def test_library_holds_the_new_bags_with_their_methods():
     assert methods == {"three_tank_lpv_leaks_abrupt": "hinf_sc",
                        "three_tank_lpv_leaks_incipient": "hinf_sc",
                        "f16xl_overlap": "hinf_sc", "farhat_koenig_fault": "hminus_switched",
-                       "thesis_5_3_overlap": "hinf_sc", "thesis_6_5_overlap": "hinf_sc"}
+                       "thesis_5_3_overlap": "hinf_sc", "thesis_6_5_overlap": "hinf_sc",
+                       "thesis_4_7_overlap": "hinf_sc"}
 
 
 @pytest.mark.parametrize("name", NEW)

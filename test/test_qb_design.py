@@ -265,7 +265,7 @@ def test_infeasible_lmi_is_reported():
 def test_solver_failure_is_reported(monkeypatch, pwa):
     from fd_monitor.design import qb as dq
 
-    monkeypatch.setattr(dq.QBProblem, "solve", lambda self, b: (float("nan"), "solver_error"))
+    monkeypatch.setattr(dq.QBProblem, "solve", lambda self, b, **kw: (float("nan"), "solver_error"))
     with pytest.raises(DesignError, match=r"solver CLARABEL failed.*try"):
         design_qb(pwa)
 

@@ -10,6 +10,10 @@ every runner has the signature
 runtime's side signals come from the trajectory's arrays of the same name (``mode``: the
 true, measured switching signal; ``rho`` when the simulator provides it).
 
+A scenario simulates its own plant P; the gain file may be for P or for a model of P (an
+identified plant with P's inputs, outputs and sample time, :func:`monitored_plant`), whose
+monitor then reads P's simulated measurements.
+
 Metrics, per scenario, variant (runner options) and threshold scale rho:
 
 * ``false_alarm_rate`` -- fraction of runs with any alarm (selected channels) at a time
@@ -34,13 +38,14 @@ from typing import Any, TextIO
 import numpy as np
 
 from fd_monitor.core.batch import BatchResult
-from fd_monitor.core.runtime import RUNTIMES, runtime_class
+from fd_monitor.core.runtime import RUNTIMES, runtime_class, runtime_for
 from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.model.errors import FdMonitorError, GainFileError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.scenario import Scenario
+from fd_monitor.model.system import System
 
-__all__ = ["CampaignRow", "ProgressBar", "get_runner", "run_campaign"]
+__all__ = ["CampaignRow", "ProgressBar", "get_runner", "monitored_plant", "run_campaign"]
 
 
 def get_runner(method: str) -> Callable[..., BatchResult]:
@@ -111,6 +116,50 @@ class CampaignRow:
         return {k: v for k, v in self.__dict__.items() if k != "delays"}
 
 
+def monitored_plant(gains: GainFile, scenario: Scenario, system: System | None = None
+                    ) -> System:
+    """The plant whose monitor runs on a scenario's simulated measurements.
+
+    The rule: a scenario written for plant P runs on a gain file of P, or of a model of P
+    (an identified plant M) when M has P's inputs, outputs (names, in order) and sample time;
+    P is simulated (the truth), M's monitor reads P's u and y.
+
+    Parameters
+    ----------
+    gains : GainFile
+    scenario : Scenario
+        Simulates P = ``scenario.system``.
+    system : System, optional
+        The gain file's plant M when it is not P (:func:`fd_monitor.model.system.gain_system`).
+
+    Raises
+    ------
+    GainFileError
+        One line: the gain file is for neither P nor a model with P's channels, or its
+        method needs a side signal (``mode``, ``rho``) that only P's simulation knows.
+    """
+    plant = scenario.system
+    if plant.sha256 == gains.system_sha256:
+        return plant
+    where = f"{gains.path}: designed for {gains.system_name}, scenario {scenario.name} is for " \
+            f"{plant.name}"
+    if system is None or system.sha256 != gains.system_sha256:
+        raise GainFileError(f"{where} (a gain file of a model of {plant.name} runs on its "
+                            f"scenarios when the model's plant file is found: give it with "
+                            f"--system)")
+    mine: tuple[Any, ...] = (tuple(system.inputs), tuple(system.outputs), system.sample_time)
+    theirs: tuple[Any, ...] = (tuple(plant.inputs), tuple(plant.outputs), plant.sample_time)
+    for what, a, b in zip(("inputs", "outputs", "sample times"), mine, theirs):
+        if a != b:
+            raise GainFileError(f"{where}, and their {what} differ ({system.name}: {a}, "
+                                f"{plant.name}: {b}): not a model of it")
+    side = runtime_for(system, gains).side_inputs
+    if side:
+        raise GainFileError(f"{where}: method {gains.method!r} reads {', '.join(side)} from "
+                            f"the simulation, which is {plant.name}'s, not {system.name}'s")
+    return system
+
+
 def _onset(scenario: Scenario) -> float | None:
     return min((ev.time for ev in scenario.faults), default=None)
 
@@ -135,15 +184,17 @@ def run_campaign(gains: GainFile, scenarios: Sequence[Scenario], runs: int, *,
                  seed0: int = 0, chunk: int = 250, rhos: Sequence[float] | None = None,
                  transient: float = 0.0, channels: Sequence[str] | None = None,
                  variants: Mapping[str, Mapping[str, Any]] | None = None,
-                 progress: bool = True, stream: TextIO | None = None) -> list[CampaignRow]:
+                 progress: bool = True, stream: TextIO | None = None,
+                 system: System | None = None) -> list[CampaignRow]:
     """Simulate and evaluate a Monte Carlo campaign.
 
     Parameters
     ----------
     gains : GainFile
-        Loaded (and verified) gain file for the scenarios' plant.
+        Loaded (and verified) gain file for the scenarios' plant, or for a model of it
+        (:func:`monitored_plant`).
     scenarios : sequence of Scenario
-        All for the gain file's plant.
+        Each simulates its own plant.
     runs : int
         Runs per scenario; run i uses seed ``seed0 + i`` (the same seeds in every scenario).
     chunk : int
@@ -158,26 +209,30 @@ def run_campaign(gains: GainFile, scenarios: Sequence[Scenario], runs: int, *,
         Label -> runner keyword options; default ``{method: {}}``.
     progress : bool
         Draw a progress bar on ``stream`` (stderr).
+    system : System, optional
+        The gain file's plant when it is not the scenarios' (an identified model of it).
 
     Returns
     -------
     list of CampaignRow
+
+    Raises
+    ------
+    GainFileError
+        A scenario the gain file cannot monitor (:func:`monitored_plant`).
     """
     if runs < 1:
         raise FdMonitorError(f"--runs: expected >= 1, got {runs}")
     runner = get_runner(gains.method)
     variants = dict(variants or {gains.method: {}})
     rho_list: list[float | None] = list(rhos) if rhos else [None]
-    for sc in scenarios:
-        if sc.system.sha256 != gains.system_sha256:
-            raise GainFileError(f"{gains.path}: designed for {gains.system_name}, scenario "
-                                f"{sc.name} is for {sc.system.name}")
+    monitors = {sc.name: monitored_plant(gains, sc, system) for sc in scenarios}
     n_chunks = -(-runs // chunk)
     bar = ProgressBar(n_chunks * len(scenarios) * len(variants), "evaluate", stream, progress)
     rows: list[CampaignRow] = []
     for sc in scenarios:
         fa, first = _scenario_alarms(runner, gains, sc, runs, seed0, chunk, variants, rhos,
-                                     transient, channels, bar)
+                                     transient, channels, bar, monitors[sc.name])
         rows += [_row(sc, label, rho, runs, fa[(label, j)], first.get((label, j)))
                  for label in variants for j, rho in enumerate(rho_list)]
     return rows
@@ -186,10 +241,14 @@ def run_campaign(gains: GainFile, scenarios: Sequence[Scenario], runs: int, *,
 def _scenario_alarms(runner: Callable[..., BatchResult], gains: GainFile, sc: Scenario,
                      runs: int, seed0: int, chunk: int,
                      variants: Mapping[str, Mapping[str, Any]], rhos: Sequence[float] | None,
-                     transient: float, channels: Sequence[str] | None, bar: ProgressBar
+                     transient: float, channels: Sequence[str] | None, bar: ProgressBar,
+                     monitor: System | None = None
                      ) -> tuple[dict[tuple[str, int], list[np.ndarray]],
                                 dict[tuple[str, int], list[np.ndarray]]]:
     """Simulate one scenario's runs chunk by chunk and run every variant on them.
+
+    monitor : System, optional
+        The gain file's plant (default: the scenario's, :func:`monitored_plant`).
 
     Returns
     -------
@@ -209,7 +268,7 @@ def _scenario_alarms(runner: Callable[..., BatchResult], gains: GainFile, sc: Sc
         seeds = list(range(seed0 + c * chunk, seed0 + min((c + 1) * chunk, runs)))
         traj = simulate_batch(sc, seeds)
         for label, opts in variants.items():
-            res = runner(sc.system, gains, traj, **dict(opts))
+            res = runner(monitor or sc.system, gains, traj, **dict(opts))
             sel = _select(res, channels)
             if rhos:
                 if not (res.extra.get("threshold_scalable") and res.residual is not None

@@ -31,12 +31,13 @@ from fd_monitor.analysis.summary import (
 from fd_monitor.core.generalized_observer import GeneralizedObserver
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.model.gains import load_gains, to_plain
+from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import read_bag
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
 __all__ = ["analyze_summary", "check_expected", "check_truth", "core_summary",
-           "propose_expected", "write_expected"]
+           "library_expected", "propose_expected", "write_expected"]
 
 
 def analyze_summary(bag: str | Path, gains: str | Path, *,
@@ -177,7 +178,8 @@ def propose_expected(spec: BagSpec, summary: Mapping[str, Any], system: Any, *,
     doc["alarms"] = {c: {"first_sample": first[c], "tolerance": tol_k}
                      for c in channels if c in first}
     doc["no_alarm"] = [c for c in channels if c not in first]
-    doc["isolated"] = sorted(summary["isolated"])
+    if summary.get("isolates", True):     # a detect-only runtime states no isolated set
+        doc["isolated"] = sorted(summary["isolated"])
     be: dict[str, Any] = {}
     if qb:
         gf = load_gains(spec.gains, system)
@@ -261,6 +263,56 @@ def core_summary(spec: BagSpec, system: Any = None) -> dict[str, Any]:
             "input_errors": {}, "restarts": [], "bridges": [], "modes": s["modes"]}
 
 
+def library_expected(spec: BagSpec, *, write: bool = True) -> dict[str, Any]:
+    """The ``expected.yaml`` of a library bag, from its documented command
+    (``python -m fd_monitor simulate --library bags/library.yaml --expected``).
+
+    :func:`propose_expected` from ``analyze``'s summary (:func:`analyze_summary`: the gain
+    file's runtime, as the regression suite runs it) and the bag's ``/plant/truth`` read with
+    the scenario's plant (its fault channels included); refused unless :func:`check_truth`
+    agrees (no expected alarm before a fault, the faulty channel isolated, the true modes).
+    The header says how the file was made and adds the spec's ``notes``.
+
+    Parameters
+    ----------
+    spec : BagSpec
+        A bag already generated in ``spec.folder``.
+    write : bool
+        Write ``spec.expected_file`` (False: only return the document).
+
+    Raises
+    ------
+    LibraryError
+        The proposal disagrees with the truth (one line per disagreement).
+    """
+    truth_system = load_scenario(spec.scenario).system
+    summary = analyze_summary(spec.folder, spec.gains, transient=spec.transient)
+    doc = propose_expected(spec, summary, truth_system)
+    model_modes = load_system(load_gains(spec.gains, verify=False).system_name).mode_names
+    if not set(truth_system.mode_names) <= set(model_modes):
+        # the monitor runs an identified model whose modes are not the true plant's: the
+        # true mode sequence is no expectation for it
+        del doc["modes"]
+    bad = check_truth(spec, doc, truth_system)
+    if bad:
+        raise LibraryError(f"bag {spec.name}: the proposed expectations disagree with the "
+                           f"truth: {'; '.join(bad)}")
+    checked = "test/test_regression.py (`analyze`)" + (
+        " and test/test_regression_live.py (the live nodes)" if spec.live else "")
+    header = (f"Expected results of bag {spec.name} (bags/library.yaml), checked by\n"
+              f"{checked}.\n"
+              "Written by `python -m fd_monitor simulate --library bags/library.yaml --expected`\n"
+              "(fd_monitor.analysis.expectations.library_expected): fault onsets, bias values and\n"
+              "the mode sequence are the bag's /plant/truth; first-alarm samples (within the\n"
+              "stated tolerance, in samples) and the isolated set are `analyze`'s, checked\n"
+              "against the truth.")
+    if spec.notes:
+        header += "\n" + spec.notes.rstrip()
+    if write:
+        write_expected(spec.expected_file, doc, header)
+    return doc
+
+
 def write_expected(path: str | Path, doc: Mapping[str, Any], header: str = "") -> Path:
     """Write an ``expected.yaml`` (flow style for short lists and mappings)."""
     import yaml
@@ -280,7 +332,8 @@ def check_truth(spec: BagSpec, expected: Mapping[str, Any], system: Any) -> list
     a fault-free bag expects no alarm; the isolated set, when stated (a detect-only method
     states none), is the set of biased sensors (or fault-model states, or faults); the
     expected bias values are the true final biases; the expected mode sequence is the true
-    one; a corrupted bag expects exactly its corrupted stamps.
+    one (when stated: a monitor on an identified model has modes of its own); a corrupted bag
+    expects exactly its corrupted stamps.
 
     Returns
     -------
@@ -303,7 +356,7 @@ def check_truth(spec: BagSpec, expected: Mapping[str, Any], system: Any) -> list
             sorted(expected["isolated"]) not in (targets, sorted(facts["faults"])):
         out.append(f"isolated {expected.get('isolated')} but the faulty channels are "
                    f"{targets} (faults {sorted(facts['faults'])})")
-    if list(expected.get("modes", [])) != facts["modes"]:
+    if "modes" in expected and list(expected["modes"]) != facts["modes"]:
         out.append(f"modes {expected.get('modes')} but the true sequence is {facts['modes']}")
     true_bias = true_biases(facts)
     for c, a in (expected.get("bias_estimate") or {}).items():

@@ -196,9 +196,18 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
         raise BagError(f"{bag}: no such bag")
     if adapter is not None:
         s = read_adapted(path, adapter, sample_time=sample_time)
-        if s.errors:
-            warnings.warn(f"{bag}: {len(s.errors)} message(s) skipped; the first: "
-                          f"{s.errors[0][1]}", FdMonitorWarning, stacklevel=2)
+        c = s.counts
+        gaps = {r: sum(n.values()) for r, n in c["gaps"].items()}
+        odd = {kind: sum(c.get(kind, {}).values())
+               for kind in ("late", "duplicate", "stray", "decimated")}
+        if s.errors or gaps or c["held"] or sample_time is None:
+            warnings.warn(
+                f"{bag}: {s.sample_time_note}; {c['samples']} samples"
+                + "".join(f", {n} {r} gaps" for r, n in gaps.items())
+                + "".join(f", {n} held ({ch})" for ch, n in c["held"].items())
+                + "".join(f", {n} {kind} messages" for kind, n in odd.items() if n)
+                + (f"; the first note: {s.errors[0][1]}" if s.errors else ""),
+                FdMonitorWarning, stacklevel=2)
         ds = Dataset(str(bag), tuple(s.inputs), tuple(s.outputs), np.asarray(s.k),
                      np.asarray(s.u, dtype=float), np.asarray(s.y, dtype=float),
                      float(s.sample_time), None, _bag_sha256(path), ("inputs", "outputs"))
@@ -571,7 +580,12 @@ def identify(fit: Sequence[Dataset], holdout: Sequence[Dataset] = (), *, name: s
     Re, qe = (Rv, qv) if held else (Rf, qf)     # what validation and bounds are taken from
     candidates = _fit_candidates(Rf, qf, Re, qe, tab, model, modes, estimator, fit_inputs,
                                  sparsity, max_radius)
-    best = min(candidates, key=lambda c: (c["rms"], c["parameters"]))
+    # Equal fits (RMS within 1e-9 relative: round-off, e.g. `sparse` keeping every term of
+    # `affine`) go to the fewer parameters, then the first candidate, so the pick does not
+    # depend on the last bits of a machine's floating-point sums.
+    rms0 = min(c["rms"] for c in candidates)
+    best = min(candidates, key=lambda c: (c["rms"] if c["rms"] > rms0 * (1 + 1e-9) else 0.0,
+                                          c["parameters"]))
     Ms = best["models"]
     bnd = _bounds(Ms, Rf, qf, Re, qe, margin, W, held)
     env = _envelope([Rf, Rv], [qf, qv], tab.names, inputs, outputs)

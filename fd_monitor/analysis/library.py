@@ -14,6 +14,7 @@ bags/library.yaml`` rebuilds every bag bit for bit) and analysed with a named ga
         transient: 0.0                           # s: alarms before it are not counted
         live: true                               # also replayed through the live nodes
         corruptions: []                          # bad input applied to the messages
+        notes: ...                               # added to expected.yaml's header
 
 Each bag folder holds ``metadata.yaml``, ``<name>.mcap`` (zstd-compressed chunks) and
 ``expected.yaml``: what analysing the bag must give (see
@@ -121,6 +122,9 @@ class BagSpec:
     corruptions : tuple of Corruption
     folder : pathlib.Path
         The bag folder (``<library folder>/<name>``).
+    notes : str
+        Added to the header of the ``expected.yaml`` the library writes (why its thresholds
+        or channels are what they are).
     """
 
     name: str
@@ -133,6 +137,7 @@ class BagSpec:
     description: str = ""
     corruptions: tuple[Corruption, ...] = ()
     folder: Path = Path(".")
+    notes: str = ""
 
     @property
     def expected_file(self) -> Path:
@@ -253,7 +258,7 @@ def _bag_spec(ck: Checker, key: str, e: Any, p: Path, taken: set[str]) -> BagSpe
     if not isinstance(e, Mapping):
         _fail(ck, key, "a mapping {name, scenario, seed, duration, gains, ...}", e)
     allowed = {"name", "scenario", "seed", "duration", "gains", "transient", "live",
-               "description", "corruptions"}
+               "description", "corruptions", "notes"}
     extra = set(e) - allowed
     if extra:
         _fail(ck, f"{key}.{sorted(extra)[0]}", f"one of {sorted(allowed)} (unknown key)")
@@ -283,7 +288,7 @@ def _bag_spec(ck: Checker, key: str, e: Any, p: Path, taken: set[str]) -> BagSpe
         live=bool(e.get("live", False)), description=str(e.get("description", "")),
         corruptions=tuple(_corruption(ck, f"{key}.corruptions[{j}]", c)
                           for j, c in enumerate(cors)),
-        folder=p.parent / name)
+        folder=p.parent / name, notes=str(e.get("notes") or ""))
 
 
 def expected_path(bag: str | Path) -> Path:

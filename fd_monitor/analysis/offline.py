@@ -54,8 +54,8 @@ from fd_monitor.model.errors import (
     WrongLengthError,
 )
 from fd_monitor.model.gains import GainFile, load_gains
-from fd_monitor.model.system import load_system
-from fd_monitor.wire.adapters import read_adapted
+from fd_monitor.model.system import gain_system
+from fd_monitor.wire.adapters import Adapter, feed, load_adapter, read_adapted
 from fd_monitor.wire.bags import arrays_from_raw, messages_from_raw, read_raw
 from fd_monitor.wire.conversions import decode, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
@@ -85,7 +85,12 @@ _UY = f"{PLANT_U.absolute},{PLANT_Y.absolute}"
 #: the stream or beyond the stamp horizon; ``dropped``, a full join buffer) and the runtime's
 #: refusal (``implausible``).
 INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
-                     "missing", "implausible", "late", "held", "dropped")
+                     "missing", "implausible", "late", "held", "dropped", "stale", "no_value",
+                     "stray", "decimated")
+#: Kinds whose ``sample`` is a run ``[first, last]`` of samples not used.
+_SAMPLE_KINDS = ("missing", "stale", "no_value")
+#: Kinds whose ``sample`` is one stamp not used (a refused message or sample).
+_STAMP_KINDS = ("non_finite", "wrong_length", "malformed", "implausible")
 
 
 @dataclass
@@ -107,15 +112,38 @@ class InputReport:
     errors: list[dict[str, Any]] = field(default_factory=list)
     restarts: list[int] = field(default_factory=list)
     bridges: list[int] = field(default_factory=list)
+    used: int = 0
+    timebase: dict[str, Any] = field(default_factory=dict)
+
+    def sample_counts(self) -> dict[str, Any]:
+        """Samples ``present`` (used + skipped), ``used`` (processed by the runtime) and
+        ``skipped``: reason -> samples not used (a ``missing`` run counts its stamps; an
+        adapter's ``stale``/``no_value`` gaps their samples; a refused message or sample its
+        stamp). Messages dropped without losing a sample (duplicates, late, out of order)
+        are not samples: they are in :attr:`errors` and :attr:`timebase`."""
+        lost: dict[str, set[int] | int] = {}
+        for e in self.errors:
+            s = e["sample"]
+            if e["kind"] in _SAMPLE_KINDS and isinstance(s, (list, tuple)):
+                lost[e["kind"]] = int(lost.get(e["kind"], 0)) + int(s[1]) - int(s[0]) + 1
+            elif e["kind"] in _STAMP_KINDS and isinstance(s, int) and s >= 0:
+                got = lost.setdefault(e["kind"], set())
+                assert isinstance(got, set)
+                got.add(s)
+        skipped = {k: (len(v) if isinstance(v, set) else v) for k, v in sorted(lost.items())}
+        return {"present": self.used + sum(skipped.values()), "used": self.used,
+                "skipped": skipped}
 
     def by_kind(self) -> dict[str, list[Any]]:
-        """kind -> sorted stamps (``missing``: ``[first, last]`` runs; -1: no stamp)."""
+        """kind -> sorted stamps (``missing``, ``stale``, ``no_value``: ``[first, last]``
+        runs; -1: no stamp); a kind's entries sort by their first stamp whatever their form."""
         out: dict[str, list[Any]] = {}
         for e in self.errors:
             s = e["sample"]
             out.setdefault(e["kind"], []).append(-1 if s is None else
                                                  list(s) if isinstance(s, tuple) else s)
-        return {k: sorted(v) for k, v in out.items()}
+        return {k: sorted(v, key=lambda x: (x[0], x[-1]) if isinstance(x, list) else (x, x))
+                for k, v in out.items()}
 
 
 #: Input-error kind of each MessageError class (the first that matches); any other: malformed.
@@ -309,35 +337,10 @@ def _join_messages(messages: Iterable[tuple[str, int, Any]],
     """The message loop of :func:`read_streams`: each ``(topic, log time ns, message)``
     through :class:`~fd_monitor.wire.stream.InputStream`; reports into ``rep``."""
 
-    join = StampJoin(required, gap_timeout=GAP_TIMEOUT, horizon=STAMP_HORIZON,
-                     restart_after=RESTART_AFTER, max_gap=max_gap)
     refused: set[int] = set()                    # stamps of messages that did not decode
     where = [_UY]                                # topic of the message being joined
-    processed = [False]
-
-    def note(kind: str, line: str, stamp: Any) -> None:
-        if kind == "hole":                       # its stamps minus the refused ones
-            a, b = stamp
-            inside = sorted(j for j in refused if a <= j <= b)
-            decided = line.split("; ", 1)[1].split(" (", 1)[0]   # bridged / restarted at k
-            for lo, hi in _gaps([a - 1, b + 1], inside):
-                rep.errors.append({"kind": "missing", "topic": _UY, "sample": [lo, hi],
-                                   "message": f"no message for stamps {lo}..{hi} "
-                                              f"({hi - lo + 1} samples); {decided}"})
-        elif kind not in ("new_run", "feedback_lost", "bridge"):  # in rep.restarts, bridges
-            rep.errors.append({"kind": kind, "topic": where[0], "sample": stamp,
-                               "message": line})
-
-    def run(s: Sample) -> bool:
-        if s.restart and processed[0]:
-            rep.restarts.append(s.k)
-        elif s.bridge:
-            rep.bridges.append(s.k)
-        ok = step(s)
-        processed[0] = processed[0] or ok
-        return ok
-
-    stream = InputStream(join, run, note)
+    stream = _policy_stream(required, rep, refused, where, step, max_gap)
+    join = stream.join
     orders = {t: TopicOrder(t) for t in labels}
     # Every message decoded first (pure, per message), then joined and stepped: decoding
     # interleaved with the runtime's steps measured ~35 % slower (three_tank, 3,000 samples).
@@ -363,6 +366,43 @@ def _join_messages(messages: Iterable[tuple[str, int, Any]],
         stream.stamped(orders[topic], names[topic], int(d.stamp or 0), d.values, now)
     where[0] = _UY
     stream.release(math.inf)                     # the end of the bag: every wait is over
+
+
+def _policy_stream(required: Sequence[str], rep: InputReport, refused: set[int],
+                   where: list[str], step: Callable[[Sample], bool],
+                   max_gap: int = MAX_GAP) -> InputStream:
+    """The nodes' input policy (an entry :class:`~fd_monitor.wire.join.StampJoin` with the
+    nodes' defaults) reporting into ``rep``: holes as ``missing`` less the ``refused`` stamps
+    (reported already with their own kind), restarts in ``rep.restarts``, bridges in
+    ``rep.bridges``, used samples counted; ``where[0]`` is the topic a report names."""
+    join = StampJoin(required, gap_timeout=GAP_TIMEOUT, horizon=STAMP_HORIZON,
+                     restart_after=RESTART_AFTER, max_gap=max_gap)
+    processed = [False]
+
+    def note(kind: str, line: str, stamp: Any) -> None:
+        if kind == "hole":                       # its stamps minus the refused ones
+            a, b = stamp
+            inside = sorted(j for j in refused if a <= j <= b)
+            decided = line.split("; ", 1)[1].split(" (", 1)[0]   # bridged / restarted at k
+            for lo, hi in _gaps([a - 1, b + 1], inside):
+                rep.errors.append({"kind": "missing", "topic": where[0], "sample": [lo, hi],
+                                   "message": f"no message for stamps {lo}..{hi} "
+                                              f"({hi - lo + 1} samples); {decided}"})
+        elif kind not in ("new_run", "feedback_lost", "bridge"):  # in rep.restarts, bridges
+            rep.errors.append({"kind": kind, "topic": where[0], "sample": stamp,
+                               "message": line})
+
+    def run(s: Sample) -> bool:
+        if s.restart and processed[0]:
+            rep.restarts.append(s.k)
+        elif s.bridge:
+            rep.bridges.append(s.k)
+        ok = step(s)
+        processed[0] = processed[0] or ok
+        rep.used += ok
+        return ok
+
+    return InputStream(join, run, note)
 
 
 @contextlib.contextmanager
@@ -494,7 +534,7 @@ def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, An
     """The gain file and its plant (the plant file named by the gain file)."""
 
     raw = load_gains(gains_source, None, verify=False)
-    system = load_system(raw.system_name)
+    system = gain_system(raw)
     return system, load_gains(gains_source, system)
 
 
@@ -541,7 +581,7 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     if isinstance(gains, GainFile):
         gf = gains
         if system is None:
-            system = load_system(gf.system_name)
+            system = gain_system(gf)
     elif system is None:
         system, gf = _load_system_for(bag, gains)
     else:
@@ -552,16 +592,20 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     if scan is None:
         scan = scan_bag(bag)
     truth = scan.truth()
+    outs: list[Any] = []
+    refused: list[tuple[int, MessageError]] = []
     if adapter is not None:
-        us, ys, sides, rep = _adapted_streams(bag, adapter, system)
-        ks = sorted(set(us).intersection(ys, *sides.values()))
-        if not ks:
+        if rt.side_inputs:
+            raise BagError(f"{bag}: the {gf.method} runtime needs "
+                           f"{', '.join(rt.side_inputs)}, which an adapter does not map")
+        us, _ys, sides, rep = _adapted_streams(bag, adapter, system,
+                                              _runtime_step(rt, system.nu, outs, refused))
+        if not us:
             raise BagError(f"{bag}: no valid (u, y) sample")
-        out = run_runtime(rt, ks, us, ys, rep, sides, truth)
+        out = _fields(rt, rt.stack(outs, list(rep.restarts), list(rep.bridges)), truth,
+                      refused, rep)
     else:
-        outs: list[Any] = []
-        refused: list[tuple[int, MessageError]] = []
-        us, ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
+        us, _ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
                                                         for n in rt.side_inputs}, scan,
                                           _runtime_step(rt, system.nu, outs, refused))
         if not us:
@@ -603,20 +647,58 @@ def _runtime_step(rt: Any, nu: int, outs: list[Any],
     return step
 
 
-def _adapted_streams(bag: str | Path, adapter: Any, system: Any
+def _adapted_streams(bag: str | Path, adapter: Any, system: Any,
+                     step: Callable[[Sample], bool] | None = None
                      ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray],
                                 dict[str, dict[int, np.ndarray]], InputReport]:
-    """:func:`read_streams` of a robot's bag through an adapter (its errors and holes in the
-    report as the /plant/* ones are)."""
+    """:func:`read_streams` of a robot's bag through an adapter: the time base's events
+    (:func:`~fd_monitor.wire.adapters.read_adapted`) fed, at their log times, into the
+    nodes' input policy exactly as the live node feeds them
+    (:func:`~fd_monitor.wire.adapters.feed`); gaps, late and bad messages in the report."""
 
     s = read_adapted(bag, adapter, system=system)
-    ks = s.k.tolist()
-    rep = InputReport([{"kind": kind, "topic": line.split(" ", 1)[0], "sample": None,
-                        "message": line} for kind, line in s.errors])
-    for a, b in _gaps(ks, []):
-        rep.errors.append({"kind": "missing", "topic": s.clock_topic, "sample": [a, b],
-                           "message": f"no sample for {a}..{b} ({b - a + 1} samples)"})
-    return dict(zip(ks, s.u)), dict(zip(ks, s.y)), {}, rep
+    rep = InputReport(timebase={**s.counts, "sample_time": s.sample_time,
+                                "sample_time_note": s.sample_time_note})
+    topic_of = {c: t for t, c in _adapter_channels(adapter, system)}
+    for kind, line in s.errors:
+        rep.errors.append({"kind": kind, "topic": line.split(" ", 1)[0].rstrip(":"),
+                           "sample": None, "message": line})
+    runs: list[list[Any]] = []                   # gap runs [first, last, reason, channel]
+    for k, reason, ch in s.gaps:
+        if runs and runs[-1][1] == k - 1 and runs[-1][2:] == [reason, ch]:
+            runs[-1][1] = k
+        else:
+            runs.append([k, k, reason, ch])
+    for a, b, reason, ch in runs:
+        rep.errors.append({"kind": reason, "topic": topic_of.get(ch, ch), "sample": [a, b],
+                           "message": f"samples {a}..{b}: {ch} "
+                                      + ("never received" if reason == "no_value" else
+                                         "not received within its max_hold")})
+    us: dict[int, np.ndarray] = {}
+    ys: dict[int, np.ndarray] = {}
+    nu = len(s.inputs)
+    no_u = np.zeros(0)
+
+    def keep(smp: Sample) -> bool:
+        us[smp.k] = smp.inputs["u"] if nu else no_u
+        ys[smp.k] = smp.inputs["y"]
+        return True if step is None else step(smp)
+
+    refused = {k for k, _r, _c in s.gaps}
+    where = [s.clock_topic]
+    stream = _policy_stream(["u", "y"] if nu else ["y"], rep, refused, where, keep)
+    for now, e in s.events:
+        if stream.join.pending or stream.join.held:
+            stream.release(now)
+        feed(stream, e, now, bool(nu))
+    stream.release(math.inf)
+    return us, ys, {}, rep
+
+
+def _adapter_channels(adapter: Any, system: Any) -> list[tuple[str, str]]:
+    """``(topic, channel)`` of every mapped channel."""
+    ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
+    return [(c.topic, c.name) for c in (*ad.inputs, *ad.outputs)]
 
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,

@@ -37,6 +37,8 @@ from fd_monitor.analysis.library import expected_path, load_expected
 from fd_monitor.analysis.offline import run_bag
 from fd_monitor.analysis.summary import episodes, summarize_run, truth_at, truth_facts
 from fd_monitor.model.errors import BagError, FdMonitorError
+from fd_monitor.model.gains import load_gains
+from fd_monitor.model.system import gain_system
 
 __all__ = ["bag_report", "campaign_report", "figure_residuals", "figure_modes", "figure_bias",
            "figure_qb_bound"]
@@ -272,7 +274,8 @@ def _md_table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> list[str]
 
 
 def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = None, *,
-               transient: float | None = None, expected: str | Path | None = None
+               transient: float | None = None, expected: str | Path | None = None,
+               system: str | Path | None = None, adapter: str | Path | None = None
                ) -> dict[str, Any]:
     """Figures and ``summary.md`` of one bag.
 
@@ -288,6 +291,12 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
         s; default the ``expected.yaml``'s (0 without one).
     expected : str or pathlib.Path, optional
         Expected results to check; default ``<bag>/expected.yaml`` when it exists.
+    system : str or pathlib.Path, optional
+        Plant file or shipped name; default the gain file's plant
+        (:func:`fd_monitor.model.gains.gain_system`).
+    adapter : str or pathlib.Path, optional
+        Adapter file: read u and y from the robot's own topics
+        (:func:`fd_monitor.wire.adapters.read_adapted`), as ``analyze --adapter``.
 
     Returns
     -------
@@ -311,7 +320,10 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
         gains = str(exp_doc["gains"])
     if transient is None:
         transient = float(exp_doc.get("transient", 0.0)) if exp_doc else 0.0
-    run = run_bag(bagp, gains, transient=transient)
+    plant = None
+    if system is not None:
+        plant = gain_system(load_gains(gains, verify=False), system)
+    run = run_bag(bagp, gains, transient=transient, system=plant, adapter=adapter)
     summary = summarize_run(run)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -321,21 +333,25 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
     if "V" in run.qb:
         figs["qb_bound"] = figure_qb_bound(run, out / "qb_bound.png")
     fails = check_expected(exp_doc, summary) if exp_doc is not None else None
-    md = _bag_markdown(run, summary, figs, fails, exp_file if exp_doc is not None else None)
+    md = _bag_markdown(run, summary, figs, fails, exp_file if exp_doc is not None else None,
+                       adapter)
     (out / "summary.md").write_text(md, encoding="utf-8")
     return {"summary": summary, "figures": {k: str(v) for k, v in figs.items()},
             "summary_md": str(out / "summary.md"), "expected_failures": fails}
 
 
 def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],
-                  fails: list[str] | None, exp_file: Path | None) -> str:
+                  fails: list[str] | None, exp_file: Path | None,
+                  adapter: str | Path | None = None) -> str:
     dt = float(run.system.sample_time)
     lines = [f"# Report: bag `{Path(run.bag).resolve()}`", "",
              f"Plant `{run.system.name}`, gain file `{run.gains}` (method `{run.method}`), "
              f"{s['samples']} samples at Ts = {dt:g} s"
              + (f", transient {run.transient:g} s not evaluated" if run.transient else "")
              + " (the offline run of `python -m fd_monitor analyze`: "
-               "`fd_monitor.analysis.offline.run_bag`).", ""]
+               "`fd_monitor.analysis.offline.run_bag`)"
+             + (f"; u and y read from the robot's topics through adapter `{adapter}`."
+                if adapter is not None else "."), ""]
     onsets = _onsets(run)
     alarms = {a["channel"]: a for a in s["alarms"]}
     rows = []

@@ -25,7 +25,7 @@ from fd_monitor.wire.bags import read_bag
 from fd_monitor.wire.topics import ALARM, BIAS_ESTIMATE, PLANT_TRUTH, STATE_ESTIMATE
 
 __all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "mode_tracking",
-           "outputs_of_run",
+           "outputs_of_run", "region_mark",
            "read_bag_truth", "recorded_outputs", "segments", "settled_modes", "summarize",
            "summarize_run", "transitions", "true_biases", "truth_at", "truth_facts"]
 
@@ -223,6 +223,45 @@ def outputs_of_run(run: Any) -> Outputs:
                    restarts=list(run.inputs.restarts), bridges=list(run.inputs.bridges))
 
 
+def region_mark(outside: np.ndarray, starts: np.ndarray, a: int, b: int
+                ) -> tuple[bool, np.ndarray, int]:
+    """Whether the alarm episode of samples ``a..b`` lies outside the certified region.
+
+    A gain file's fault-free guarantee holds for a run that stays inside its region, and the
+    monitor carries an excursion in its memory until it restarts (the residual filter's window,
+    the estimated mode, a bias estimate started by an alarm raised outside the region; the
+    README's campaign shows alarms 200 s after the plant came back inside, from a 1.5 mm bias
+    estimate started outside). So the episode is outside when the region was left at any
+    sample from the run's last (re)start up to ``b``.
+
+    Parameters
+    ----------
+    outside : numpy.ndarray
+        (K, r) signed excess per sample (0 inside), the runtime's ``outside``.
+    starts : numpy.ndarray
+        Sample indices (into ``outside``) where the monitor restarted, ascending.
+    a, b : int
+        First and last sample index of the episode.
+
+    Returns
+    -------
+    outside : bool
+    worst : numpy.ndarray
+        (r,) the largest excess during the episode, or, when the episode itself is inside,
+        before it since the (re)start (zeros when never outside).
+    at : int
+        Sample index of ``worst``.
+    """
+    s0 = int(starts[np.searchsorted(starts, a, side="right") - 1]) if np.any(starts <= a) else 0
+    part = outside[a:b + 1]
+    if not np.any(part != 0.0) and np.any(outside[s0:a] != 0.0):
+        part, first = outside[s0:a], s0
+    else:
+        first = a
+    j = int(np.argmax(np.abs(part).max(axis=1)))
+    return bool(np.any(part != 0.0)), part[j], first + j
+
+
 def summarize_run(run: Any) -> dict[str, Any]:
     """The summary of an offline run (:class:`fd_monitor.analysis.offline.BagRun`), as the
     library's expectations check it.
@@ -231,8 +270,9 @@ def summarize_run(run: Any) -> dict[str, Any]:
     -------
     dict
         :func:`summarize`'s fields, and ``bag``, ``gains``, ``method``, ``input_errors``
-        (kind -> stamps), ``transient_s``, ``channels`` (the runtime's alarm channels) and
-        ``estimate_kind`` (what ``bias_estimate`` estimates).
+        (kind -> stamps), ``transient_s``, ``channels`` (the runtime's alarm channels),
+        ``estimate_kind`` (what ``bias_estimate`` estimates) and ``isolates`` (False for a
+        detect-only runtime, which reports no isolation).
     """
     s = summarize(outputs_of_run(run), run.transient)
     return {"bag": run.bag, "gains": run.gains, "method": run.method,
@@ -242,7 +282,8 @@ def summarize_run(run: Any) -> dict[str, Any]:
             "input_errors": run.inputs.by_kind(), "restarts": s["restarts"],
             "bridges": s["bridges"],
             "transient_s": run.transient, "channels": list(run.channels),
-            "estimate_kind": run.estimate_kind}
+            "estimate_kind": run.estimate_kind,
+            "isolates": run.isolated is not None or bool(run.isolating)}
 
 
 def analyze_run(run: Any) -> dict[str, Any]:
@@ -257,13 +298,18 @@ def analyze_run(run: Any) -> dict[str, Any]:
         None), ``mode_agreement`` (or None), ``isolated``, ``bias_estimate``,
         ``input_errors`` (every rejected or suspicious input message: ``{kind, topic, sample,
         message}``), ``restarts`` (samples where the monitor restarted after a hole longer
-        than ``MAX_GAP``, or a new run) and ``bridges`` (samples where it bridged a shorter
-        one, its memory kept).
+        than ``MAX_GAP``, or a new run), ``bridges`` (samples where it bridged a shorter
+        one, its memory kept), ``sample_counts`` (``present``, ``used``, ``skipped``:
+        reason -> samples; :meth:`~fd_monitor.analysis.offline.InputReport.sample_counts`)
+        and ``time_base`` (a robot bag read through an adapter: the sample time and where it
+        came from, held samples per channel, gaps, late/duplicate/stray/decimated messages
+        per topic).
     """
     system = run.system
     k = run.k
     dt = float(system.sample_time)
     alarms = []
+    starts = np.searchsorted(k, np.asarray(run.inputs.restarts, dtype=int))
     for i, name in enumerate(run.channels):
         for a, b in episodes(run.alarm[:, i]):
             ep: dict[str, Any] = {"channel": name, "first_sample": int(k[a]),
@@ -271,10 +317,10 @@ def analyze_run(run: Any) -> dict[str, Any]:
                                   "samples": int(b - a + 1)}
             if run.outside is not None:
                 # alarms are raised everywhere, but guaranteed only inside the region
-                part = run.outside[a:b + 1]
-                worst = part[np.argmax(np.abs(part).max(axis=1))]
-                ep["outside_certified_region"] = bool(np.any(part != 0.0))
-                ep["outside_detail"] = describe_excess(run.region_names, worst)
+                out, worst, at = region_mark(run.outside, starts, a, b)
+                ep["outside_certified_region"] = out
+                ep["outside_detail"] = describe_excess(run.region_names, worst) + (
+                    "" if at >= a else f" at sample {int(k[at])}, before this alarm")
             alarms.append(ep)
     alarms.sort(key=lambda e: (e["first_sample"], e["channel"]))
     names = system.mode_names
@@ -298,6 +344,8 @@ def analyze_run(run: Any) -> dict[str, Any]:
         "input_errors": list(run.inputs.errors),
         "restarts": list(run.inputs.restarts),
         "bridges": list(run.inputs.bridges),
+        "sample_counts": run.inputs.sample_counts(),
+        "time_base": dict(run.inputs.timebase),
     }
 
 

@@ -21,8 +21,10 @@ alarm is raised all the same, it is just not covered by the design's guarantee.
 The JSON (``--json``) has at least ``alarms`` (list of ``{channel, first_sample, time}``),
 ``isolated`` (channel names) and ``bias_estimate`` (``{channel: value}``).
 
-The plant is the one the gain file was designed for (``--system`` to give a plant file
-explicitly); the bag's channel names must match it.
+The plant is the one the gain file was designed for: a shipped plant by its name, or the
+plant file the gain file records (``system.file``, written by the designers for a plant that
+is not shipped, e.g. an identified one); ``--system`` gives a plant file explicitly. The bag's
+channel names must match it.
 """
 
 from __future__ import annotations
@@ -50,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gains", required=True, metavar="GAINS",
                         help="gain file of any method (path or name in config/gains/)")
     parser.add_argument("--system", default=None, metavar="SYSTEM",
-                        help="plant file (default: the plant named in the gain file)")
+                        help="plant file (default: the plant the gain file records: its "
+                             "plant file, or a shipped plant by name)")
     parser.add_argument("--adapter", default=None, metavar="MAP",
                         help="read u and y from a robot's own topics (JointState, Odometry, "
                              "Twist, Float64, ...) through this adapter file "
@@ -127,10 +130,10 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
         Gain file missing, for another plant, or its certificate fails.
     """
     from fd_monitor.model.gains import load_gains
-    from fd_monitor.model.system import load_system
+    from fd_monitor.model.system import gain_system
 
     raw = load_gains(gains_source, verify=False)
-    system = load_system(system_source or raw.system_name)
+    system = gain_system(raw, system_source)
     gains = load_gains(gains_source, system)   # plant SHA-256 and certificate
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
@@ -159,6 +162,18 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
             "method": gains.method, "agei": agei, **analyze_run(run)}
 
 
+def samples_line(doc: dict[str, Any]) -> str:
+    """``analyze``'s one line on samples: present, used, skipped per reason, held."""
+    c = doc["sample_counts"]
+    why = ", ".join(f"{n} {k}" for k, n in c["skipped"].items())
+    held = doc["time_base"].get("held", {})
+    return (f"samples: {c['present']} present, {c['used']} used, "
+            + (f"skipped: {why}" if why else "none skipped")
+            + ("; held from an earlier sample: " + ", ".join(f"{ch} {n}"
+                                                               for ch, n in held.items())
+               if held else ""))
+
+
 def _region_cell(a: dict[str, Any]) -> str:
     if "outside_certified_region" not in a:
         return "n/a (no region in gain file)"
@@ -177,6 +192,9 @@ def run(args: argparse.Namespace) -> int:
           f"{doc['samples']} samples, AGEI {'on' if doc['agei'] else 'off'})")
     first = "none" if det is None else f"sample {det['sample']} (t = {det['time']:.1f} s)"
     print(f"first detection: {first}")
+    print(samples_line(doc))
+    if doc["time_base"].get("sample_time_note"):
+        print(doc["time_base"]["sample_time_note"])
     print()
     if doc["alarms"]:
         print_table([(a["channel"], a["first_sample"], f"{a['time']:.1f}", a["last_sample"],

@@ -3,7 +3,9 @@
 Simulates ``--runs`` seeded runs of each scenario, replays them through the gain file's method
 (looked up by its ``method``, see :data:`fd_monitor.core.runtime.RUNTIMES`) and prints the
 false-alarm rate, detection rate and delay per scenario, variant and threshold scale, as a
-table or as JSON. Table II of the QB paper::
+table or as JSON. A scenario simulates its own plant P; the gain file is for P, or for a model
+of P with P's inputs, outputs and sample time (an identified plant: its monitor reads P's
+measurements). Table II of the QB paper::
 
     python -m fd_monitor evaluate pwa_cascade_qb -s pwa_cascade_nominal -s pwa_cascade_b1_step \\
         --runs 1000 --transient 20 --rho 0.01,0.05,0.10,0.15,0.20,1 --channels b1,b2 \\
@@ -21,6 +23,7 @@ from fd_monitor.core.runtime import runtime_class
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import check_horizon, load_scenario
+from fd_monitor.model.system import gain_system
 
 __all__ = ["add_arguments", "run"]
 
@@ -45,7 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("gains", metavar="GAINS",
                         help="gain file, or the name of a shipped one (config/gains/)")
     parser.add_argument("-s", "--scenario", action="append", required=True, metavar="SCENARIO",
-                        help="scenario file or shipped name (repeatable)")
+                        help="scenario file or shipped name (repeatable); a scenario of plant "
+                             "P runs on a gain file of P or of a model of P (an identified "
+                             "plant with P's inputs, outputs and sample time)")
+    parser.add_argument("--system", default=None, metavar="SYSTEM",
+                        help="the gain file's plant file when it is not the scenarios' plant "
+                             "(default: the plant the gain file records: its plant file, or a "
+                             "shipped plant by name)")
     parser.add_argument("-n", "--runs", type=int, default=100, help="runs per scenario (100)")
     parser.add_argument("--seed0", type=int, default=0, help="seed of the first run (0)")
     parser.add_argument("--chunk", type=int, default=250,
@@ -89,7 +98,11 @@ def run(args: argparse.Namespace) -> int:
     for sc in scenarios:
         check_horizon(sc.system, sc.duration, f"{sc.source}: duration", FdMonitorError,
                       runs=min(args.chunk, args.runs))
-    system = scenarios[0].system
+    raw = load_gains(args.gains, verify=False)
+    plants = {sc.system.sha256: sc.system for sc in scenarios}
+    system = plants.get(raw.system_sha256)
+    if system is None:        # a model of the scenarios' plant (an identified one)
+        system = gain_system(raw, args.system)
     gains = load_gains(args.gains, system)
     takes = runtime_class(gains.method).batch_options()
     for flag, opt in (("--state-bound", "state_bound"), ("--estimator", "estimator")):
@@ -112,14 +125,16 @@ def run(args: argparse.Namespace) -> int:
         variants[gains.method] = common
     rows = run_campaign(gains, scenarios, args.runs, seed0=args.seed0, chunk=args.chunk,
                         rhos=args.rho, transient=args.transient, channels=args.channels,
-                        variants=variants, progress=not args.no_progress)
+                        variants=variants, progress=not args.no_progress, system=system)
     if args.report is not None:
         from fd_monitor.analysis.report import campaign_report
 
         campaign_report(rows, scenarios, args.report, gains=str(gains.path),
                         transient=args.transient)
     if args.json:
-        print_json({"gains": gains.path, "runs": args.runs, "seed0": args.seed0,
+        print_json({"gains": gains.path, "plant": system.name,
+                    "simulated": sorted({sc.system.name for sc in scenarios}),
+                    "runs": args.runs, "seed0": args.seed0,
                     "transient_s": args.transient, "channels": args.channels,
                     "rows": [r.as_dict() for r in rows]})
         return 0
@@ -133,5 +148,8 @@ def run(args: argparse.Namespace) -> int:
                       "-" if r.delay_max_s is None else f"{r.delay_max_s:.2f}"])
     print_table(table, header=["scenario", "variant", "rho", "runs", "false_alarm_%",
                                "detected_%", "delay_mean_s", "delay_median_s", "delay_max_s"],
-                title=f"evaluate {gains.path} (transient {args.transient:g} s)")
+                title=f"evaluate {gains.path} (plant {system.name}"
+                      + "".join(f", scenarios of {p.name}" for p in plants.values()
+                                if p.sha256 != system.sha256)
+                      + f"; transient {args.transient:g} s)")
     return 0

@@ -3,7 +3,9 @@
 Subscribes (reliable, keep all) to the topics and writes every message's CDR bytes with its
 receive time. Stops on SIGINT/SIGTERM, after ``--messages N`` in total, when every
 ``--until TOPIC=N`` topic has N messages, or after ``--duration S``; the bag is closed
-cleanly in every case. Without TOPICs it records every fd_monitor topic and /diagnostics.
+cleanly in every case. Without TOPICs it records every fd_monitor topic and /diagnostics; with
+``--adapter MAP`` the robot's mapped topics (their own types) and, without TOPICs, the
+monitor's ``fd/*`` outputs and /diagnostics.
 Messages reach the file in CRC-checked chunks at least every 0.5 s, so a recorder killed
 with SIGKILL (or a power cut after the OS wrote its cache) loses at most the last second;
 ``python -m fd_monitor bag recover`` rewrites such a bag with its summary and metadata.
@@ -36,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stop after S seconds")
     parser.add_argument("--adapter", default=None, metavar="MAP",
                         help="also record the robot topics of this adapter file "
-                             "(config/adapters/), with their types")
+                             "(config/adapters/), with their types; without TOPICs: the "
+                             "robot topics, the monitor's fd/* topics and /diagnostics")
     parser.add_argument("--type", action="append", default=[], metavar="TOPIC=TYPE",
                         help="message type of a topic that is not an fd_monitor topic "
                              "(std_msgs/msg/Float64MultiArray or "
@@ -62,13 +65,18 @@ def run(args: argparse.Namespace) -> int:
 
     types = dict(KNOWN_TYPES)
     types.update(_pairs(args.type, "--type"))
-    topics = args.topics or ([] if args.adapter else list(KNOWN_TYPES))
+    topics = list(args.topics) or list(KNOWN_TYPES)
     if args.adapter:
         from fd_monitor.wire.adapters import load_adapter
+        from fd_monitor.wire.topics import CHAIN_OUTPUTS, DIAGNOSTICS
 
         robot = load_adapter(args.adapter).topics
         types.update(robot)
-        topics += [t for t in robot if t not in topics]
+        if not args.topics:
+            # the robot's topics replace plant/u, plant/y (and the simulator's truth): what
+            # the monitor reads and what it says about them
+            topics = [t.absolute for t in (*CHAIN_OUTPUTS, DIAGNOSTICS)]
+        topics = [t for t in robot if t not in topics] + topics
     unknown = [t for t in topics if t not in types]
     if unknown:
         raise FdMonitorError(f"record: unknown type of {', '.join(unknown)} (give --type "

@@ -7,8 +7,10 @@ estimated mode), ``bias.png`` (methods that estimate a bias: bias estimate again
 bias), ``qb_bound.png`` (QB gain files:
 the error ellipsoid bound against the estimation error) and ``summary.md`` (summary table,
 the check of the bag's ``expected.yaml`` when it has one, the figures). Without ``--gains``
-the gain file named by the bag's ``expected.yaml`` is used. Campaign reports are written by
-``python -m fd_monitor evaluate ... --report DIR``.
+the gain file named by the bag's ``expected.yaml`` is used; its plant is the one the gain file
+records (``--system`` to give a plant file). A robot's own bag (JointState, Odometry, ...) is
+read through an adapter file with ``--adapter``, as ``analyze --adapter`` does. Campaign
+reports are written by ``python -m fd_monitor evaluate ... --report DIR``.
 """
 
 from __future__ import annotations
@@ -23,12 +25,19 @@ __all__ = ["add_arguments", "run", "main"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """BAG, --gains, -o, --force, --transient, --json."""
+    """BAG, --gains, --system, --adapter, -o, --force, --transient, --json."""
     parser.add_argument("bag", metavar="BAG", help="rosbag2 bag folder with /plant/u, /plant/y "
-                                                  "(and /plant/truth for the true values)")
+                                                  "(and /plant/truth for the true values), or "
+                                                  "a robot's topics with --adapter")
     parser.add_argument("--gains", default=None, metavar="GAINS",
                         help="gain file (path or shipped name); default: the one named by "
                              "BAG/expected.yaml")
+    parser.add_argument("--system", default=None, metavar="SYSTEM",
+                        help="plant file (default: the plant the gain file records: its "
+                             "plant file, or a shipped plant by name)")
+    parser.add_argument("--adapter", default=None, metavar="MAP",
+                        help="read u and y from a robot's own topics through this adapter "
+                             "file (config/adapters/) instead of /plant/u and /plant/y")
     parser.add_argument("-o", "--output", required=True, metavar="DIR",
                         help="folder for the PNG figures and summary.md (created)")
     parser.add_argument("--force", action="store_true",
@@ -48,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     if args.transient is not None and not 0 <= args.transient < float("inf"):
         raise FdMonitorError(f"--transient {args.transient}: expected a finite number >= 0")
     check_output(args.output, "-o", FdMonitorError, folder=True, force=args.force)
-    res = bag_report(args.bag, args.output, args.gains, transient=args.transient)
+    res = bag_report(args.bag, args.output, args.gains, transient=args.transient,
+                     system=args.system, adapter=args.adapter)
     s = res["summary"]
     fails = res["expected_failures"]
     doc = {"bag": args.bag, "summary_md": res["summary_md"],

@@ -28,9 +28,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bag folder to create (must not exist)")
     parser.add_argument("--library", metavar="LIBRARY", default=None,
                         help="instead of SCENARIO: regenerate every bag of a bag library "
-                             "(bags/library.yaml) in place, expected.yaml kept")
+                             "(bags/library.yaml) in place, expected.yaml kept (unless "
+                             "--expected)")
     parser.add_argument("--only", nargs="+", default=None, metavar="NAME",
                         help="with --library: only these bags")
+    parser.add_argument("--expected", action="store_true",
+                        help="with --library: also (re)write each bag's expected.yaml from "
+                             "`analyze` of the new bag and its truth")
     parser.add_argument("--seed", type=int, default=None,
                         help="random seed (default: the scenario's)")
     parser.add_argument("--duration", type=float, default=None,
@@ -83,7 +87,9 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
 def run(args: argparse.Namespace) -> int:
     """Simulate and print a summary."""
     if args.library is not None:
-        return _simulate_library(args.library, args.only, args.json)
+        return _simulate_library(args.library, args.only, args.json, args.expected)
+    if args.expected:
+        raise ScenarioError("--expected: only with --library")
     if args.scenario is None or args.output is None:
         raise ScenarioError("give SCENARIO and -o BAGDIR (or --library LIBRARY)")
     summary = simulate_to_bag(args.scenario, args.output, args.seed, args.duration,
@@ -99,13 +105,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulate_library(library: str | Path, only: Sequence[str] | None, as_json: bool) -> int:
-    """``python -m fd_monitor simulate --library LIBRARY [--only NAME...]``: rebuild bags."""
+def _simulate_library(library: str | Path, only: Sequence[str] | None, as_json: bool,
+                      expected: bool = False) -> int:
+    """``python -m fd_monitor simulate --library LIBRARY [--only NAME...] [--expected]``:
+    rebuild bags (and their ``expected.yaml``)."""
+    from fd_monitor.analysis.expectations import library_expected
     from fd_monitor.analysis.generate import generate_library
     from fd_monitor.analysis.library import load_library
 
     lib = load_library(library)
     rows = generate_library(lib, only)
+    if expected:
+        for r in rows:
+            library_expected(lib[r["name"]])
     if as_json:
         print_json({"library": str(lib.path), "bags": rows})
     else:

@@ -14,6 +14,8 @@ scenarios (``source: scenarios``). The gain file stores that region per mode
     state_hi     (s, n)
     input_lo     (s, nu) per-mode input ranges, input units
     input_hi     (s, nu)
+    input_source declared | scenarios (``source: scenarios`` only: where the input ranges come
+                 from, the plant's declared envelope or the design runs)
     remainder    {method: interval | exact | sampled, ...}: how rho_bar was obtained
     mismatch     {method: sampled, samples, margin}: how mu_bar (AGEI) was obtained
 """

@@ -37,7 +37,12 @@ times ``(1 + mc_margin)``. ``r_bar_separate`` (eq. 19 term by term) is written f
 Operating region (Assumption 1): the states and inputs of fault-free simulations of the design
 scenarios (``--scenario``, default every shipped ``<plant>_*`` scenario, faults removed), per
 mode, widened by ``--tube`` (state units) and clipped to the mode's invariant (the negation of
-its single-condition autonomous guards).
+its single-condition autonomous guards). When the plant file declares an ``envelope``, the
+inputs are drawn uniformly from its input ranges instead of the design runs' values: a user's
+controller drives other inputs than the design scenarios' (a bias on a controlled output moves
+the pump command), and the stored region then covers them. The gain file stores the region
+sampled (``results.envelope``, ``source: scenarios``): per mode, the bounding box of the
+widened states and the input ranges drawn from (``input_source``).
 
 Filter: a moving average of L samples by default; with it a bias step sigma appears in r as
 ``sigma h(t)`` while the noise bound is ``2 v_bar / L + L-independent terms``, and the model part
@@ -97,13 +102,16 @@ _NEG = {">": "<=", ">=": "<", "<": ">=", "<=": ">", "==": None}
 
 
 def default_scenarios(system: System) -> list[str]:
-    """Shipped scenarios ``<plant>_*.yaml`` of ``system`` (design region)."""
-    names: list[str] = []
+    """Shipped scenarios ``<plant>_*.yaml`` of ``system`` (design region), each name once: the
+    first config folder holding it wins, as for every shipped name (``$FD_MONITOR_CONFIG``
+    before the checkout's)."""
+    found: dict[str, str] = {}
     for d in config_dirs():
         sd = d / "scenarios"
         if sd.is_dir():
-            names += sorted(str(p) for p in sd.glob(f"{system.name}_*.yaml"))
-    return names
+            for p in sorted(sd.glob(f"{system.name}_*.yaml")):
+                found.setdefault(p.name, str(p))
+    return [found[n] for n in sorted(found)]
 
 
 def _jacobian(plant: SampledPlant, q: int, x: np.ndarray, u: np.ndarray,
@@ -167,7 +175,8 @@ def _declared_region(system: System, rng: np.random.Generator, M: int) -> dict[s
 def _certified_region(system: System, reg: dict[str, Any], tube: float,
                       source: str) -> dict[str, Any]:
     """Per-mode boxes the gain file certifies: the declared ones, or the bounding box of the
-    design runs widened by ``tube`` (the region the sampled bounds were taken over)."""
+    design runs widened by ``tube`` (the region the sampled bounds were taken over), with the
+    declared input ranges when the plant declares an envelope (:func:`_input_box`)."""
     if source == "declared":
         env = system.envelope
         assert env is not None
@@ -185,7 +194,20 @@ def _certified_region(system: System, reg: dict[str, Any], tube: float,
         out["state_hi"][q] = reg["x"][sel].max(axis=0) + tube
         out["input_lo"][q] = reg["u"][sel].min(axis=0)
         out["input_hi"][q] = reg["u"][sel].max(axis=0)
+    box = _input_box(system, source)
+    if box is not None:
+        out["input_lo"], out["input_hi"] = box
+    out["input_source"] = "scenarios" if box is None else "declared"
     return out
+
+
+def _input_box(system: System, source: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """(s, nu) input ranges the scenario design samples from: the plant's declared envelope
+    (None without one, or for the declared design, which samples its own boxes)."""
+    if source != "scenarios" or system.envelope is None:
+        return None
+    return (np.array(system.envelope.input_lo, dtype=float),
+            np.array(system.envelope.input_hi, dtype=float))
 
 
 def _sample(rng: np.random.Generator, reg: dict[str, Any], system: System, q: int, M: int,
@@ -221,12 +243,20 @@ class _Sampling:
     samples: int
     margin: float
     envelope: str
+    inputs: tuple[np.ndarray, np.ndarray] | None = None
+    input_rng: np.random.Generator | None = None
 
     def states(self, q: int, M: int, tube: float | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
-        """(M, n) states and (M, nu) inputs of mode q (see :func:`_sample`)."""
-        return _sample(self.rng, self.reg, self.system, q, M,
+        """(M, n) states and (M, nu) inputs of mode q (see :func:`_sample`); with ``inputs``
+        ((s, nu) ranges) the inputs are uniform in mode q's range instead, drawn from
+        ``input_rng`` so that the states' draws are the same either way."""
+        x, u = _sample(self.rng, self.reg, self.system, q, M,
                        self.tube if tube is None else tube)
+        if self.inputs is not None:
+            assert self.input_rng is not None
+            u = self.input_rng.uniform(self.inputs[0][q], self.inputs[1][q], u.shape)
+        return x, u
 
     def noise(self, M: int) -> np.ndarray:
         """(M, ny) noise in the box, half of it at its vertices."""
@@ -537,7 +567,8 @@ def design_thresholds(system: System, *, scenarios: Sequence[str] | None = None,
     reg, tube = _operating_region(system, envelope, scenarios, seeds, tube, v_bar, rng,
                                   mc_samples)
     region = _certified_region(system, reg, tube, envelope)
-    smp = _Sampling(system, plant, reg, rng, tube, v_bar, mc_samples, mc_margin, envelope)
+    smp = _Sampling(system, plant, reg, rng, tube, v_bar, mc_samples, mc_margin, envelope,
+                    _input_box(system, envelope), np.random.default_rng([mc_seed, 1]))
     A, rho_bar, sep_bar, how = _remainders(smp, region, box_width)
     b = eta_bar + rho_bar
 

@@ -5,6 +5,7 @@ A gain file is YAML with human-readable matrices (nested lists)::
     format_version: 1
     method: qb                       # qb | thresholds | hinf_sc | hminus_switched
     system: {name: pwa_cascade, sha256: <hex of the plant's canonical form>}
+                                     # + file: ../motor.yaml for a plant not found by its name
     created: 2026-11-22T10:00:00Z
     solver: {name: CLARABEL, status: optimal, time_s: 0.012}
     parameters: {...}                # the design parameters
@@ -12,7 +13,13 @@ A gain file is YAML with human-readable matrices (nested lists)::
     certificate: {...}               # what the loader re-verifies (LMI margins, eigenvalues)
     digest: {sha256: ..., parts: {key path: ...}}   # covers every key above
 
-A gain file for another plant (a different SHA-256) is refused. The certificate is checked
+A gain file for another plant (a different SHA-256) is refused. A plant that cannot be found
+by its name (not a shipped one: an identified or hand-written plant file elsewhere) is
+recorded by path as ``system.file``, and the plant is found from it
+(:func:`fd_monitor.model.system.gain_system`): like every path stored in a gain file,
+relative to the gain file's own folder with POSIX separators, resolved against it when read
+(:func:`~fd_monitor.model.paths.path_for_file`,
+:func:`~fd_monitor.model.paths.resolve_for_file`). The certificate is checked
 by the method's ``check_certificate(system, gains)`` in ``fd_monitor.core`` (numpy only), so
 the runtime trusts nothing it cannot recompute. What cannot be recomputed from the plant
 (estimator, AGEI and isolation parameters, design parameters, solver figures, ...) is covered
@@ -38,7 +45,7 @@ import numpy as np
 import yaml
 
 from fd_monitor.model.errors import GainFileError
-from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.paths import find_config_file, path_for_file, resolve_for_file
 from fd_monitor.model.system import System
 from fd_monitor.model.yaml_io import read_yaml
 
@@ -72,6 +79,9 @@ class GainFile:
     results : dict
         Matrices and vectors as numpy arrays, scalars as floats.
     certificate : dict
+    system_file : str
+        The plant file the gain file records (``system.file``), resolved against the gain
+        file's folder; ``""`` when it records none (a plant found by its name).
     certificate_status : str
         ``verified`` once ``load_gains`` re-checked it, ``unchecked`` otherwise.
     """
@@ -85,7 +95,15 @@ class GainFile:
     parameters: Mapping[str, Any]
     results: Mapping[str, Any]
     certificate: Mapping[str, Any]
+    system_file: str = ""
     certificate_status: str = "unchecked"
+
+    @property
+    def design_file(self) -> Path | None:
+        """The design file the gains were made from (``parameters.design_file``, stored
+        relative to the gain file's folder), or None when the design used none."""
+        stored = self.parameters.get("design_file")
+        return resolve_for_file(stored, self.path) if stored else None
 
     @property
     def id(self) -> str:
@@ -267,15 +285,23 @@ def save_gains(path: str | Path, method: str, system: System, parameters: Mappin
     system : System
         The plant designed for (its name and SHA-256 are recorded).
     parameters, results, certificate, solver : mapping
-        Values may be numpy arrays.
+        Values may be numpy arrays. ``parameters.design_file`` is stored relative to the gain
+        file's folder (:func:`fd_monitor.model.paths.path_for_file`); read it back with
+        :attr:`GainFile.design_file`.
     """
     if method not in CERTIFICATE_CHECKS:
         raise GainFileError(f"{path}: method: expected one of {sorted(CERTIFICATE_CHECKS)}, "
                             f"got {method!r}")
+    parameters = dict(parameters)
+    if parameters.get("design_file"):
+        # every path a gain file stores is relative to its own folder (POSIX), so a shipped
+        # file holds in the checkout, in share/fd_monitor/config and in any copy of the tree
+        parameters["design_file"] = path_for_file(parameters["design_file"], path)
     doc = {
         "format_version": FORMAT_VERSION,
         "method": method,
-        "system": {"name": system.name, "sha256": system.sha256},
+        "system": {"name": system.name, "sha256": system.sha256,
+                   **_plant_file(system, path)},
         "created": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "solver": to_plain(solver),
         "parameters": to_plain(parameters),
@@ -283,6 +309,21 @@ def save_gains(path: str | Path, method: str, system: System, parameters: Mappin
         "certificate": to_plain(certificate),
     }
     return write_gain_doc(path, doc)
+
+
+def _plant_file(system: System, gain_path: str | Path) -> dict[str, str]:
+    """``{"file": ...}`` when the plant cannot be found by its name (not shipped, or shipped
+    under another name), else ``{}``: shipped plants keep their gain files as they were."""
+    src = Path(system.source)
+    if not src.is_file():
+        return {}
+    try:
+        by_name = find_config_file(system.name, "systems", GainFileError)
+    except GainFileError:
+        by_name = None
+    if by_name is not None and by_name.resolve() == src.resolve():
+        return {}
+    return {"file": path_for_file(src, gain_path)}
 
 
 def load_gains(source: str | Path, system: System | None = None, *,
@@ -333,10 +374,15 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
                                 f"{type(raw[key]).__name__}")
     if verify:
         check_digest(raw, path)
+    stored = sys_info.get("file")
+    if stored is not None and (not isinstance(stored, str) or not stored.strip()):
+        raise GainFileError(f"{path}: system.file: expected the plant file's path (relative "
+                            f"to the gain file's folder), got {stored!r}")
     gf = GainFile(str(path), str(method), str(sys_info["name"]), str(sys_info["sha256"]),
                   str(raw.get("created", "")), dict(raw.get("solver") or {}),
                   dict(raw["parameters"] or {}), from_plain(dict(raw["results"] or {})),
-                  from_plain(dict(raw["certificate"] or {})))
+                  from_plain(dict(raw["certificate"] or {})),
+                  system_file="" if stored is None else str(resolve_for_file(stored, path)))
     if system is not None:
         if gf.system_sha256 != system.sha256:
             what = ("another plant" if gf.system_name != system.name
@@ -360,5 +406,6 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
                 raise GainFileError(f"{path}: malformed results or certificate: "
                                     f"{type(exc).__name__}: {exc}") from None
             gf = GainFile(gf.path, gf.method, gf.system_name, gf.system_sha256, gf.created,
-                          gf.solver, gf.parameters, gf.results, gf.certificate, "verified")
+                          gf.solver, gf.parameters, gf.results, gf.certificate, gf.system_file,
+                          "verified")
     return gf

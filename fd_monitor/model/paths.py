@@ -13,7 +13,7 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["check_output", "config_dirs", "config_dir", "default_gain_path", "find_config_file",
-           "repo_root"]
+           "path_for_file", "repo_root", "resolve_for_file"]
 
 
 def repo_root() -> Path | None:
@@ -88,6 +88,58 @@ def default_gain_path(plant: str, method: str) -> Path:
     root = repo_root()
     name = f"{plant}_{method}.yaml"
     return root / "config" / "gains" / name if root is not None else Path(name)
+
+
+def path_for_file(path: str | Path, anchor_file: str | Path) -> str:
+    """How a file that refers to ``path`` stores it: relative to the folder of
+    ``anchor_file`` (the gain file being written), with POSIX separators.
+
+    A shipped gain file then names its design file ``../systems/f16xl.design.yaml``, which
+    holds in the source checkout, in ``share/fd_monitor/config`` of an install and in a copy of
+    the tree, and records no machine's folders. Paths on another drive (Windows), where no
+    relative path exists, are stored absolute.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file referred to (absolute, or relative to the current folder).
+    anchor_file : str or pathlib.Path
+        The file that stores the reference (need not exist yet).
+
+    Returns
+    -------
+    str
+        E.g. ``../systems/f16xl.design.yaml``; read back with :func:`resolve_for_file`.
+    """
+    target = Path(os.path.abspath(path))
+    base = Path(os.path.abspath(anchor_file)).parent
+    try:
+        rel = os.path.relpath(target, base)
+    except ValueError:      # another drive: no relative path
+        return target.as_posix()
+    return Path(rel).as_posix()
+
+
+def resolve_for_file(stored: str | Path, anchor_file: str | Path) -> Path:
+    """The file a stored reference names: ``stored`` resolved against the folder of
+    ``anchor_file`` (an absolute ``stored`` is returned as it is).
+
+    Parameters
+    ----------
+    stored : str or pathlib.Path
+        A value written by :func:`path_for_file` (POSIX separators).
+    anchor_file : str or pathlib.Path
+        The file that holds the reference.
+
+    Returns
+    -------
+    pathlib.Path
+        Normalised (``..`` folded), not checked for existence.
+    """
+    p = Path(str(stored))
+    if p.is_absolute():
+        return p
+    return Path(os.path.normpath(Path(os.path.abspath(anchor_file)).parent / p))
 
 
 def check_output(path: str | Path, what: str, error: type[Exception], *, folder: bool,

@@ -41,7 +41,7 @@ from fd_monitor.model.plant_sections import (
 from fd_monitor.model.validate import Checker
 from fd_monitor.model.yaml_io import read_yaml
 
-__all__ = ["System", "load_system", "parse_system", "plant_checker"]
+__all__ = ["System", "gain_system", "load_system", "parse_system", "plant_checker"]
 
 
 @dataclass(frozen=True)
@@ -190,6 +190,49 @@ def load_system(source: str | Path) -> System:
     path = find_config_file(source, "systems", SystemFileError, what="plant")
     data = read_yaml(path)
     return parse_system(data, str(path))
+
+
+def gain_system(gains: Any, source: str | Path | None = None,
+                option: str = "--system") -> System:
+    """The plant a gain file was designed for.
+
+    Looked up, in this order: ``source`` when given; the plant file the gain file records
+    (``system.file``); the plant's name among the shipped plants. Whether it is the plant
+    the gain file was designed for is checked by
+    :func:`~fd_monitor.model.gains.load_gains` (its SHA-256).
+
+    Parameters
+    ----------
+    gains : GainFile
+        Loaded (:func:`fd_monitor.model.gains.load_gains`; ``verify=False`` is enough): its
+        ``path``, ``system_name`` and ``system_file``.
+    source : str or pathlib.Path, optional
+        A plant file or a shipped name given by the user.
+    option : str
+        How the user gives a plant file (named in the error): ``--system``,
+        ``-p system:=``.
+
+    Raises
+    ------
+    SystemFileError
+        A bad plant file; or no plant found, the message naming ``option``.
+    """
+    if source is not None:
+        return load_system(source)
+    if gains.system_file:
+        if not Path(gains.system_file).is_file():
+            raise SystemFileError(
+                f"{gains.path}: system.file: plant file {gains.system_file} (of plant "
+                f"{gains.system_name}) not found: moved? give it with {option} PLANT.yaml")
+        return load_system(gains.system_file)
+    try:
+        path = find_config_file(gains.system_name, "systems", SystemFileError, "plant")
+    except SystemFileError:
+        raise SystemFileError(
+            f"{gains.path}: designed for plant {gains.system_name}, which is not a shipped "
+            f"plant and the gain file records no plant file: give it with {option} "
+            f"PLANT.yaml") from None
+    return load_system(path)
 
 
 def plant_checker(origin: str) -> Checker:

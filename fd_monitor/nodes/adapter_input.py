@@ -2,9 +2,11 @@
 
 :class:`AdapterInput` subscribes the topics an adapter file maps (``sensor_msgs/JointState``,
 ``nav_msgs/Odometry``, ``geometry_msgs/Twist``, ``std_msgs/Float64``, ...) and feeds the
-samples of the one join (:class:`fd_monitor.wire.adapters.AdapterJoin`: sample clock from the
-outputs' stamps, inputs held) into a node's stamp join as ``u`` and ``y``, so everything after
-it (holes, restarts, the runtime step, diagnostics) is the node's usual path. Subscriptions
+events of the one time base (:class:`fd_monitor.wire.adapters.AdapterJoin` on
+:mod:`fd_monitor.wire.timebase`: every channel sampled onto the plant's grid) into the node's
+input policy as ``u`` and ``y`` with :func:`~fd_monitor.wire.adapters.feed` -- the function
+the offline reader calls -- so everything after it (gaps, new runs, the runtime step,
+diagnostics) is the node's usual path. Subscriptions
 meet reliable and best-effort volatile publishers (:class:`~fd_monitor.nodes.common.DataInput`).
 A message the adapter cannot read (unknown joint, missing field, NaN, another type) is one
 line, logged (throttled) and reported WARN on the node's ``input`` channel; the node keeps
@@ -25,7 +27,7 @@ import numpy as np
 
 from fd_monitor.nodes.bag_nodes import message_class
 from fd_monitor.nodes.common import DataInput, Param, pub_events
-from fd_monitor.wire.adapters import Adapter, AdapterJoin, encode, load_adapter
+from fd_monitor.wire.adapters import HOLD_WAIT, Adapter, AdapterJoin, encode, feed, load_adapter
 
 __all__ = ["ADAPTER_PARAM", "AdapterInput", "RobotPublishers"]
 
@@ -56,19 +58,23 @@ class AdapterInput:
     source : str
         The adapter file.
     hold_wait : float
-        s a sample waits for a later message of each held topic.
+        s of silence after which what waits is decided
+        (:data:`~fd_monitor.wire.adapters.HOLD_WAIT`).
     """
 
-    def __init__(self, node: Any, source: str, hold_wait: float) -> None:
+    def __init__(self, node: Any, source: str, hold_wait: float = HOLD_WAIT) -> None:
         self.node = node
         self.adapter: Adapter = load_adapter(source).for_system(node.system)
         self.join = AdapterJoin(self.adapter, float(node.system.sample_time), hold_wait)
         self.nu = len(self.adapter.inputs)
         for topic, ty in self.adapter.topics.items():
             cls = message_class(ty)
-            node._entities.append(DataInput(node, cls, topic,
-                                            lambda msg, topic=topic: self._on_msg(topic, msg),
-                                            node._graph_note))
+            # with the DDS MessageInfo: a header-less message's time is when its publisher
+            # sent it (source timestamp), not when this executor got round to it
+            node._entities.append(DataInput(
+                node, cls, topic, lambda msg, info=None, topic=topic: self._on_msg(topic, msg,
+                                                                                   info),
+                node._graph_note, with_info=True))
         node._entities.append(node.create_timer(hold_wait / 2, self._release))
         node._entities.append(node.create_timer(GRAPH_CHECK, self._check_types))
         self._type_notes: set[str] = set()
@@ -78,25 +84,28 @@ class AdapterInput:
         """The subscribed topics, resolved."""
         return [self.node.resolve_topic_name(t) for t in self.adapter.topics]
 
-    def _on_msg(self, topic: str, msg: Any) -> None:
+    def _on_msg(self, topic: str, msg: Any, info: Any = None) -> None:
         node = self.node
         if not node.active:
             node.inactive_dropped += 1
             return
         now = time.monotonic()
-        self.join.put(topic, msg, time.monotonic_ns(), now)
+        sent = int(info["source_timestamp"]) if info is not None else time.time_ns()
+        self.join.put(topic, msg, sent, now)
         self._release(now)
 
     def _release(self, now: float | None = None) -> None:
         node = self.node
         if not node.active:
             return
-        for _kind, line in self.join.take_errors():
-            node.bad_input(line)
-        for s in self.join.ready(time.monotonic() if now is None else now):
-            if self.nu:
-                node.on_input("u", s.k, s.u)
-            node.on_input("y", s.k, s.y)
+        if now is None:                          # the timer: a silence decides what waits
+            now = time.monotonic()
+            self.join.advance(now)
+        joined = False
+        for e in self.join.events():
+            joined = feed(node.stream, e, now, bool(self.nu)) or joined
+        if joined:
+            node._input_ok()
         for _kind, line in self.join.take_errors():
             node.bad_input(line)
 

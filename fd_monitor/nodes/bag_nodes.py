@@ -92,8 +92,11 @@ class RecorderNode(Node):
                 self.create_subscription(message_class(msgtype), topic, self._callback(topic),
                                          _diagnostics_sub_qos(), raw=True, **sub_events())
             else:
+                # log time: when DDS received it (its MessageInfo), as rosbag2 records, not
+                # when this executor got round to it (a backlog is handed over per topic)
                 self.inputs[topic] = DataInput(self, message_class(msgtype), topic,
-                                               self._callback(topic), self._report, raw=True)
+                                               self._callback(topic), self._report, raw=True,
+                                               with_info=True)
         if duration is not None:
             self.create_timer(float(duration), self._stop)
         if writer.flush_seconds is not None:
@@ -101,10 +104,11 @@ class RecorderNode(Node):
             self.create_timer(writer.flush_seconds / 2, writer.tick)
 
     def _callback(self, topic: str):  # type: ignore[no-untyped-def]
-        def cb(raw: bytes) -> None:
+        def cb(raw: bytes, info: Any = None) -> None:
             if self.done.done():
                 return
-            self.writer.write_raw(topic, time.time_ns(), raw)
+            t = int(info["received_timestamp"]) if info is not None else 0
+            self.writer.write_raw(topic, t or time.time_ns(), raw)
             self.total += 1
             if self._finished():
                 self._stop()

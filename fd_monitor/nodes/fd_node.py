@@ -496,7 +496,7 @@ class FdNode(LifecycleNode):
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
         self.adapter_input = None
         if getattr(self.params, "adapter", ""):
-            self.adapter_input = AdapterInput(self, self.params.adapter, HOLD_WAIT)
+            self.adapter_input = AdapterInput(self, self.params.adapter)
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
             cb = self._callback(inp)
@@ -623,7 +623,22 @@ class FdNode(LifecycleNode):
                          {"bad_messages": self.bad_messages, "holes": self.holes,
                           "bridged": self.join.bridges, "restarted": self.join.restarts,
                           "new_runs": self.join.new_runs, "processed": self.processed,
-                          "last_warning": reason})
+                          "last_warning": reason, **self._time_base()})
+
+    def _time_base(self) -> dict[str, Any]:
+        """The adapter's time-base counts (held samples, gaps, late/duplicate/decimated
+        messages) for the ``input`` status; empty without an adapter."""
+        if self.adapter_input is None:
+            return {}
+        c = self.adapter_input.join.counts()
+        out: dict[str, Any] = {"grid_samples": c["samples"]}
+        for key in ("held", "late", "duplicate", "stray", "decimated"):
+            for what, n in c.get(key, {}).items():
+                out[f"{key} {what}"] = n
+        for reason, per in c["gaps"].items():
+            for ch, n in per.items():
+                out[f"gap {reason} {ch}"] = n
+        return out
 
     def _graph_note(self, line: str) -> None:
         """Log a ROS-graph problem (QoS, another publisher) and report it (WARN)."""
@@ -661,7 +676,8 @@ class FdNode(LifecycleNode):
                 "bad_messages": self.bad_messages, "processed": self.processed,
                 "holes": self.holes, "bridged": self.join.bridges,
                 "restarted": self.join.restarts, "new_runs": self.join.new_runs,
-                "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for()})
+                "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for(),
+                **self._time_base()})
         else:
             self.diag.touch("input")
 

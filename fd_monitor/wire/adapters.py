@@ -26,15 +26,16 @@ Per type (``type: sensor_msgs/JointState`` or ``sensor_msgs/msg/JointState``):
 - ``std_msgs/msg/Float64MultiArray``: ``label`` (a name of ``layout.dim[0].label``) or
   ``index`` (position in the values, after ``layout.data_offset``).
 
-Timing. A message's time is its ``header.stamp`` where the type has a header (JointState,
-Odometry, TwistStamped) and the stamp is not zero, else its receive time (bag time offline).
-The **sample clock** is the first output's topic: every message there is one sample, with
-index ``k = round((t - t0) / Ts)`` (``t0`` the first sample's time, ``Ts`` the plant's sample
-time), so a missing message is a hole in k and two messages within Ts/2 are a duplicate.
-Every other channel (inputs, outputs on other topics) is **held** (zero-order hold): a
-sample takes the latest value received before it (its header stamp at or before the
-sample's, when both topics carry header stamps). A sample with a held channel never received
-yet is reported and skipped, as the nodes' pairing rule does for a plain ``plant/y``.
+Timing (the one time base, :mod:`fd_monitor.wire.timebase`). A message's time is its
+``header.stamp`` where the type has a header (JointState, Odometry, TwistStamped; stamp 0 is
+a stamp), else its receive time (bag time offline). Every channel is sampled onto the plant's
+grid ``k Ts``, phased on the *clock topic* (the first output's): the message of sample k is
+the one within half a sample of ``t_k`` (jitter absorbed), a faster topic is decimated (its
+last value, or the mean with ``decimate: mean``), a slower one is held up to the channel's
+``max_hold`` (s; default :data:`DEFAULT_MAX_HOLD_INPUT` for inputs -- an actuator holds its
+command -- and 0 for outputs -- a held measurement is not a measurement), past it the sample
+is a gap (``stale``). Adapter-wide defaults: top-level ``max_hold: {inputs: S, outputs: S}``
+and ``wait`` (s the stream moves on before a slower topic is held).
 
 Pure: decoding reads attributes of already deserialised messages, so the same code decodes
 the dataclasses ``rosbags`` reads from a bag and rclpy's messages; nothing here imports rclpy.
@@ -46,10 +47,10 @@ a bag (``analyze --adapter``, ``identify --adapter``), the nodes run it live
 
 from __future__ import annotations
 
-import bisect
+import contextlib
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -59,9 +60,11 @@ from fd_monitor.model.errors import BagError, FdMonitorError, MessageError
 from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.system import read_yaml
 from fd_monitor.wire.bags import _typestore, messages_from_raw, read_raw
+from fd_monitor.wire.timebase import WAIT, Gap, GridSample, GridSampler, NewRun, snap_sample_time
 
 __all__ = ["ADAPTER_TYPES", "Adapter", "AdapterError", "AdapterJoin", "AdaptedMessageError",
-           "AdaptedSample", "AdaptedStreams", "Channel", "Reading", "decode_message", "encode",
+           "AdaptedEvent", "AdaptedSample", "AdaptedStreams", "Channel", "HOLD_WAIT", "Reading",
+           "decode_message", "encode", "feed", "stamp_sample_time",
            "load_adapter", "parse_adapter", "read_adapted", "rosbags_make", "write_adapted"]
 
 
@@ -95,8 +98,13 @@ ADAPTER_TYPES: dict[str, tuple[bool, tuple[str, ...] | None]] = {
     "std_msgs/msg/Float64MultiArray": (False, None),
 }
 
-#: Messages kept per held topic while no sample uses them.
-MAX_HELD = 10_000
+#: s an input (a command) is held at most by default: an actuator holds its last command.
+DEFAULT_MAX_HOLD_INPUT = 0.5
+#: s an output (a measurement) is held at most by default: none (a lost one is a gap).
+DEFAULT_MAX_HOLD_OUTPUT = 0.0
+#: s a live sample waits in silence before the topics not heard are held (offline: the same
+#: rule on the bag's log times).
+HOLD_WAIT = 0.5
 
 #: Short forms of ``field`` (Odometry, TwistStamped) -> the full path.
 _SHORT = {
@@ -129,6 +137,10 @@ class Channel:
         Float64MultiArray: the channel label (``""``: by ``index``).
     index : int
         Float64MultiArray: position in the values (-1: by ``label``).
+    max_hold : float or None
+        s the value is held at most (None: the adapter's default for its role).
+    decimate : str
+        ``last`` or ``mean``: the value of a sample with several messages.
     """
 
     name: str
@@ -138,6 +150,8 @@ class Channel:
     joint: str = ""
     label: str = ""
     index: int = -1
+    max_hold: float | None = None
+    decimate: str = "last"
 
     @property
     def where(self) -> str:
@@ -157,12 +171,21 @@ class Adapter:
     source : str
     inputs, outputs : tuple of Channel
         In the file's order (:meth:`for_system` reorders them as the plant's).
+    clock_topic : str
+        The first output's topic: the grid's phase.
+    hold_inputs, hold_outputs : float
+        s, the default ``max_hold`` of inputs and outputs.
+    wait : float
+        s the stream moves on before a slower topic is held.
     """
 
     source: str
     inputs: tuple[Channel, ...]
     outputs: tuple[Channel, ...]
     clock_topic: str = ""
+    hold_inputs: float = DEFAULT_MAX_HOLD_INPUT
+    hold_outputs: float = DEFAULT_MAX_HOLD_OUTPUT
+    wait: float = WAIT
 
     def __post_init__(self) -> None:
         if not self.clock_topic:
@@ -202,8 +225,14 @@ class Adapter:
                     + f" (plant {system.name} {what}: {', '.join(names) or 'none'})")
             return tuple(got[n] for n in names)
 
-        return Adapter(self.source, order(self.inputs, system.inputs, "inputs"),
-                       order(self.outputs, system.outputs, "outputs"), self.clock_topic)
+        return replace(self, inputs=order(self.inputs, system.inputs, "inputs"),
+                       outputs=order(self.outputs, system.outputs, "outputs"))
+
+    def max_hold(self, c: Channel) -> float:
+        """s channel ``c`` is held at most."""
+        if c.max_hold is not None:
+            return c.max_hold
+        return self.hold_inputs if c in self.inputs else self.hold_outputs
 
 
 def load_adapter(source: str | Path) -> Adapter:
@@ -235,10 +264,19 @@ def parse_adapter(doc: Any, source: str = "<adapter>") -> Adapter:
     """Validate an adapter document (see the module docstring)."""
     if not isinstance(doc, Mapping):
         raise AdapterError(f"{source}: expected a mapping with inputs: and outputs:")
-    unknown = sorted(set(doc) - {"format_version", "description", "inputs", "outputs"})
+    unknown = sorted(set(doc) - {"format_version", "description", "inputs", "outputs",
+                                 "max_hold", "wait"})
     if unknown:
         raise AdapterError(f"{source}: {unknown[0]}: unknown key (expected format_version, "
-                           f"description, inputs, outputs)")
+                           f"description, inputs, outputs, max_hold, wait)")
+    holds = doc.get("max_hold", {})
+    if not isinstance(holds, Mapping) or set(holds) - {"inputs", "outputs"}:
+        raise AdapterError(f"{source}: max_hold: expected a mapping {{inputs: s, outputs: s}}, "
+                           f"got {holds!r}")
+    hold_in = _seconds(holds.get("inputs", DEFAULT_MAX_HOLD_INPUT), f"{source}: max_hold.inputs")
+    hold_out = _seconds(holds.get("outputs", DEFAULT_MAX_HOLD_OUTPUT),
+                        f"{source}: max_hold.outputs")
+    wait = _seconds(doc.get("wait", WAIT), f"{source}: wait")
     if doc.get("format_version", 1) != 1:
         raise AdapterError(f"{source}: format_version: expected 1, got "
                            f"{doc.get('format_version')!r}")
@@ -262,14 +300,22 @@ def parse_adapter(doc: Any, source: str = "<adapter>") -> Adapter:
         if types.setdefault(c.topic, c.msgtype) != c.msgtype:
             raise AdapterError(f"{source}: topic {c.topic}: mapped as {types[c.topic]} and "
                                f"as {c.msgtype} (one type per topic)")
-    return Adapter(source, chans["inputs"], chans["outputs"])
+    return Adapter(source, chans["inputs"], chans["outputs"], "", hold_in, hold_out, wait)
+
+
+def _seconds(v: Any, where: str) -> float:
+    """A duration in s (>= 0, finite); AdapterError naming ``where``."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+        raise AdapterError(f"{where}: expected a duration in s (a number >= 0), got {v!r}")
+    return float(v)
 
 
 def _channel(item: Any, where: str) -> Channel:
     if not isinstance(item, Mapping):
         raise AdapterError(f"{where}: expected a mapping {{channel, topic, type, ...}}, got "
                            f"{item!r}")
-    allowed = {"channel", "topic", "type", "field", "joint", "label", "index"}
+    allowed = {"channel", "topic", "type", "field", "joint", "label", "index", "max_hold",
+               "decimate"}
     extra = sorted(set(item) - allowed)
     if extra:
         raise AdapterError(f"{where}.{extra[0]}: unknown key (expected "
@@ -280,6 +326,14 @@ def _channel(item: Any, where: str) -> Channel:
             raise AdapterError(f"{where}.{key}: expected a name, got {v!r}")
     topic = str(item["topic"]).strip()
     name = str(item["channel"]).strip()
+    timing: dict[str, Any] = {}
+    if "max_hold" in item:
+        timing["max_hold"] = _seconds(item["max_hold"], f"{where}.max_hold")
+    if "decimate" in item:
+        if item["decimate"] not in ("last", "mean"):
+            raise AdapterError(f"{where}.decimate: expected last or mean, got "
+                               f"{item['decimate']!r}")
+        timing["decimate"] = item["decimate"]
     ty = _type_name(item.get("type"), where)
     leaves = ADAPTER_TYPES[ty][1]
     fld = item.get("field")
@@ -300,7 +354,7 @@ def _channel(item: Any, where: str) -> Channel:
             index = item["index"]
             if isinstance(index, bool) or not isinstance(index, int) or index < 0:
                 raise AdapterError(f"{where}.index: expected an integer >= 0, got {index!r}")
-        return Channel(name, topic, ty, "", "", label, int(index))
+        return Channel(name, topic, ty, "", "", label, int(index), **timing)
     if "label" in item or "index" in item:
         raise AdapterError(f"{where}: label and index are for Float64MultiArray channels")
     if ty == "std_msgs/msg/Float64":
@@ -321,7 +375,7 @@ def _channel(item: Any, where: str) -> Channel:
     if fld not in leaves:
         raise AdapterError(f"{where}.field: {item.get('field')!r} is not a field of {ty} "
                            f"(expected one of {', '.join(leaves)})")
-    return Channel(name, topic, ty, fld, joint)
+    return Channel(name, topic, ty, fld, joint, **timing)
 
 
 # -- decoding ------------------------------------------------------------------------------
@@ -417,10 +471,8 @@ def decode_message(adapter: Adapter, topic: str, msg: Any, receive_ns: int) -> R
     stamp = receive_ns
     try:
         if header:
-            stamp = _stamp_ns(msg)
+            stamp = _stamp_ns(msg)      # stamp 0 is a stamp (a clock starting at 0)
             at = f"{topic} stamp {stamp * 1e-9:.3f} s"
-            if stamp == 0:
-                header, stamp = False, receive_ns
         values: dict[str, float] = {}
         for c in (*adapter.outputs, *adapter.inputs):
             if c.topic != topic:
@@ -449,151 +501,136 @@ class AdaptedSample:
     ----------
     k : int
     t_ns : int
-        The sample clock's time (header stamp or receive time), ns.
+        The grid instant on the clock topic's time (header stamp or receive time), ns.
     u, y : numpy.ndarray
         (nu,), (ny,) in the plant's (the adapter's) channel order.
+    held : tuple of str
+        Channels held from an earlier sample (within their max_hold).
     """
 
     k: int
     t_ns: int
     u: np.ndarray
     y: np.ndarray
+    held: tuple[str, ...] = ()
+
+
+#: What :meth:`AdapterJoin.events` gives: a sample, a gap (sample k not usable) or a new run.
+AdaptedEvent = AdaptedSample | Gap | NewRun
 
 
 class AdapterJoin:
-    """Turn the robot's messages into samples (k, u, y): the sample clock and the hold.
+    """The robot's messages -> samples on the plant's grid (:mod:`fd_monitor.wire.timebase`).
 
-    Pure; time is an argument. :meth:`put` one message at a time (in arrival order, or bag
-    order offline); :meth:`ready` releases the samples that are complete: a clock message
-    whose held channels are known, i.e. every held topic has delivered a message after it
-    (so the latest one before it is in), or ``hold_wait`` s have passed since it arrived, or
-    ``now`` is None (offline: every message is in).
+    Pure; time is an argument. :meth:`put` each message (arrival order live, bag order
+    offline, with ``now`` the arrival or log time in s); :meth:`events` gives what was decided.
+    Live and offline run exactly this, so a bag gives the same samples in both.
 
     Parameters
     ----------
     adapter : Adapter
         Channels in the order u and y are built in (:meth:`Adapter.for_system`).
     sample_time : float
-        s between samples of the clock (the plant's Ts).
+        s, the plant's Ts.
     hold_wait : float
-        s a sample waits for a later message of each held topic.
+        s of silence after which the topics not heard for the pending samples are held
+        (:data:`HOLD_WAIT`).
     """
 
-    def __init__(self, adapter: Adapter, sample_time: float, hold_wait: float = 0.1) -> None:
-        if not sample_time > 0:
+    def __init__(self, adapter: Adapter, sample_time: float,
+                 hold_wait: float = HOLD_WAIT) -> None:
+        if not (isinstance(sample_time, (int, float)) and sample_time > 0
+                and math.isfinite(sample_time)):
             raise AdapterError(f"{adapter.source}: sample time {sample_time!r}: expected > 0")
         self.adapter = adapter
-        self.ts_ns = float(sample_time) * 1e9
         self.hold_wait = float(hold_wait)
         self.clock = adapter.clock_topic
-        held = [c for c in (*adapter.outputs, *adapter.inputs) if c.topic != self.clock]
-        self.held_topics = tuple(dict.fromkeys(c.topic for c in held))
-        # compare header stamps only when the clock and the held topic both carry them
-        self._by_stamp = {t: adapter.header_topic(t) and adapter.header_topic(self.clock)
-                          for t in self.held_topics}
-        self._held: dict[str, list[tuple[int, int, dict[str, float]]]] = {
-            t: [] for t in self.held_topics}
-        self._last: dict[str, int] = {}
-        self._waiting: list[tuple[Reading, float | None]] = []
-        self.t0: int | None = None
-        self.k_last: int | None = None
-        self.stamp_ok = True
-        #: ``(kind, line)`` per message or sample left out (kinds as the offline report's:
-        #: non_finite, malformed, duplicate, out_of_order, missing).
+        chans = (*adapter.outputs, *adapter.inputs)
+        topics = {t: tuple(c.name for c in chans if c.topic == t) for t in adapter.topics}
+        self.sampler = GridSampler(
+            topics, self.clock, float(sample_time),
+            {t: adapter.header_topic(t) for t in topics},
+            {c.name: adapter.max_hold(c) for c in chans},
+            [c.name for c in chans if c.decimate == "mean"], adapter.wait)
+        #: ``(kind, line)`` reports since the last :meth:`take_errors`: messages that do not
+        #: decode (``non_finite``, ``malformed``) and the sampler's notes.
         self.errors: list[tuple[str, str]] = []
-        self.skipped = 0
-        self._seq = 0
+        #: Messages that did not decode: kind -> count.
+        self.bad: dict[str, int] = {}
+        self._last: float | None = None
+        self._notes = 0
 
     def reset(self) -> None:
-        """Forget the stream (a new run starts at the next clock message, k from 0)."""
-        self.t0, self.k_last = None, None
-        self._waiting.clear()
+        """Forget the run (``~/reset``): a new grid from the next messages."""
+        self.sampler.reset()
+        self._last = None
 
     def put(self, topic: str, msg: Any, receive_ns: int, now: float | None = None) -> None:
-        """Decode one message; a bad one is added to :attr:`errors` (one line) and dropped.
-
-        ``now`` (s, monotonic) is the arrival time for the hold wait (None offline).
-        """
+        """Decode one message and place it on the grid; a bad one is added to
+        :attr:`errors` (one line) and dropped. ``now`` (s): arrival time (bag log time
+        offline; None: no time, no silence rule); a silence of ``hold_wait`` before it
+        decides the pending samples first."""
+        if now is not None:
+            self.advance(now)
+            self._last = now
         try:
             r = decode_message(self.adapter, topic, msg, receive_ns)
         except AdaptedMessageError as exc:
+            self.bad[exc.kind] = self.bad.get(exc.kind, 0) + 1
             self.errors.append((exc.kind, str(exc)))
             return
-        self.put_reading(r, now)
+        self.sampler.put(r.topic, r.stamp_ns, r.receive_ns, r.values)
 
-    def put_reading(self, r: Reading, now: float | None = None) -> None:
-        """Join an already decoded :class:`Reading`."""
-        if r.topic == self.clock:
-            self._waiting.append((r, now))
-        if r.topic in self._held:
-            key = r.stamp_ns if self._by_stamp[r.topic] else r.receive_ns
-            hist = self._held[r.topic]
-            self._seq += 1
-            bisect.insort(hist, (key, self._seq, r.values))
-            if len(hist) > MAX_HELD:     # no sample for a long time: keep the latest only
-                del hist[:len(hist) - MAX_HELD]
-            self._last[r.topic] = max(self._last.get(r.topic, key), key)
+    def advance(self, now: float | None) -> None:
+        """Time ``now`` (s) passed: ``hold_wait`` s after the last message, decide what is
+        pending (None: the end of the data, decide everything)."""
+        if now is None or (self._last is not None and now - self._last >= self.hold_wait):
+            self.sampler.flush()
 
-    def _key(self, topic: str, r: Reading) -> int:
-        return r.stamp_ns if self._by_stamp[topic] else r.receive_ns
-
-    def ready(self, now: float | None = None) -> list[AdaptedSample]:
-        """Release the complete samples in order (``now`` None: everything, offline)."""
-        out: list[AdaptedSample] = []
-        while self._waiting:
-            r, arrived = self._waiting[0]
-            if now is not None and arrived is not None and now - arrived < self.hold_wait:
-                if not all(self._last.get(t, -1) > self._key(t, r) for t in self.held_topics):
-                    break
-            self._waiting.pop(0)
-            s = self._sample(r)
-            if s is not None:
-                out.append(s)
+    def events(self, final: bool = False) -> list[AdaptedEvent]:
+        """Samples, gaps and new runs decided so far (``final``: the end of the data)."""
+        a = self.adapter
+        out: list[AdaptedEvent] = []
+        for e in self.sampler.ready(final):
+            if isinstance(e, GridSample):
+                v = e.values
+                out.append(AdaptedSample(e.k, e.t_ns, np.array([v[c.name] for c in a.inputs]),
+                                         np.array([v[c.name] for c in a.outputs]), e.held))
+            else:
+                out.append(e)
+        notes = self.sampler.notes
+        self.errors += notes[self._notes:]
+        self._notes = len(notes)
         return out
 
-    def _sample(self, r: Reading) -> AdaptedSample | None:
-        values = dict(r.values)
-        missing = []
-        for t in self.held_topics:
-            key = self._key(t, r)
-            hist = self._held[t]
-            i = bisect.bisect_right(hist, (key, math.inf)) - 1
-            if i < 0:
-                missing.append(t)
-                continue
-            values.update(hist[i][2])
-            del hist[:i]   # keep the one held at this sample: the next ones may need it
-        where = f"{self.clock} stamp {r.stamp_ns * 1e-9:.3f} s"
-        if missing:
-            self.skipped += 1
-            self.errors.append(("missing", f"{where}: no {', '.join(missing)} received "
-                                           f"before it; sample skipped"))
-            return None
-        if self.t0 is None:
-            self.t0 = r.stamp_ns
-        k = round((r.stamp_ns - self.t0) / self.ts_ns)
-        if self.k_last is not None and k == self.k_last:
-            self.skipped += 1
-            self.errors.append(("duplicate", f"{where}: duplicate sample (within half a "
-                                             f"sample time of the previous one); dropped"))
-            return None
-        if self.k_last is not None and k < self.k_last:
-            # the clock went back (a restarted driver, a bag played again): a new stream,
-            # numbered on after a one-sample hole, so the monitor restarts there (fresh state)
-            # and offline the samples keep increasing indices
-            k = self.k_last + 2
-            self.t0 = r.stamp_ns - round(k * self.ts_ns)
-            self.errors.append(("out_of_order", f"{where}: before the previous sample (the "
-                                                f"clock went back): a new stream from k = {k}"))
-        self.k_last = k
-        a = self.adapter
-        return AdaptedSample(k, r.stamp_ns, np.array([values[c.name] for c in a.inputs]),
-                             np.array([values[c.name] for c in a.outputs]))
+    def ready(self, now: float | None = None) -> list[AdaptedSample]:
+        """The samples only (gaps and new runs are in :meth:`events`); ``now`` None: the end."""
+        self.advance(now)
+        return [e for e in self.events(now is None) if isinstance(e, AdaptedSample)]
 
     def take_errors(self) -> list[tuple[str, str]]:
         """The ``(kind, line)`` errors since the last call."""
         out, self.errors = self.errors, []
         return out
+
+    def counts(self) -> dict[str, Any]:
+        """Everything counted (:meth:`GridSampler.summary`) plus the bad messages."""
+        return {**self.sampler.summary(), "bad_messages": dict(self.bad)}
+
+
+def feed(stream: Any, event: AdaptedEvent, now: float, with_u: bool = True) -> bool:
+    """One event of :meth:`AdapterJoin.events` into the nodes' input policy
+    (:class:`~fd_monitor.wire.stream.InputStream`, inputs ``u`` and ``y``): a sample is joined,
+    a gap refused (the join declares its hole at once), a new run restarts the join. The
+    node's callback and the offline reader both call this. True when a sample was joined."""
+    if isinstance(event, AdaptedSample):
+        ok = stream.put("u", event.k, event.u, now) if with_u else True
+        return stream.put("y", event.k, event.y, now) and ok
+    if isinstance(event, Gap):
+        stream.refused(event.k, now)
+    else:
+        stream.new_run(event.k, event.line)
+    return False
 
 
 # -- offline: a bag through the join ------------------------------------------------------------
@@ -611,15 +648,24 @@ class AdaptedStreams:
     k : numpy.ndarray
         (K,) int64 sample indices (gaps are holes).
     t : numpy.ndarray
-        (K,) s since the first sample (the clock's times).
+        (K,) s since the first sample (the grid instants).
     u, y : numpy.ndarray
         (K, nu), (K, ny)
     sample_time : float
-        s (given, or the median spacing of the clock's times).
+        s (given, the plant's, or the clock's median step snapped to a round value).
     clock_topic : str
         The sample clock's topic.
     errors : list of (str, str)
-        ``(kind, line)`` per message or sample left out (:attr:`AdapterJoin.errors`).
+        ``(kind, line)`` per message left out and first of each kind of note
+        (:attr:`AdapterJoin.errors`).
+    gaps : list of (int, str, str)
+        ``(k, reason, channel)`` per sample not usable (``stale``, ``no_value``).
+    new_runs : list of int
+        First sample of each new run (a clock jump).
+    counts : dict
+        :meth:`AdapterJoin.counts`.
+    sample_time_note : str
+        One line: where the sample time came from.
     """
 
     bag: str
@@ -632,18 +678,44 @@ class AdaptedStreams:
     sample_time: float
     clock_topic: str
     errors: list[tuple[str, str]] = field(default_factory=list)
+    gaps: list[tuple[int, str, str]] = field(default_factory=list)
+    new_runs: list[int] = field(default_factory=list)
+    counts: dict[str, Any] = field(default_factory=dict)
+    sample_time_note: str = ""
+    events: list[tuple[float, Any]] = field(default_factory=list, repr=False)
+
+
+def stamp_sample_time(stamps_ns: Sequence[int], topic: str) -> tuple[float, str]:
+    """Ts from a clock topic's stamps: the median positive step snapped to the round value a
+    driver would use (within 1 %, :func:`~fd_monitor.wire.timebase.snap_sample_time`), and
+    one line saying so."""
+    d = np.diff(np.sort(np.asarray(stamps_ns, dtype=np.int64)))
+    d = d[d > 0]
+    if d.size == 0:
+        raise BagError(f"fewer than two distinct stamps on {topic}: cannot tell the sample time")
+    med = float(np.median(d)) * 1e-9
+    ts, snapped = snap_sample_time(med)
+    if snapped:
+        return ts, (f"sample time {ts:g} s ({1 / ts:g} Hz): the median step {med:.9g} s of "
+                    f"{topic} snapped to a round value (override with --sample-time)")
+    return ts, (f"sample time {ts:.9g} s: the median step of {topic}, no round value within "
+                f"1 % (override with --sample-time)")
 
 
 def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
                  sample_time: float | None = None, system: Any = None) -> AdaptedStreams:
     """Read a robot's bag through an adapter: the samples the live node would process.
 
+    The messages go, in log-time order with the log time as ``now``, through
+    :class:`AdapterJoin` (the live node's code); see :mod:`fd_monitor.wire.timebase`.
+
     Parameters
     ----------
     bag : str or pathlib.Path
     adapter : Adapter, or its file
     sample_time : float, optional
-        s; default the plant's (``system``) or the median spacing of the clock's messages.
+        s; default the plant's (``system``), else the clock's median step snapped to a round
+        value (:func:`stamp_sample_time`).
     system : System, optional
         Orders the channels as the plant's (and checks they are the plant's).
 
@@ -656,10 +728,14 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
     """
 
     ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
+    note = ""
     if system is not None:
         ad = ad.for_system(system)
         if sample_time is None:
             sample_time = float(system.sample_time)
+            note = f"sample time {sample_time:g} s: the plant's ({system.name})"
+    elif sample_time is not None:
+        note = f"sample time {sample_time:g} s: given"
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     want = ad.topics
@@ -669,26 +745,29 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
             raise BagError(f"{bag}: {rec[0]} is recorded as {rec[1]}, the adapter "
                            f"{ad.source} maps it as {want[rec[0]]}")
         records.append(rec)
-    errors: list[tuple[str, str]] = []
-    readings: list[Reading] = []
-    for topic, t, msg in messages_from_raw(bag, records):
-        try:
-            readings.append(decode_message(ad, topic, msg, t))
-        except AdaptedMessageError as exc:
-            errors.append((exc.kind, str(exc)))
-    clock = np.array([r.stamp_ns for r in readings if r.topic == ad.clock_topic], dtype=float)
+    # in log-time order, as a player replays them (a recorder under a backlog writes one
+    # topic's queue before the next's)
+    messages = sorted(messages_from_raw(bag, records), key=lambda m: m[1])
     if sample_time is None:
-        d = np.diff(np.sort(clock))
-        d = d[d > 0]
-        if d.size == 0:
-            raise BagError(f"{bag}: fewer than two valid messages on {ad.clock_topic}: "
-                           f"cannot tell the sample time")
-        sample_time = float(np.median(d)) * 1e-9
+        stamps = []
+        for topic, t, msg in messages:
+            if topic == ad.clock_topic:
+                with contextlib.suppress(AttributeError, TypeError, ValueError):
+                    stamps.append(_stamp_ns(msg) if ad.header_topic(topic) else t)
+        try:
+            sample_time, note = stamp_sample_time(stamps, ad.clock_topic)
+        except BagError as exc:
+            raise BagError(f"{bag}: {exc}") from None
     join = AdapterJoin(ad, sample_time)
-    for r in readings:
-        join.put_reading(r)
-    samples = join.ready()
-    errors += join.take_errors()
+    events: list[tuple[float, Any]] = []
+    for topic, t, msg in messages:
+        now = t * 1e-9
+        join.put(topic, msg, t, now)
+        events += ((now, e) for e in join.events())
+    join.advance(None)
+    events += ((math.inf, e) for e in join.events(final=True))
+    errors = join.take_errors()
+    samples = [e for _, e in events if isinstance(e, AdaptedSample)]
     if not samples:
         raise BagError(f"{bag}: no sample from {ad.clock_topic} through {ad.source}"
                        + (f" ({errors[0][1]})" if errors else ""))
@@ -699,7 +778,9 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
         np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
         np.array([s.u for s in samples]).reshape(len(samples), len(ad.inputs)),
         np.array([s.y for s in samples]).reshape(len(samples), len(ad.outputs)),
-        float(sample_time), ad.clock_topic, errors)
+        float(sample_time), ad.clock_topic, errors,
+        [(e.k, e.reason, e.channel) for _, e in events if isinstance(e, Gap)],
+        [e.k for _, e in events if isinstance(e, NewRun)], join.counts(), note, events)
 
 
 # -- encoding: (u, y) as the robot's messages ----------------------------------------------
@@ -707,8 +788,9 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
 
 def encode(adapter: Adapter, stamp_ns: int, u: Sequence[float], y: Sequence[float],
            make: Callable[..., Any]) -> list[tuple[str, str, Any]]:
-    """The robot's messages carrying one sample: ``[(topic, msgtype, message)]``, inputs'
-    topics first (a command is sent before the measurement it acts on is read).
+    """The robot's messages carrying one sample: ``[(topic, msgtype, message)]``, the
+    measurement's topics first: as in a real loop, the measurement y_k is read, then the
+    command u_k answering it is sent (the time base places both in sample k).
 
     Parameters
     ----------
@@ -725,7 +807,7 @@ def encode(adapter: Adapter, stamp_ns: int, u: Sequence[float], y: Sequence[floa
     vals = {c.name: float(v) for c, v in zip(adapter.inputs, u)}
     vals.update({c.name: float(v) for c, v in zip(adapter.outputs, y)})
     by_topic: dict[str, list[Channel]] = {}
-    for c in (*adapter.inputs, *adapter.outputs):
+    for c in (*adapter.outputs, *adapter.inputs):
         by_topic.setdefault(c.topic, []).append(c)
     out = []
     for topic, chans in by_topic.items():
@@ -814,7 +896,8 @@ def write_adapted(writer: Any, adapter: Adapter, k: Sequence[int], u: np.ndarray
                   y: np.ndarray, stamps_ns: Sequence[int]) -> None:
     """Write samples as the robot's messages into an open
     :class:`~fd_monitor.wire.bags.BagWriter` (``simulate --adapter``): per sample the
-    inputs' topics, then the outputs', header stamps and bag times ``stamps_ns``.
+    outputs' topics, then the inputs' (:func:`encode`), header stamps and bag times
+    ``stamps_ns``.
 
     Parameters
     ----------

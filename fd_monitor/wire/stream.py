@@ -126,6 +126,12 @@ class InputStream:
         stamp += offset
         return stamp >= 0 and self.put(name, stamp, values, now, restart, bridge)
 
+    def new_run(self, k: int, line: str) -> None:
+        """The source says its stream restarted (an adapter's clock jumped): forget the
+        join; the next sample starts a run (fresh state)."""
+        self.join.reset()
+        self.note("new_run", line, k)
+
     def put(self, name: str, stamp: int, values: Any, now: float,
             restart: bool = False, bridge: bool = False) -> bool:
         """Join one input (already order-checked, or paired by sample-and-hold) and release
