@@ -218,8 +218,8 @@ class Monitor:
         """
         k, uu, yy = validate_sample(self.system, k, u, y)
         self.observer.plausibility.check(k, uu, yy)
-        if self._k_next is None or k < self._k_next:
-            return
+        if self._k_next is None or k <= self._k_next:
+            return                               # nothing before it, or nothing lost
         self.observer.bridge()
         self.detector.reset()
         self.estimator.bridge(k, uu, yy)
