@@ -50,8 +50,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 __all__ = ["Note", "Sample", "StampJoin"]
 
@@ -83,9 +82,9 @@ class Note(str):
         return self
 
 
-@dataclass(frozen=True)
-class Sample:
-    """One sample released by :meth:`StampJoin.ready`.
+class Sample(NamedTuple):
+    """One sample released by :meth:`StampJoin.ready` (a named tuple: one is made per sample,
+    and a frozen dataclass of these fields costs three times as much to create).
 
     Attributes
     ----------
@@ -198,7 +197,7 @@ class StampJoin:
         self._adopted: tuple[int, int] | None = None
         # Entry role, for a bridge after samples the core refused (lost()): samples lost
         # right before k_next, the feedback in force for them, and of the last release its
-        # gap, feedback and whether it restarted.
+        # gap, inputs and whether it restarted.
         self._missing = 0
         self._carry: dict[str, Any] | None = None
         self._last: tuple[int, dict[str, Any], bool] = (0, {}, True)
@@ -334,11 +333,12 @@ class StampJoin:
         a restart, or the gap is longer); neither waits for feedback (none comes for a
         refused sample)."""
         self.holes.append((stamp, stamp))
-        gap, fb, restarted = self._last
+        gap, inputs, restarted = self._last
         if restarted or self.sequence is not None:   # downstream: as the entry decides
             self._restart_next = True
         else:
-            self._missing, self._carry = gap + 1, fb
+            self._missing = gap + 1
+            self._carry = {n: inputs[n] for n in self.feedback if n in inputs}
 
     # -- release -------------------------------------------------------------------------------
 
@@ -359,21 +359,25 @@ class StampJoin:
     def _release(self, k: int, restart: bool, hole: tuple[int, int] | None,
                  lost: bool = False, bridge: dict[str, Any] | None = None) -> Sample:
         """Release sample k; ``bridge``: the feedback in force across a bridged gap."""
-        gap = self._missing + (0 if hole is None else hole[1] - hole[0] + 1)
-        if restart or hole is not None:
-            # Stamps below k: a jump, or the partial inputs of a hole's stamps.
-            for j in [j for j in self.pending if j < k]:
-                self._forget(j)
         if self.rejected:
             self.rejected = {j for j in self.rejected if j > k}
         slot = self._forget(k)
+        self._restart_next = False
+        adopted, self._adopted = self._adopted, None
+        if not restart and hole is None and bridge is None:
+            # the common case, kept short: the next sample in order
+            self.k_next = k + 1
+            self._last = (0, slot, False)
+            return Sample(k, slot, False, None, adopted, lost)
+        gap = self._missing + (0 if hole is None else hole[1] - hole[0] + 1)
+        # Stamps below k: a jump, or the partial inputs of a hole's stamps.
+        for j in [j for j in self.pending if j < k]:
+            self._forget(j)
         if hole is not None:
             self.holes.append(hole)
         first = self.k_next is None
         self.k_next = k + 1
-        self._restart_next = False
         self._missing, self._carry = 0, None
-        adopted, self._adopted = self._adopted, None
         if restart:
             # At a restart, feedback decided before the hole does not belong to this run.
             inputs = {**slot, **self.feedback}
@@ -383,7 +387,7 @@ class StampJoin:
             self.bridges += 1
         else:
             inputs = slot
-        self._last = (gap, {n: inputs[n] for n in self.feedback if n in inputs}, restart)
+        self._last = (gap, inputs, restart)
         return Sample(k, inputs, restart, hole, adopted, lost, bridge is not None,
                       gap if (hole is not None or bridge is not None) else 0)
 
