@@ -654,8 +654,9 @@ class HinfScRuntime(Runtime):
 
     Channels: one per generator, named by its fault; ``||r_i||`` (output units) against the
     gain file's ``results.thresholds`` (from its ``threshold_method``; +inf when the file has
-    none), armed ``threshold_method.settle_s`` after every (re)start (+inf before: the Monte
-    Carlo thresholds were taken after that settling time). Every observer starts at
+    none), armed ``threshold_method.settle_s`` after every (re)start and every bridge of more
+    than one lost sample (+inf before: the Monte Carlo thresholds were taken after that
+    settling time). Every observer starts at
     ``x^ = C^+ y`` of the first sample. Estimates: ``x_hat`` (n_gen, n); ``rho`` (d,) in force
     (LPV).
 
@@ -776,7 +777,8 @@ class HminusSwitchedRuntime(Runtime):
     One channel ``r_norm``: ``||r_k||`` (output units) against the design's threshold
     (``observers.<design>.threshold``, written by the designer's Monte Carlo ``threshold``
     section; else ``results.threshold``; +inf when the gain file has none), armed
-    ``results.threshold_method.settle_s`` after every (re)start as for ``hinf_sc``.
+    ``results.threshold_method.settle_s`` after every (re)start and every bridge of more
+    than one lost sample, as for ``hinf_sc``.
     Estimates: ``x_hat`` (n,), ``r`` (p,) the residual vector.
 
     The switching signal alpha(k), in order of precedence: the side signal ``mode`` when
