@@ -230,6 +230,23 @@ def test_fault_free_with_holes_no_alarm(scenario, gains, hole, every):
         assert not got.alarm.any()
 
 
+@pytest.mark.parametrize("name", ["three_tank_nominal", "three_tank_valve",
+                                  "pwa_cascade_nominal"])
+@pytest.mark.parametrize(("hole", "every"), [(1, 97), (10, 311)])
+def test_fault_free_bags_with_holes_no_new_alarm(name, hole, every):
+    """The library's fault-free bags (autonomous guards, controlled guards, the QB plant)
+    with holes of 1 or 10 samples: every hole bridged, no alarm the bag without holes does
+    not raise."""
+    rt, ks, us, ys, side = _bag_stream(name)
+    ref = rt.run(ks, us, ys, side)
+    holed = [k for k in ks if not (every // 2 <= k % every < every // 2 + hole)]
+    rt.reset()
+    got = rt.run(holed, us, ys, side, max_gap=MAX_GAP)
+    assert got.restarts == [] and len(got.bridges) > 5
+    new = got.alarm & ~ref.alarm[[_at(ref, k) for k in got.k]]
+    assert not new.any(), got.k[new.any(axis=1)][:5]
+
+
 # -- refused, offline paths ----------------------------------------------------------------
 
 
