@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib.metadata as md
 import re
+import site
 import sys
 from pathlib import Path
 
@@ -68,10 +69,11 @@ def installed() -> dict[str, str]:
 
     Only distributions with an ``INSTALLER`` record count: the ROS wheels also carry the
     ``*.egg-info`` of the ROS packages they bundle (``rclpy``, ``std_msgs``, ...), which no
-    installer placed and no lock names.
+    installer placed and no lock names. Only site-packages is read: setuptools puts its
+    vendored copies (packaging, zipp, ...) on ``sys.path`` once imported.
     """
     out = {}
-    for d in md.distributions():
+    for d in md.distributions(path=site.getsitepackages()):
         if d.read_text("INSTALLER") is not None:
             out[normalize(d.metadata["Name"])] = d.version
     out.pop(SELF, None)
