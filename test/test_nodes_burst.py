@@ -19,7 +19,7 @@ from test_nodes_graph import Rig
 
 pytestmark = [pytest.mark.ros]
 
-BURST = 50_000
+BURST = 10_000                                 # ten times the publishers' history (1000)
 NEW = 200
 
 
