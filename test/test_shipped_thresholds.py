@@ -102,8 +102,9 @@ def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method
     else:
         got = [o["threshold"] for o in out["results"]["observers"].values()]
         want = [o["threshold"] for o in gf.results["observers"].values()]
-    rtol = [2e-2, 1e-5] if name == "thesis_5_3" else 1e-5
-    np.testing.assert_allclose(got, want, rtol=rtol)
+    rtols = [2e-2, 1e-5] if name == "thesis_5_3" else [1e-5] * len(want)
+    for i, (g, w, rtol) in enumerate(zip(got, want, rtols, strict=True)):
+        np.testing.assert_allclose(g, w, rtol=rtol, err_msg=f"threshold {i + 1}")
     assert np.all(np.isfinite(want)) and np.all(np.asarray(want) > 0)
 
 
@@ -268,8 +269,9 @@ def test_design_cli_prints_the_thresholds_and_their_method(tmp_path):
     # J_i = 3 gamma_i from the SDP (see test_monte_carlo_thresholds_are_reproduced_...):
     # re-solved with Clarabel's tolerances at 1e-10 instead of 1e-8, J_1 moves by 1.4e-4 and
     # J_2 by 8.1e-2 (its SDP stops with gamma_2^2 18 % above the optimum): twice that
-    np.testing.assert_allclose(doc["thresholds"], shipped.results["thresholds"],
-                               rtol=[3e-4, 0.17])
+    for i, (g, w, rtol) in enumerate(zip(doc["thresholds"], shipped.results["thresholds"],
+                                         [3e-4, 0.17], strict=True)):
+        np.testing.assert_allclose(g, w, rtol=rtol, err_msg=f"threshold {i + 1}")
     out = subprocess.run([sys.executable, "-m", "fd_monitor", "design", "hinf_sc", "thesis_6_5",
                           "-o", str(tmp_path / "g2.yaml")], capture_output=True, text=True,
                          timeout=300)
