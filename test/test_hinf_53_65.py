@@ -16,8 +16,6 @@ from fd_monitor.core.freq import sigma
 from fd_monitor.core.hinf_model import generator_ss, parse_bank
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
-from fd_monitor.design import hinf_sc
-from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
@@ -34,10 +32,9 @@ THRESHOLD = 0.1
 
 
 @pytest.mark.parametrize("name, kind", [("thesis_5_3", "uncertain"), ("thesis_6_5", "lpv")])
-def test_design_takes_lpv_data_from_plant_and_verifies(name, kind):
+def test_design_takes_lpv_data_from_plant_and_verifies(name, kind, shipped_design):
     s = load_system(name)
-    sec, origin, sha = load_design_section(s, "hinf_sc")
-    out = hinf_sc.design(s, sec, origin, sha)
+    out = shipped_design(name, "hinf_sc")
     assert out["results"]["kind"] == kind
     _k, model, _gens = parse_bank(out["results"])
     np.testing.assert_array_equal(model.A_rho, s.modes[0].A_rho)

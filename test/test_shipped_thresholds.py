@@ -76,7 +76,8 @@ def test_thesis_6_5_thresholds_are_the_bound_4_17_of_its_design_file():
 @pytest.mark.parametrize("name, method", [
     ("thesis_5_3", "hinf_sc"),
     pytest.param("farhat_koenig", "hminus_switched", marks=pytest.mark.slow)])  # ~20 s
-def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method):
+def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method,
+                                                                   shipped_design):
     """Re-designing from the design file gives the shipped thresholds, within what the SDP
     solver's accuracy lets another machine differ (the Monte Carlo runs are seeded: the same
     noise everywhere; only the gains and bounds move).
@@ -93,8 +94,7 @@ def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method
     its gains as thesis 5.3's J_2 does: 1e-5 too."""
     s = load_system(name)
     gf = load_gains(f"{name}_{method}", s)
-    sec, origin, sha = load_design_section(s, method)
-    out = (hinf_sc if method == "hinf_sc" else hminus_switched).design(s, sec, origin, sha)
+    out = shipped_design(name, method)         # design(s, the design file's section)
     assert out["results"]["threshold_method"] == gf.results["threshold_method"]
     assert gf.results["threshold_method"]["method"] == "monte_carlo"
     if method == "hinf_sc":
