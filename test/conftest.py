@@ -77,3 +77,23 @@ def shipped_design():
         return copy.deepcopy(cache[(name, method)])
 
     return get
+
+
+@pytest.fixture(scope="session")
+def scenario_run():
+    """``get(scenario)``: ``simulate(load_scenario(scenario))`` (its own seed and duration),
+    once per session (simulations are deterministic; the thesis overlap runs are checked by
+    test_hinf_53_65 and test_shipped_thresholds). Each call returns a deep copy."""
+    import copy
+
+    cache: dict[str, object] = {}
+
+    def get(name: str):
+        if name not in cache:
+            from fd_monitor.core.simulator import simulate
+            from fd_monitor.model.scenario import load_scenario
+
+            cache[name] = simulate(load_scenario(name))
+        return copy.deepcopy(cache[name])
+
+    return get

@@ -133,7 +133,7 @@ def test_thesis_5_3_threshold_is_monte_carlo_plus_the_nuisance_bound():
 
 
 @pytest.mark.parametrize("name", ["thesis_5_3", "thesis_6_5"])
-def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name):
+def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name, scenario_run):
     s = load_system(name)
     gf = load_gains(f"{name}_hinf_sc", s)
     sc = load_scenario(f"{name}_overlap")
@@ -144,7 +144,7 @@ def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name):
     assert np.isfinite(ff.threshold[-1]).all()
     assert not ff.alarm.any()
     # both faults (thesis Fig. 5.5 / 6.4): r1 from f1 at 30 s, r2 from f2 at 60 s, isolated
-    tr = simulate(sc)
+    tr = scenario_run(f"{name}_overlap")         # simulate(sc)
     out = _run(s, gf, tr)
     t = tr.t
     first = [t[np.flatnonzero(out.alarm[:, j])[0]] for j in range(2)]
