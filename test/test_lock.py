@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_packaging import _setup_kwargs
 
 REPO = Path(__file__).resolve().parent.parent
 #: Folders whose Python files are scanned for imports (the package, its tests, benchmarks and
@@ -32,22 +33,6 @@ def _lockcheck():
 
 LC = _lockcheck()
 LOCK = LC.read_lock()
-
-
-def _setup_kwargs() -> dict:
-    """The keywords setup.py passes to ``setuptools.setup`` (run without installing)."""
-    import runpy
-
-    import setuptools
-
-    seen: dict = {}
-    real = setuptools.setup
-    setuptools.setup = lambda **kw: seen.update(kw)  # type: ignore[assignment]
-    try:
-        runpy.run_path(str(REPO / "setup.py"), run_name="__main__")
-    finally:
-        setuptools.setup = real
-    return seen
 
 
 def imported_modules(files: list[Path]) -> dict[str, str]:
