@@ -60,10 +60,8 @@ SDP_THRESHOLDS = Tol(rtol=5e-3, atol=0.0, elementwise=True)
 # normal equations, ~1e-14 relative measured between runs; bounds are maxima of residuals
 # times a margin: 1e-6.
 IDENTIFIED = Tol(rtol=1e-6, atol=1e-12)
-# simulated bags: the same seeded noise stream everywhere; a step differs only by the order
-# of floating-point sums (BLAS, expm), ~1e-16 relative per step, over <= 6,000 steps of a
-# stable plant: 1e-9 of each channel's scale (6.9e-18 absolute measured on f16xl_overlap).
-BAG = Tol(rtol=1e-9, atol=1e-12)
+# simulated bags: fd_monitor.wire.bag_compare.SIM_RTOL (1e-9 of each topic's scale, justified
+# there from the fixed-step integrator's rounding; 6.9e-18 measured on f16xl_overlap).
 
 # values a regeneration legitimately changes
 SKIP = {("created",), ("solver", "time_s"), ("solver", "solves"), ("digest",)}
@@ -178,58 +176,12 @@ def compare_plant(got: Path, want: Path) -> list[str]:
 
 
 def compare_bag(got: Path, want: Path) -> list[str]:
-    """A bag by its decoded messages: the same topics, message counts, stamps and labels, and
-    values within :data:`BAG` (a bag with malformed messages, the bad-input bag, message by
-    message)."""
-    from fd_monitor.model.errors import BagError
-    from fd_monitor.wire.bags import bag_topics, read_bag, read_messages
+    """A bag record by record: topics, times, layouts and stamps exact, values within
+    :data:`~fd_monitor.wire.bag_compare.SIM_RTOL` of each topic's scale
+    (:func:`fd_monitor.wire.bag_compare.bag_differences`, the regression suite's rule)."""
+    from fd_monitor.wire.bag_compare import bag_differences
 
-    name = f"{want.name}: "
-    ca, cb = bag_topics(got), bag_topics(want)
-    if ca != cb:
-        return [f"{name}topics and message counts {ca} != {cb}"]
-    topics = sorted(ca)
-    try:
-        ra, rb = read_bag(got, topics), read_bag(want, topics)
-    except BagError:
-        return _compare_messages(list(read_messages(got)), list(read_messages(want)), name)
-    out = []
-    for t in topics:
-        a, b = ra[t], rb[t]
-        if list(a.labels) != list(b.labels):
-            out.append(f"{name}{t}: labels differ")
-        elif not np.array_equal(np.asarray(a.stamps), np.asarray(b.stamps)):
-            out.append(f"{name}{t}: stamps differ")
-        else:
-            out += compare_values(np.asarray(a.values).tolist(),
-                                  np.asarray(b.values).tolist(), BAG, f"{name}{t}: ")
-    return out
-
-
-def _compare_messages(ma: Sequence[Any], mb: Sequence[Any], name: str) -> list[str]:
-    """Messages ``(topic, t_ns, Float64MultiArray)`` one by one, values within :data:`BAG`
-    of the topic's largest finite value."""
-    if [(t, ts) for t, ts, _ in ma] != [(t, ts) for t, ts, _ in mb]:
-        return [f"{name}message order or times differ"]
-    scale: dict[str, float] = {}
-    for t, _, m in mb:
-        d = np.asarray(m.data, dtype=float)
-        fin = d[np.isfinite(d)]
-        scale[t] = max(scale.get(t, 0.0), float(np.abs(fin).max()) if fin.size else 0.0)
-    out = []
-    for (t, ts, a), (_, _, b) in zip(ma, mb):
-        la = [d.label for d in a.layout.dim]
-        lb = [d.label for d in b.layout.dim]
-        da, db = np.asarray(a.data, dtype=float), np.asarray(b.data, dtype=float)
-        if la != lb or a.layout.data_offset != b.layout.data_offset or da.shape != db.shape:
-            out.append(f"{name}{t} at {ts} ns: layout differs")
-            continue
-        fa, fb = np.isfinite(da), np.isfinite(db)
-        if not np.array_equal(fa, fb):
-            out.append(f"{name}{t} at {ts} ns: non-finite entries differ")
-        elif fa.any() and np.abs(da[fa] - db[fb]).max() > BAG.atol + BAG.rtol * scale[t]:
-            out.append(f"{name}{t} at {ts} ns: values differ beyond tolerance")
-    return out
+    return [f"{want.name}: {d}" for d in bag_differences(got, want)]
 
 
 def compare_expected(got: Path, want: Path) -> list[str]:

@@ -53,3 +53,47 @@ def repo() -> Path:
 def python() -> str:
     """The interpreter running the tests (the project's .venv under scripts/test.sh)."""
     return sys.executable
+
+
+@pytest.fixture(scope="session")
+def shipped_design():
+    """``get(plant, method)``: the designer's output for the plant's own design file, computed
+    once per session (designs are deterministic; test_hminus_fk, test_hinf_53_65 and
+    test_shipped_thresholds check the same ones). Each call returns a deep copy."""
+    import copy
+
+    cache: dict[tuple[str, str], dict] = {}
+
+    def get(name: str, method: str) -> dict:
+        if (name, method) not in cache:
+            from fd_monitor.design import hinf_sc, hminus_switched
+            from fd_monitor.design._lmi_common import load_design_section
+            from fd_monitor.model.system import load_system
+
+            s = load_system(name)
+            sec, origin, sha = load_design_section(s, method)
+            designer = {"hinf_sc": hinf_sc, "hminus_switched": hminus_switched}[method]
+            cache[(name, method)] = designer.design(s, sec, origin, sha)
+        return copy.deepcopy(cache[(name, method)])
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def scenario_run():
+    """``get(scenario)``: ``simulate(load_scenario(scenario))`` (its own seed and duration),
+    once per session (simulations are deterministic; the thesis overlap runs are checked by
+    test_hinf_53_65 and test_shipped_thresholds). Each call returns a deep copy."""
+    import copy
+
+    cache: dict[str, object] = {}
+
+    def get(name: str):
+        if name not in cache:
+            from fd_monitor.core.simulator import simulate
+            from fd_monitor.model.scenario import load_scenario
+
+            cache[name] = simulate(load_scenario(name))
+        return copy.deepcopy(cache[name])
+
+    return get

@@ -15,11 +15,7 @@ pytest.importorskip("cvxpy")
 from fd_monitor.core.freq import sigma
 from fd_monitor.core.hinf_model import generator_ss, parse_bank
 from fd_monitor.core.residual_bank import ResidualBank
-from fd_monitor.core.simulator import simulate
-from fd_monitor.design import hinf_sc
-from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.gains import load_gains
-from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 
 GAINS = Path(__file__).resolve().parent.parent / "config" / "gains"
@@ -34,10 +30,9 @@ THRESHOLD = 0.1
 
 
 @pytest.mark.parametrize("name, kind", [("thesis_5_3", "uncertain"), ("thesis_6_5", "lpv")])
-def test_design_takes_lpv_data_from_plant_and_verifies(name, kind):
+def test_design_takes_lpv_data_from_plant_and_verifies(name, kind, shipped_design):
     s = load_system(name)
-    sec, origin, sha = load_design_section(s, "hinf_sc")
-    out = hinf_sc.design(s, sec, origin, sha)
+    out = shipped_design(name, "hinf_sc")
     assert out["results"]["kind"] == kind
     _k, model, _gens = parse_bank(out["results"])
     np.testing.assert_array_equal(model.A_rho, s.modes[0].A_rho)
@@ -75,12 +70,12 @@ def test_singular_values_fig_5_1_to_5_3_and_6_1_to_6_3(name):
 
 
 @pytest.mark.parametrize("name", ["thesis_5_3", "thesis_6_5"])
-def test_overlapping_steps_isolated_with_varying_rho(name):
+def test_overlapping_steps_isolated_with_varying_rho(name, scenario_run):
     s = load_system(name)
     gf = load_gains(GAINS / f"{name}_hinf_sc.yaml", s)
     kind, _model, _g = parse_bank(gf.results)
     # the scenario: these inputs, RHO[name], unit actuator steps at 30 s and 60 s
-    tr = simulate(load_scenario(f"{name}_overlap"))
+    tr = scenario_run(f"{name}_overlap")             # simulate(load_scenario(...))
     t, y, u, rho = tr.t, tr.y[0], tr.u[0], tr.rho[0]
     np.testing.assert_allclose(rho, np.array([RHO[name](tt) for tt in t]), atol=1e-4)
     bank = ResidualBank(s, gf, thresholds=[THRESHOLD, THRESHOLD])

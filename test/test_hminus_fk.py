@@ -30,9 +30,8 @@ def system():
 
 
 @pytest.fixture(scope="module")
-def out(system):
-    sec, origin, sha = load_design_section(system, "hminus_switched")
-    return hminus_switched.design(system, sec, origin, sha)
+def out(shipped_design):
+    return shipped_design("farhat_koenig", "hminus_switched")
 
 
 def test_printed_E_is_reported_infeasible(system):

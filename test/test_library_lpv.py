@@ -1,5 +1,6 @@
 """The library bags of the hinf_sc and hminus_switched gain files, checked independently of
-`analyze` (which does not run these methods in this version): regeneration bit for bit,
+`analyze` (which does not run these methods in this version): regeneration (values within
+rounding),
 sample counts, truth columns (rho, mode, faults at their onsets), noise within the plant's
 bounds, and expected.yaml against the method's core runtime and the truth."""
 
@@ -7,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from bag_compare import assert_bags_close
 
 from fd_monitor.analysis.expectations import check_expected, core_summary
 from fd_monitor.analysis.generate import generate_bag
@@ -40,11 +42,14 @@ def test_library_holds_the_new_bags_with_their_methods():
 
 
 @pytest.mark.parametrize("name", NEW)
-def test_bag_regenerates_bit_for_bit(tmp_path, name):
+def test_bag_regenerates_within_rounding(tmp_path, name):
+    """The library's spec regenerates the shipped bag: metadata (counts, topics, times) byte
+    for byte, messages by decoded values within bag_compare.SIM_RTOL (another machine's
+    rounding; see there)."""
     spec = LIB[name]
     out = generate_bag(spec, tmp_path / name)
-    for f in ("metadata.yaml", f"{name}.mcap"):
-        assert (out / f).read_bytes() == (spec.folder / f).read_bytes(), f
+    assert (out / "metadata.yaml").read_bytes() == (spec.folder / "metadata.yaml").read_bytes()
+    assert_bags_close(out, spec.folder)
     assert (spec.folder / f"{name}.mcap").stat().st_size < 600_000
 
 
@@ -80,7 +85,9 @@ def test_three_tank_truth_carries_rho_of_eq_7_19_and_noise_within_bounds(name):
     rho = np.column_stack([tr.column(f"rho.rho{i}") for i in (1, 2, 3)])
     want = np.array([SCHEDULING_MAPS["three_tank_sqrt"](xi, {"min_difference": 1e-3})
                      for xi in x])
-    np.testing.assert_array_equal(rho, want)
+    # the bag's rho was computed where the bag was made: a few correctly rounded operations
+    # (difference, sqrt, division) on the same x, so equal to a few ulps on any machine
+    np.testing.assert_allclose(rho, want, rtol=1e-14, atol=0)
     assert 1.5 < rho.min() and rho.max() < 4.0     # inside the design box (7.19 data)
     v = y.values - x                               # C = I, no sensor fault: y - x = noise
     bound = sc.system.measurement_noise

@@ -1,4 +1,4 @@
-"""A burst of 50,000 samples degrades to a reported hole, then the monitor recovers (issue 12).
+"""A burst of 10,000 samples degrades to a reported hole, then the monitor recovers (issue 12).
 
 Before: 50,000 unpaced samples from a publisher with a 1000-deep history: about 4,600
 processed, then nothing more, ever -- the entry node waited forever for feedback the burst
@@ -6,6 +6,11 @@ had pushed out, and a downstream node for inputs that would never come. Now lost
 is a restart after a timeout and a downstream node skips a sample whose inputs will not
 come, so the queued backlog drains (at the one-process monitor's rate) and a new
 publisher's samples are processed after it.
+
+10,000 (issue 12 sent 50,000) is ten times the publishers' history and twice what a
+KEEP_ALL subscription holds (Fast DDS's default reader limit, 5,000 samples): the same
+overflow, about 5,200 samples processed and one hole either way, in a fifth of the
+publishing time.
 """
 
 from __future__ import annotations
@@ -19,11 +24,11 @@ from test_nodes_graph import Rig
 
 pytestmark = [pytest.mark.ros]
 
-BURST = 50_000
+BURST = 10_000
 NEW = 200
 
 
-def test_burst_of_50000_degrades_to_holes_then_a_new_publisher_is_processed():
+def test_burst_degrades_to_holes_then_a_new_publisher_is_processed():
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
 

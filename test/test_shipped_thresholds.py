@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bag_compare import assert_bags_close
 
 pytest.importorskip("cvxpy")
 
@@ -75,13 +76,25 @@ def test_thesis_6_5_thresholds_are_the_bound_4_17_of_its_design_file():
 @pytest.mark.parametrize("name, method", [
     ("thesis_5_3", "hinf_sc"),
     pytest.param("farhat_koenig", "hminus_switched", marks=pytest.mark.slow)])  # ~20 s
-def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method):
-    """Re-designing from the design file gives the shipped thresholds (the runs are seeded;
-    the gains agree to solver accuracy, so the thresholds to 1e-6)."""
+def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method,
+                                                                   shipped_design):
+    """Re-designing from the design file gives the shipped thresholds, within what the SDP
+    solver's accuracy lets another machine differ (the Monte Carlo runs are seeded: the same
+    noise everywhere; only the gains and bounds move).
+
+    J_i = margin (max ||r_i|| of the fault-free runs + gamma_i x level): gamma_i and the gains
+    are Clarabel's answers, correct to its stopping tolerances (1e-8 on gap and feasibility);
+    thesis 5.3's gamma_1 (~7.6e-6) lies near that resolution. Another machine's rounding can
+    make the solver stop an iteration earlier or later, so the answers may differ by up to
+    the defaults' distance to the optimum, measured here by re-solving with the tolerances at
+    1e-10: J_1 moves by 7.6e-3, J_2 by 4.7e-6 (relative; two machines differed by 5.4e-4 on
+    J_1, issue 23). The tolerance is twice that (both sides carry it): 2e-2 and 1e-5. A
+    changed margin, level, settling time or scenario moves them by far more. Farhat &
+    Koenig's thresholds (Monte Carlo maxima over 200 runs of the H-minus observer) move with
+    its gains as thesis 5.3's J_2 does: 1e-5 too."""
     s = load_system(name)
     gf = load_gains(f"{name}_{method}", s)
-    sec, origin, sha = load_design_section(s, method)
-    out = (hinf_sc if method == "hinf_sc" else hminus_switched).design(s, sec, origin, sha)
+    out = shipped_design(name, method)         # design(s, the design file's section)
     assert out["results"]["threshold_method"] == gf.results["threshold_method"]
     assert gf.results["threshold_method"]["method"] == "monte_carlo"
     if method == "hinf_sc":
@@ -89,7 +102,9 @@ def test_monte_carlo_thresholds_are_reproduced_from_the_design_file(name, method
     else:
         got = [o["threshold"] for o in out["results"]["observers"].values()]
         want = [o["threshold"] for o in gf.results["observers"].values()]
-    np.testing.assert_allclose(got, want, rtol=1e-6)
+    rtols = [2e-2, 1e-5] if name == "thesis_5_3" else [1e-5] * len(want)
+    for i, (g, w, rtol) in enumerate(zip(got, want, rtols, strict=True)):
+        np.testing.assert_allclose(g, w, rtol=rtol, err_msg=f"threshold {i + 1}")
     assert np.all(np.isfinite(want)) and np.all(np.asarray(want) > 0)
 
 
@@ -118,7 +133,7 @@ def test_thesis_5_3_threshold_is_monte_carlo_plus_the_nuisance_bound():
 
 
 @pytest.mark.parametrize("name", ["thesis_5_3", "thesis_6_5"])
-def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name):
+def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name, scenario_run):
     s = load_system(name)
     gf = load_gains(f"{name}_hinf_sc", s)
     sc = load_scenario(f"{name}_overlap")
@@ -129,7 +144,7 @@ def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name):
     assert np.isfinite(ff.threshold[-1]).all()
     assert not ff.alarm.any()
     # both faults (thesis Fig. 5.5 / 6.4): r1 from f1 at 30 s, r2 from f2 at 60 s, isolated
-    tr = simulate(sc)
+    tr = scenario_run(f"{name}_overlap")         # simulate(sc)
     out = _run(s, gf, tr)
     t = tr.t
     first = [t[np.flatnonzero(out.alarm[:, j])[0]] for j in range(2)]
@@ -219,14 +234,16 @@ def _cli(*args):
                                   "farhat_koenig_fault"])
 def test_thesis_and_switched_plants_through_simulate_analyze_report(tmp_path, name):
     """Thesis 5.3, 6.5, 7.1 (F16XL) and Farhat & Koenig with the commands a user runs:
-    `simulate` writes the library bag's bytes, `analyze` alarms on every faulty channel after
-    its onset, `report` writes its figures and finds the library's expectations hold."""
+    `simulate` writes the library bag (values within rounding), `analyze` alarms on every
+    faulty channel after its onset, `report` writes its figures and finds the library's
+    expectations hold."""
     spec = LIB[name]
     bag = tmp_path / "bag"
     doc = _cli("simulate", spec.scenario, "--seed", str(spec.seed), "--duration",
                str(spec.duration), "-o", str(bag), "--json")
     assert doc["samples"] == round(spec.duration / doc["sample_time"])
-    assert (bag / "bag.mcap").read_bytes() == (spec.folder / f"{name}.mcap").read_bytes()
+    # the library bag's messages, within rounding (made on another machine: bag_compare)
+    assert_bags_close(bag / "bag.mcap", spec.folder / f"{name}.mcap")
     exp = load_expected(spec.expected_file)
     an = _cli("analyze", str(bag), "--gains", spec.gains, "--json")
     first = {}
@@ -249,10 +266,15 @@ def test_design_cli_prints_the_thresholds_and_their_method(tmp_path):
     assert doc["threshold_method"] == {"method": "bound", "levels": {"nuisance": 1.0},
                                        "margin": 3.0}
     shipped = load_gains("thesis_6_5_hinf_sc", load_system("thesis_6_5"))
-    np.testing.assert_allclose(doc["thresholds"], shipped.results["thresholds"], rtol=1e-6)
+    # J_i = 3 gamma_i from the SDP (see test_monte_carlo_thresholds_are_reproduced_...):
+    # re-solved with Clarabel's tolerances at 1e-10 instead of 1e-8, J_1 moves by 1.4e-4 and
+    # J_2 by 8.1e-2 (its SDP stops with gamma_2^2 18 % above the optimum): twice that
+    for i, (g, w, rtol) in enumerate(zip(doc["thresholds"], shipped.results["thresholds"],
+                                         [3e-4, 0.17], strict=True)):
+        np.testing.assert_allclose(g, w, rtol=rtol, err_msg=f"threshold {i + 1}")
     out = subprocess.run([sys.executable, "-m", "fd_monitor", "design", "hinf_sc", "thesis_6_5",
                           "-o", str(tmp_path / "g2.yaml")], capture_output=True, text=True,
                          timeout=300)
     assert out.returncode == 0, out.stderr
     assert "threshold (bound)" in out.stdout
-    assert f"{shipped.results['thresholds'][0]:.4g}" in out.stdout
+    assert f"{doc['thresholds'][0]:.4g}" in out.stdout      # this machine's design, printed

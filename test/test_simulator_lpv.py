@@ -60,8 +60,11 @@ def test_lpv_profile_run_equals_reference_integration(name):
     substeps) as the reference loop does; actuator faults held over the sample; truth
     rho.<name> = the profile at t_k."""
     doc = _scenario_doc(name)
-    doc["duration"] = 35.0                         # f1 from 30 s (f2 from 60 s dropped)
-    doc["faults"] = doc["faults"][:1]
+    # 12 s (the reference loop is slow): a whole period of both inputs (7 s, 3 s) and of
+    # rho (1 s; 6.5: 10 s and more than half of 20 s), f1 moved to 8 s, f2 (60 s) dropped
+    doc["duration"] = 12.0
+    doc["faults"] = [dict(doc["faults"][0], time=8.0)]
+    kf = 800                                       # f1's onset sample
     sc = parse_scenario(doc, str(SCEN / f"{name}.yaml"))
     tr = simulate(sc)
     system = sc.system
@@ -71,7 +74,7 @@ def test_lpv_profile_run_equals_reference_integration(name):
 
     def u_applied(tt: float) -> np.ndarray:
         k = round(tt / dt)
-        return np.array([p.value(tt) for p in sc.inputs]) + np.array([float(k >= 3000), 0.0])
+        return np.array([p.value(tt) for p in sc.inputs]) + np.array([float(k >= kf), 0.0])
 
     def rho_of(tt: float) -> np.ndarray:
         return np.array([p.value(tt) for p in prof])
@@ -89,8 +92,8 @@ def test_lpv_profile_run_equals_reference_integration(name):
     lo = [p.min for p in system.lpv]
     hi = [p.max for p in system.lpv]
     assert (tr.rho[0] >= np.array(lo) - 1e-12).all() and (tr.rho[0] <= hi).all()
-    # fault injection: f1 = 1 from sample 3000 on, f2 never in 35 s
-    np.testing.assert_array_equal(tr.faults[0, :, 0], (tr.k >= 3000).astype(float))
+    # fault injection: f1 = 1 from sample 800 on, f2 never in 12 s
+    np.testing.assert_array_equal(tr.faults[0, :, 0], (tr.k >= kf).astype(float))
     assert not tr.faults[0, :, 1].any()
 
 

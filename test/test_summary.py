@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from bag_compare import assert_bags_close
 
 from fd_monitor.analysis.library import load_library
 from fd_monitor.analysis.offline import _classify, run_bag
@@ -137,16 +138,18 @@ def test_decode_raises_the_classes_the_offline_reader_classifies():
         decode(nan, "/plant/y", labels=("h1", "h2"))
 
 
-def test_simulate_writes_the_library_bag_byte_for_byte(tmp_path):
-    """One writer: ``simulate`` and the library give the same bytes for the same scenario,
-    seed and duration (a bag without corruptions)."""
+def test_simulate_writes_the_library_bag(tmp_path):
+    """One writer: ``simulate`` gives the library's bag for the same scenario, seed and
+    duration (a bag without corruptions): metadata byte for byte, messages within rounding of
+    the shipped ones (bag_compare.SIM_RTOL: the shipped bag was simulated on another
+    machine)."""
     spec = LIB["three_tank_valve"]
     assert not spec.corruptions
     out = tmp_path / spec.name
     doc = simulate_to_bag(spec.scenario, out, spec.seed, spec.duration)
     assert doc["topics"][:2] == ["/plant/u", "/plant/y"] and doc["seed"] == spec.seed
-    for f in ("metadata.yaml", f"{spec.name}.mcap"):
-        assert (out / f).read_bytes() == (spec.folder / f).read_bytes(), f
+    assert (out / "metadata.yaml").read_bytes() == (spec.folder / "metadata.yaml").read_bytes()
+    assert_bags_close(out, spec.folder)
 
 
 def test_isolate_env_localhost_and_its_domain():

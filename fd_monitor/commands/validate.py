@@ -159,17 +159,6 @@ def adapter_summary(adapter: Any) -> dict[str, Any]:
     }
 
 
-def _runs(ks: list[int]) -> list[tuple[int, int]]:
-    """Sorted indices -> inclusive runs ``(first, last)`` of consecutive ones."""
-    out: list[tuple[int, int]] = []
-    for k in ks:
-        if out and k == out[-1][1] + 1:
-            out[-1] = (out[-1][0], k)
-        else:
-            out.append((k, k))
-    return out
-
-
 def adapter_dry_run(adapter: Any, bag: str, system: Any = None,
                     sample_time: float | None = None) -> dict[str, Any]:
     """How a robot bag's messages pair into samples through ``adapter``: the offline reader
@@ -189,6 +178,7 @@ def adapter_dry_run(adapter: Any, bag: str, system: Any = None,
         gap samples per reason, messages per kind, new runs); ``first_samples``
         (``[{k, t, u, y}]``, t in s since the first sample).
     """
+    from fd_monitor.analysis.offline import stamp_runs
     from fd_monitor.wire.adapters import read_adapted
 
     if not Path(bag).exists():
@@ -198,7 +188,7 @@ def adapter_dry_run(adapter: Any, bag: str, system: Any = None,
     for k, reason, channel in s.gaps:
         by.setdefault((reason, channel), []).append(int(k))
     gaps = [{"reason": r, "channel": c, "first": a, "last": b, "samples": b - a + 1}
-            for (r, c), ks in sorted(by.items()) for a, b in _runs(sorted(set(ks)))]
+            for (r, c), ks in sorted(by.items()) for a, b in stamp_runs(sorted(set(ks)))]
     gap_ks = sorted({int(k) for k, _r, _c in s.gaps})
     # samples per gap reason (a sample with two stale channels counts once), messages per
     # kind: per topic (late, duplicate, stray, decimated) and the bad ones (by their kind)

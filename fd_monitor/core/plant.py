@@ -217,10 +217,12 @@ class SampledPlant:
         if f is not None and dm.Fd.size:
             held += f @ dm.Fd.T
 
+        A0T, uB = A0.T, u @ m.B.T                             # u is held over the sample
+
         def rhs(tt: float, xx: np.ndarray) -> np.ndarray:
             r = rho(tt, xx)                                   # (M, d)
             # A(rho) x = A0 x + sum_j rho_j A_j x (einsum: much cheaper than tensordot here)
-            dx = xx @ A0.T + u @ m.B.T + held
+            dx = xx @ A0T + uB + held
             if A_rho is not None:
                 dx += np.einsum("md,dij,mj->mi", r, A_rho, xx)
             if B_rho is not None:

@@ -172,7 +172,12 @@ class PlantSimulator:
             params = dict(sched.params)
             return np.array([self._rho_map(xi, params) for xi in x], dtype=float).reshape(
                 x.shape[0], len(sched.names))
-        return np.broadcast_to(np.array([p.value(t) for p in sched.profiles]),
+        values = [p.value(t) for p in sched.profiles]
+        if x.shape[0] == 1:
+            # one run (the usual case): a plain (1, d) array; np.broadcast_to costs more than
+            # the whole right-hand side it feeds, 40 times per sample under RK4
+            return np.array([values], dtype=float)
+        return np.broadcast_to(np.array(values, dtype=float),
                                (x.shape[0], len(sched.profiles)))
 
     def _random_switch(self, t: float) -> None:
