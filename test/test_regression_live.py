@@ -103,13 +103,28 @@ def test_live_subset_has_every_method():
     assert methods >= {"thresholds", "hinf_sc", "hminus_switched"}, methods
 
 
+def _monitor_outputs(tmp_path, bag, gains, system, gf, n):
+    """``bag``'s /plant topics (and side signals) replayed flat out into a `monitor` process
+    on ``gains``; its residual, threshold and alarm topics as recorded (``n`` samples)."""
+    from fd_monitor.core.runtime import runtime_for
+
+    side = [f"/plant/{s}" for s in runtime_for(system, gf).side_inputs]
+    topics = ["/fd/residual", "/fd/threshold", "/fd/alarm"]
+    procs = [Proc(["run", "monitor", "--ros-args", "-p", f"system:={system.name}",
+                   "-p", f"gains:={gains}"])]
+    until = [a for t in topics for a in ("--until", f"{t}={n}")]
+    rec = Proc(["record", *topics, "-o", str(tmp_path / "rec"), *until])
+    replay_through(procs, rec, bag, [*(["/plant/u"] if system.nu else []), "/plant/y", *side],
+                   wait_subscribers=1)
+    return read_bag(tmp_path / "rec", topics)
+
+
 @pytest.mark.parametrize("name", GENERIC)
 def test_live_monitor_runs_any_gain_file_like_analyze(tmp_path, name):
     """The `monitor` process on an hinf_sc / hminus_switched gain file (the fused
     MonitorNode) publishes exactly what `analyze` computes offline: every residual, threshold
     and alarm of every channel, sample for sample; the bag's expectations hold offline
     (test_regression.py), so they hold live."""
-    from fd_monitor.core.runtime import runtime_for
     from fd_monitor.model.gains import load_gains
     from fd_monitor.model.system import load_system
 
@@ -117,17 +132,7 @@ def test_live_monitor_runs_any_gain_file_like_analyze(tmp_path, name):
     system = load_system(load_gains(spec.gains, verify=False).system_name)
     gf = load_gains(spec.gains, system)
     offline = run_bag(spec.folder, spec.gains, system=system)
-    n = len(offline.k)
-    side = [f"/plant/{s}" for s in runtime_for(system, gf).side_inputs]
-    topics = ["/fd/residual", "/fd/threshold", "/fd/alarm"]
-    procs = [Proc(["run", "monitor", "--ros-args", "-p", f"system:={system.name}",
-                   "-p", f"gains:={spec.gains}"])]
-    until = [a for t in topics for a in ("--until", f"{t}={n}")]
-    rec = Proc(["record", *topics, "-o", str(tmp_path / "rec"), *until])
-    replay_through(procs, rec, spec.folder,
-                   [*(["/plant/u"] if system.nu else []), "/plant/y", *side],
-                   wait_subscribers=1)
-    got = read_bag(tmp_path / "rec", topics)
+    got = _monitor_outputs(tmp_path, spec.folder, spec.gains, system, gf, len(offline.k))
     for topic, want in (("/fd/residual", offline.signal), ("/fd/threshold", offline.threshold),
                         ("/fd/alarm", offline.alarm.astype(float))):
         assert got[topic].labels == offline.channels, topic
@@ -192,7 +197,6 @@ def test_live_monitor_bridges_registry_runtimes_like_analyze(tmp_path, name):
     Koenig) and alarm equals analyze's, sample for sample."""
     from test_bridge import _holed_bag
 
-    from fd_monitor.core.runtime import runtime_for
     from fd_monitor.model.gains import load_gains
     from fd_monitor.model.system import load_system
 
@@ -204,16 +208,7 @@ def test_live_monitor_bridges_registry_runtimes_like_analyze(tmp_path, name):
     bag = _holed_bag(spec.folder, tmp_path / "holes", holes)
     offline = run_bag(bag, spec.gains, system=system)
     assert offline.inputs.bridges == [b + 1 for _a, b in holes]
-    n = len(offline.k)
-    side = [f"/plant/{s}" for s in runtime_for(system, gf).side_inputs]
-    topics = ["/fd/residual", "/fd/threshold", "/fd/alarm"]
-    procs = [Proc(["run", "monitor", "--ros-args", "-p", f"system:={system.name}",
-                   "-p", f"gains:={spec.gains}"])]
-    until = [a for t in topics for a in ("--until", f"{t}={n}")]
-    rec = Proc(["record", *topics, "-o", str(tmp_path / "rec"), *until])
-    replay_through(procs, rec, bag, [*(["/plant/u"] if system.nu else []), "/plant/y", *side],
-                   wait_subscribers=1)
-    got = read_bag(tmp_path / "rec", topics)
+    got = _monitor_outputs(tmp_path, bag, spec.gains, system, gf, len(offline.k))
     for topic, want in (("/fd/residual", offline.signal), ("/fd/threshold", offline.threshold),
                         ("/fd/alarm", offline.alarm.astype(float))):
         np.testing.assert_array_equal(got[topic].stamps, offline.k, err_msg=topic)

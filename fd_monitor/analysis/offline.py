@@ -656,10 +656,11 @@ def _adapted_streams(bag: str | Path, adapter: Any, system: Any,
     nodes' input policy exactly as the live node feeds them
     (:func:`~fd_monitor.wire.adapters.feed`); gaps, late and bad messages in the report."""
 
-    s = read_adapted(bag, adapter, system=system)
+    ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
+    s = read_adapted(bag, ad, system=system)
     rep = InputReport(timebase={**s.counts, "sample_time": s.sample_time,
                                 "sample_time_note": s.sample_time_note})
-    topic_of = {c: t for t, c in _adapter_channels(adapter, system)}
+    topic_of = {c.name: c.topic for c in (*ad.inputs, *ad.outputs)}
     for kind, line in s.errors:
         rep.errors.append({"kind": kind, "topic": line.split(" ", 1)[0].rstrip(":"),
                            "sample": None, "message": line})
@@ -693,12 +694,6 @@ def _adapted_streams(bag: str | Path, adapter: Any, system: Any,
         feed(stream, e, now, bool(nu))
     stream.release(math.inf)
     return us, ys, {}, rep
-
-
-def _adapter_channels(adapter: Any, system: Any) -> list[tuple[str, str]]:
-    """``(topic, channel)`` of every mapped channel."""
-    ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
-    return [(c.topic, c.name) for c in (*ad.inputs, *ad.outputs)]
 
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
