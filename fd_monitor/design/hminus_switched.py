@@ -12,7 +12,7 @@ common free matrix ``E`` (q x n):
    (41)-(44);
 5. ``F_i = A1_i - L_i A2_i``, ``G_i = G1_i - L_i G2_i`` (23, 24).
 
-Readings of the paper (see the README section): ``L_{2,i}`` acts through an orthonormal
+Readings of the paper (see doc/theory/hinf.md): ``L_{2,i}`` acts through an orthonormal
 basis ``U_i`` of range(Gamma_i^perp) (``L_{2,i} = Lt_i U_i'``, the same family of observers,
 better conditioned); LMI (26)/(39) are read with ``V_k = eps_k' P_{alpha(k-1)} eps_k``
 (``U_i = P_i L_i``); in (44) ``P^a_i = diag(P_eps,i, P_h,i)`` so that ``L_i = P_eps,i^-1 U_i``

@@ -246,7 +246,7 @@ SCHEDULING_MAPS: dict[str, Callable[[np.ndarray, Mapping[str, Any]], np.ndarray]
 
 # --------------------------------------------------------------------------------------
 # dc_motor: a motor (or a robot joint's drive) with viscous and Coulomb friction, effort
-# (torque) commanded; the worked example of README "Monitor your own robot".
+# (torque) commanded; the worked example of doc/tutorial/own-robot.md.
 
 
 def _dc_motor_rhs(x: np.ndarray, u: np.ndarray, p: Params) -> np.ndarray:

@@ -186,6 +186,14 @@ def load_system(source: str | Path) -> System:
     ------
     SystemFileError
         With a message naming the file, the key path and what was expected.
+
+    Examples
+    --------
+    >>> plant = load_system("three_tank")
+    >>> plant.states, plant.nu, plant.sample_time
+    (('h1', 'h2', 'h3'), 3, 0.1)
+    >>> len(plant.sha256)
+    64
     """
     path = find_config_file(source, "systems", SystemFileError, what="plant")
     data = read_yaml(path)

@@ -194,8 +194,12 @@ class BagWriter:
 
     Examples
     --------
-    >>> with BagWriter(tmp / "bag") as w:                     # doctest: +SKIP
+    >>> import tempfile, pathlib
+    >>> tmp = pathlib.Path(tempfile.mkdtemp())
+    >>> with BagWriter(tmp / "bag") as w:
     ...     w.write_array("/plant/y", 0, ("h1",), [0.4], timestamp_ns=0)
+    >>> read_bag(tmp / "bag")["/plant/y"].values
+    array([[0.4]])
     """
 
     def __init__(self, path: str | Path, *, chunk_bytes: int = CHUNK_BYTES,
@@ -913,6 +917,12 @@ def read_bag(path: str | Path, topics: Sequence[str] | None = None
     ------
     BagError
         Missing bag, not a bag, missing topic, or a malformed message (topic and stamp named).
+
+    Examples
+    --------
+    >>> b = read_bag("bags/three_tank_bias_h1")
+    >>> b["/plant/y"].labels, b["/plant/y"].values.shape
+    (('h1', 'h2', 'h3'), (2500, 3))
     """
     return arrays_from_raw(path, read_raw(path, topics,
                                           msgtype=FLOAT64_MULTI_ARRAY if topics else None))
