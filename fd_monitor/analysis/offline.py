@@ -29,6 +29,10 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    :func:`~fd_monitor.analysis.summary.analyze_run`).
 
 Nothing here imports rclpy (the message decoding is the nodes' pure conversion function).
+
+Why one module of ~770 lines: reading a bag through the one input policy and running a
+runtime over it is one pipeline (input report, bag scan, run), which the regression suite
+compares bit for bit with the live nodes.
 """
 
 from __future__ import annotations

@@ -35,6 +35,10 @@ Design file section::
       decay_rate: 0.98                            # LMI (26) with rho^2 P_j (H-minus gains)
       threshold: {method: none}                   # or {method: monte_carlo, scenario,
                                                   #     runs, settle, margin} (_threshold)
+
+Why one module of ~530 lines: the Farhat & Koenig design is one procedure (E, T, K, the LMIs
+per mode, the Monte Carlo threshold section, the checks) read top to bottom against Sec.
+III-IV of the paper; split, the derivation would be scattered.
 """
 
 from __future__ import annotations

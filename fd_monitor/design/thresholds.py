@@ -68,6 +68,10 @@ Isolation threshold: the l1 bound of the map (v, eta) -> sigma~_i of the lineari
 dynamics plus the peak response to the presmoother's initial-error bound (worst mode): a healthy
 sensor's |sigma^_i| stays below it (to first order). Isolation delay: samples for the response
 of sigma~ to a unit bias to fall below 5 % (worst mode).
+
+Why one module of ~680 lines: the Heracleous et al. design is one pipeline over one plant
+(filters, thresholds, AGEI matrix, estimator gains); the envelope bounds are already in
+``envelope.py``.
 """
 
 from __future__ import annotations

@@ -163,11 +163,6 @@ class System:
             g for g in self.guards if g.source == mode and (kind is None or g.kind == kind)
         )
 
-    @property
-    def is_linear(self) -> bool:
-        """True when every mode has linear (affine) dynamics."""
-        return all(m.dynamics == "linear" for m in self.modes)
-
 
 def load_system(source: str | Path) -> System:
     """Load and validate a plant description.

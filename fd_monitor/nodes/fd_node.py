@@ -28,6 +28,10 @@ of the others), reported, and dropped before it reaches the join.
 Feedback messages (``fd/bias_estimate``, ``fd/guard_event``, ``fd/threshold_override``) are
 stamped with the sample they are *for* (k + 1 when decided at k), so every join is on equal
 stamps.
+
+Why one module of ~760 lines: one lifecycle base class with its inputs and reports; issue 22
+item 2 (reports as small objects, one job per file) splits it, deferred while the nodes were
+being changed by other work.
 """
 
 from __future__ import annotations
@@ -76,10 +80,6 @@ from fd_monitor.wire.topics import Layout, Topic
 
 __all__ = ["COMMON_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode", "Input",
            "load_plant_and_gains"]
-
-#: Gain-file methods the chain nodes can run; each node lists the ones it runs in its
-#: ``runtimes`` (method -> name of the method that builds that runtime).
-RUNTIMES = ("thresholds", "qb")
 
 #: The join's hole timeout, of every node that joins plant/u and plant/y.
 GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have been complete "
@@ -760,9 +760,3 @@ class FdNode(LifecycleNode):
             cached = self._gain_values = (g, {"gain_file": g.id,
                                               "certificate": g.certificate_status})
         return cached[1]
-
-
-def require(condition: bool, message: str) -> None:
-    """Raise a start-up FdMonitorError unless ``condition``."""
-    if not condition:
-        raise FdMonitorError(message)

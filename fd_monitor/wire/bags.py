@@ -18,6 +18,10 @@ back as arrays::
 
 The CDR bytes written are the bytes rclpy publishes, so ``record``/``replay`` move them
 unchanged.
+
+Why one module of ~1050 lines: writer, MCAP scanner, reading and recovery; issue 22 item 3
+splits it into writer, scanner and reader, deferred while the bag code was being changed by
+other work.
 """
 
 from __future__ import annotations
