@@ -129,7 +129,9 @@ class InputReport:
         for e in self.errors:
             s = e["sample"]
             if e["kind"] in _SAMPLE_KINDS and isinstance(s, (list, tuple)):
-                lost[e["kind"]] = int(lost.get(e["kind"], 0)) + int(s[1]) - int(s[0]) + 1
+                n = lost.get(e["kind"], 0)
+                assert isinstance(n, int)  # a kind is a count or a set of stamps, never both
+                lost[e["kind"]] = n + int(s[1]) - int(s[0]) + 1
             elif e["kind"] in _STAMP_KINDS and isinstance(s, int) and s >= 0:
                 got = lost.setdefault(e["kind"], set())
                 assert isinstance(got, set)

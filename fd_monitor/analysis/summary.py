@@ -50,7 +50,7 @@ def collapse(seq: Sequence[Any]) -> list[Any]:
     return out
 
 
-def segments(ks: Sequence[int], modes: Sequence[str]) -> list[list[Any]]:
+def segments(ks: Sequence[int] | np.ndarray, modes: Sequence[str]) -> list[list[Any]]:
     """``[[mode, first_sample, samples], ...]``: runs of one mode."""
     out: list[list[Any]] = []
     for k, m in zip(ks, modes):

@@ -284,9 +284,12 @@ class _Problem:
 
     def gamma2(self) -> dict[str, float]:
         """Squared attenuation bounds at the last solution."""
+        # solved scalars (cvxpy types a value as ndarray | None)
         if self.spec.kind == "uncertain":
-            return {"nuisance": float(self.g.value) ** 2}
-        return {k: float(v.value) for k, v in self.gv.items()}
+            g: Any = self.g.value
+            return {"nuisance": float(g) ** 2}
+        values: dict[str, Any] = {k: v.value for k, v in self.gv.items()}
+        return {k: float(v) for k, v in values.items()}
 
     def cost(self) -> float:
         """``a g + b g_w + c g_n`` (squared bounds) at the last solution."""

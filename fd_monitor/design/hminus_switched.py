@@ -519,6 +519,7 @@ def _threshold(system: System, th: Mapping[str, Any] | None, results: dict[str, 
     traj = simulate_batch(sc, list(range(sc.seed, sc.seed + th["runs"])))
     for name, obs in results["observers"].items():
         res = HminusSwitchedRuntime.run_batch(system, results, traj, design=name).residual
+        assert res is not None  # the H-minus batch always carries its residual norms
         obs["threshold"] = float(monte_carlo_thresholds(res, th["settle"], th["margin"])[0])
     return {"method": "monte_carlo", "scenario": sc.name, "runs": th["runs"],
             "settle_s": th["settle"] * system.sample_time, "margin": th["margin"]}

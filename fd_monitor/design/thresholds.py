@@ -187,7 +187,7 @@ def _certified_region(system: System, reg: dict[str, Any], tube: float,
         return {"source": "declared", "state_lo": env.state_lo, "state_hi": env.state_hi,
                 "input_lo": env.input_lo, "input_hi": env.input_hi}
     s = len(system.modes)
-    out = {"source": "scenarios", "state_lo": np.zeros((s, system.n)),
+    out: dict[str, Any] = {"source": "scenarios", "state_lo": np.zeros((s, system.n)),
            "state_hi": np.zeros((s, system.n)), "input_lo": np.zeros((s, system.nu)),
            "input_hi": np.zeros((s, system.nu))}
     for q in range(s):
@@ -412,7 +412,7 @@ def _agei_row(smp: _Sampling, j: int, A: np.ndarray, r_bar: np.ndarray, spec: Fi
         beyond = side * (smp.reg["x"][:, c.index] - c.value)
         reach = float(max(beyond.max(), 0.0)) + tube
         d_band = min(1.5 * d_rec, reach)
-        mu = np.abs(mism(rng.uniform(0.0, d_band, x.shape[0])))
+        mu = np.abs(mism(np.asarray(rng.uniform(0.0, d_band, x.shape[0]))))
         v = smp.noise(x.shape[0])
         xx = x.copy()
         xx[:, c.index] = c.value + side * rng.uniform(0.0, d_band, x.shape[0])

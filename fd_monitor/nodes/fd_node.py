@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float64MultiArray
 
@@ -229,8 +230,8 @@ class FdNode(LifecycleNode):
     outputs: Sequence[Topic] = ()
 
     def __init__(self, node_name: str, params: Sequence[Param] = (),
-                 system: System | None = None, gains: GainFile | None = None, qos=None,
-                 **kwargs: Any) -> None:
+                 system: System | None = None, gains: GainFile | None = None,
+                 qos: QoSProfile | None = None, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = declare_parameters(self, (*COMMON_PARAMS, *params))
         self._injected = (system, gains)
@@ -490,7 +491,8 @@ class FdNode(LifecycleNode):
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
-        self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
+        self._held: dict[str, deque[tuple[int, np.ndarray]]] = {
+            i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
         self._data_inputs = {}
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
@@ -564,8 +566,8 @@ class FdNode(LifecycleNode):
                 self._pair_plain()
                 return
             if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
-                              inp.stamp_offset, inp.sequence and d.values[i_restart] > 0.5,
-                              inp.sequence and d.values[i_bridge] > 0.5):
+                              inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
+                              bool(inp.sequence and d.values[i_bridge] > 0.5)):
                 self._input_ok()
         return cb
 

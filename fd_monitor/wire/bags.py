@@ -349,6 +349,7 @@ class BagWriter:
         summary_start = self._pos
         rec = RecordBuilder()
         groups: list[tuple[int, int, int]] = []
+        opcode: int
         for opcode, records in (
                 (Opcode.SCHEMA, list(self._schemas.values())),
                 (Opcode.CHANNEL, list(self._channels.values())),
