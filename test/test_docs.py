@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "doc"
@@ -132,3 +133,16 @@ def test_public_api_is_lazy_and_complete() -> None:
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
                          text=True, timeout=120)
     assert out.stdout.split("\n")[:3] == ["[]", "True", "True"], out.stdout + out.stderr
+
+
+def test_gain_file_fields_page_names_every_key() -> None:
+    """doc/reference/gain-file-fields.md names every top-level key and every ``results`` key
+    of every shipped gain file (a key a designer starts writing gets documented)."""
+    page = (DOC / "reference" / "gain-file-fields.md").read_text()
+    missing = set()
+    for path in sorted((REPO / "config" / "gains").glob("*.yaml")):
+        doc = yaml.safe_load(path.read_text())
+        for key in (*doc, *doc["results"]):
+            if f"`{key}`" not in page:
+                missing.add(f"{path.name}: {key}")
+    assert not missing, sorted(missing)
