@@ -944,6 +944,18 @@ def runtime_for(system: System, gains: Any, **options: Any) -> Runtime:
     GainFileError
         Unknown method (one line naming the known ones), or an option the runtime does not
         take.
+
+    Examples
+    --------
+    >>> from fd_monitor.model.gains import load_gains
+    >>> from fd_monitor.model.system import load_system
+    >>> plant = load_system("pwa_cascade")
+    >>> rt = runtime_for(plant, load_gains("pwa_cascade_qb", plant))
+    >>> type(rt).__name__, rt.channels[-1]
+    ('QBRuntime', 'r_norm')
+    >>> out = rt.step(0, [], [0.0, 0.6])        # k, u (this plant has no inputs), y
+    >>> out.alarm.shape == (len(rt.channels),)
+    True
     """
     method = getattr(gains, "method", None)
     cls = runtime_class(str(method) if method is not None else "<none>")
