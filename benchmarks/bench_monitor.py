@@ -30,9 +30,9 @@ import time
 import numpy as np
 from bench_runtimes import print_rates
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import BatchMonitor, Monitor, run_batch
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

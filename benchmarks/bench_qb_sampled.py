@@ -30,10 +30,10 @@ import time
 
 import numpy as np
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.qb import STRESS_POLICIES, run_batch, stress_runs
 from fd_monitor.core.qb_certificate import ellipsoid_bound, gains_matrices
 from fd_monitor.core.simulator import Trajectory
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.system import load_system
 
 

@@ -31,11 +31,11 @@ import types
 
 import numpy as np
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.qb import run_batch
 from fd_monitor.core.qb_model import qb_model
 from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.design.qb import QBProblem
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 
 #: L_1, L_2, L_3 as printed in Sec. VI (mode order safe, x2_high, x1_high).

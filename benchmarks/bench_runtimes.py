@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fd_monitor.core.runtime import runtime_for
+from fd_monitor.core.methods import load_gains, runtime_for
 from fd_monitor.core.simulator import simulate
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

@@ -33,9 +33,9 @@ import numpy as np
 
 from fd_monitor.analysis.summary import episodes, region_mark
 from fd_monitor.core.envelope import CertifiedRegion
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import run_batch
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import FaultEvent, Scenario, parse_scenario
 from fd_monitor.model.system import System, load_system
 

@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import run_batch
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import FaultEvent, load_scenario
 from fd_monitor.model.system import load_system
 

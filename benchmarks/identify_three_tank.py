@@ -29,9 +29,10 @@ import numpy as np
 from fd_monitor.analysis.identify import Dataset, identify_bags, load_dataset, write_plant
 from fd_monitor.analysis.offline import run_bag
 from fd_monitor.commands.simulate import simulate_to_bag
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.design.thresholds import design_thresholds
-from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.gains import save_gains
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import read_bag
 

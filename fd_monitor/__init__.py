@@ -31,10 +31,9 @@ if TYPE_CHECKING:  # the names as mypy and readers see them; imported lazily bel
 
     from fd_monitor.analysis.offline import run_bag
     from fd_monitor.commands.analyze import analyze_bag
-    from fd_monitor.core.runtime import runtime_for
+    from fd_monitor.core.methods import load_gains, runtime_for
     from fd_monitor.core.simulator import simulate
     from fd_monitor.model.errors import FdMonitorError
-    from fd_monitor.model.gains import load_gains
     from fd_monitor.model.scenario import load_scenario
     from fd_monitor.model.system import load_system
     from fd_monitor.wire.bags import read_bag, write_bag
@@ -54,10 +53,10 @@ def __getattr__(name: str) -> Any:
         from fd_monitor.model.scenario import load_scenario
         value = load_scenario
     elif name == "load_gains":
-        from fd_monitor.model.gains import load_gains
+        from fd_monitor.core.methods import load_gains
         value = load_gains
     elif name == "runtime_for":
-        from fd_monitor.core.runtime import runtime_for
+        from fd_monitor.core.methods import runtime_for
         value = runtime_for
     elif name == "simulate":
         from fd_monitor.core.simulator import simulate

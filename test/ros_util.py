@@ -301,9 +301,9 @@ def plain_msg(values: Any) -> Any:
 def biased_h1_run(n: int) -> tuple[Any, Any, Any, list[Any]]:
     """three_tank_bias_h1 (seed 2), n samples, +5 cm on y_h1 from sample 40 (alarms within
     the run): (system, u (n, nu), y (n, ny), the in-process Monitor's outputs)."""
+    from fd_monitor.core.methods import load_gains
     from fd_monitor.core.monitor import Monitor
     from fd_monitor.core.simulator import simulate
-    from fd_monitor.model.gains import load_gains
     from fd_monitor.model.scenario import load_scenario
     from fd_monitor.model.system import load_system
 

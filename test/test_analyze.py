@@ -11,9 +11,10 @@ import yaml
 
 from fd_monitor.commands.analyze import analyze_arrays, analyze_bag
 from fd_monitor.commands.cli import main as cli_main
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.errors import BagError, GainFileError, MessageError
-from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.gains import write_gain_doc
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

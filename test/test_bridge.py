@@ -14,11 +14,11 @@ import pytest
 
 from fd_monitor.analysis.library import load_library
 from fd_monitor.analysis.offline import InputReport, read_streams, run_bag, run_runtime
+from fd_monitor.core.methods import RUNTIMES, load_gains, runtime_for
 from fd_monitor.core.monitor import Monitor
-from fd_monitor.core.runtime import RUNTIMES, Runtime, runtime_for
+from fd_monitor.core.runtime import Runtime
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.errors import ImplausibleError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import arrays_from, read_bag, write_bag

@@ -12,9 +12,8 @@ from fd_monitor.analysis.summary import region_mark
 from fd_monitor.commands.analyze import analyze_arrays
 from fd_monitor.commands.demo import _gains as demo_gains
 from fd_monitor.core.envelope import CertifiedRegion
-from fd_monitor.core.runtime import runtime_for
+from fd_monitor.core.methods import load_gains, runtime_for
 from fd_monitor.core.simulator import simulate
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import parse_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.model.yaml_io import read_yaml

@@ -21,11 +21,12 @@ from fd_monitor.core.filters import (
     moving_average,
     settling_length,
 )
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import Monitor, run_batch, validate_sample
 from fd_monitor.core.simulator import simulate, simulate_batch
 from fd_monitor.core.thresholds import DiagnosisGains, as_gains, noise_l1_bound
 from fd_monitor.model.errors import GainFileError, MessageError
-from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.gains import write_gain_doc
 from fd_monitor.model.scenario import FaultEvent, load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.topics import STATE_ESTIMATE

@@ -10,11 +10,11 @@ import pytest
 
 from fd_monitor.commands.analyze import analyze_arrays
 from fd_monitor.core.envelope import CertifiedRegion, describe_excess
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design.envelope import jacobian_centre, remainder_bound
 from fd_monitor.model.errors import SystemFileError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import parse_scenario
 from fd_monitor.model.system import load_system, parse_system
 from fd_monitor.model.yaml_io import read_yaml

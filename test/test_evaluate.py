@@ -11,8 +11,8 @@ import pytest
 
 from fd_monitor.analysis.evaluate import ProgressBar, get_runner, run_campaign
 from fd_monitor.core.batch import BatchResult
+from fd_monitor.core.methods import load_gains
 from fd_monitor.model.errors import FdMonitorError, GainFileError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 
 TABLE_II_RHOS = [0.01, 0.05, 0.10, 0.15, 0.20]

@@ -43,7 +43,7 @@ _PWA = load_system("pwa_cascade")
 
 @functools.cache
 def _gain_file() -> Any:
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
 
     return load_gains("three_tank_thresholds", _SYSTEM)
 
@@ -135,7 +135,7 @@ def _parse_scenario(raw: Any) -> Any:
 
 
 def _load_gains(raw: Any) -> Any:
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
 
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "g.yaml"

@@ -15,8 +15,9 @@ from typing import Any
 import pytest
 import yaml
 
+from fd_monitor.core.methods import gains_from_doc, load_gains
 from fd_monitor.model.errors import GainFileError
-from fd_monitor.model.gains import gains_from_doc, load_gains, write_gain_doc
+from fd_monitor.model.gains import write_gain_doc
 from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.system import load_system
 

@@ -13,12 +13,13 @@ import yaml
 pytest.importorskip("cvxpy")
 
 from fd_monitor.core.hinf_certificate import check_certificate
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc, hinf_spec
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.errors import DesignError, GainFileError
-from fd_monitor.model.gains import load_gains, save_gains, write_gain_doc
+from fd_monitor.model.gains import save_gains, write_gain_doc
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system, parse_system
 

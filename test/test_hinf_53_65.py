@@ -14,8 +14,8 @@ pytest.importorskip("cvxpy")
 
 from fd_monitor.core.freq import sigma
 from fd_monitor.core.hinf_model import generator_ss, parse_bank
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.residual_bank import ResidualBank
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.system import load_system
 
 GAINS = Path(__file__).resolve().parent.parent / "config" / "gains"

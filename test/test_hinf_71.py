@@ -10,11 +10,11 @@ import pytest
 
 pytest.importorskip("cvxpy")
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_spec
 from fd_monitor.design._lmi_common import load_design_section
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

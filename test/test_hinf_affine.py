@@ -18,12 +18,13 @@ pytest.importorskip("cvxpy")
 
 from fd_monitor.core.hinf_certificate import check_generator, lmi_matrix, region_matrix
 from fd_monitor.core.hinf_model import parse_bank
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.core.simulator import simulate
 from fd_monitor.design import hinf_sc
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.errors import GainFileError
-from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.gains import save_gains
 from fd_monitor.model.scenario import parse_scenario
 from fd_monitor.model.system import load_system
 

@@ -15,10 +15,11 @@ from fd_monitor.core.generalized_observer import (
     check_certificate,
     simulate_switched,
 )
+from fd_monitor.core.methods import load_gains
 from fd_monitor.design import hminus_switched
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.model.errors import DesignError, GainFileError
-from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.gains import save_gains
 from fd_monitor.model.system import load_system
 
 CFG = Path(__file__).resolve().parent.parent / "config" / "systems"

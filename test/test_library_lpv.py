@@ -14,7 +14,7 @@ from fd_monitor.analysis.expectations import check_expected, core_summary
 from fd_monitor.analysis.generate import generate_bag
 from fd_monitor.analysis.library import load_expected, load_library
 from fd_monitor.analysis.summary import read_bag_truth, truth_facts
-from fd_monitor.model.gains import load_gains
+from fd_monitor.core.methods import load_gains
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.wire.bags import read_bag

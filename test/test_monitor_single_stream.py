@@ -10,9 +10,9 @@ import pytest
 
 from fd_monitor.core.bias_estimator import matvec
 from fd_monitor.core.filters import FilterBank, FilterSpec, FloatFilter
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import BatchMonitor, Monitor
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

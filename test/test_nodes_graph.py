@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from ros_util import Collector, ros_context, spin_until
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import Monitor
 from fd_monitor.core.simulator import simulate
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

@@ -18,8 +18,8 @@ def test_observer_alone_runs_every_sample_without_waiting_for_feedback():
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver
+    from fd_monitor.core.methods import load_gains
     from fd_monitor.core.monitor import Monitor
-    from fd_monitor.model.gains import load_gains
     from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.observer import ObserverNode

@@ -53,7 +53,8 @@ def test_qb_observer_warns_outside_a_stated_envelope(tmp_path):
     from ros_util import Collector, ros_context, spin_until
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.model.gains import load_gains, write_gain_doc
+    from fd_monitor.core.methods import load_gains
+    from fd_monitor.model.gains import write_gain_doc
     from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import WARN, data_pub_qos
     from fd_monitor.nodes.observer import ObserverNode

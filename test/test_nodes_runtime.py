@@ -22,7 +22,7 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.analysis.library import load_library
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
     from fd_monitor.model.system import load_system
     from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.monitor import MonitorNode
@@ -79,7 +79,7 @@ def node_side(node):
 
 
 def _offline(system, gf, data, n):
-    from fd_monitor.core.runtime import runtime_for
+    from fd_monitor.core.methods import runtime_for
 
     rt = runtime_for(system, gf)
     side = {name: data[f"/plant/{name}"][1] for name in rt.side_inputs}

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from fd_monitor.analysis.offline import read_streams, run_bag
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.simulator import simulate
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import write_messages

@@ -14,8 +14,8 @@ import yaml
 from ros_util import REPO, Proc, expected_payloads, replay_through
 
 from fd_monitor.commands.simulate import simulate_to_bag
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import Monitor
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import read_bag
 

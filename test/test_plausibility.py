@@ -12,11 +12,11 @@ import pytest
 
 from fd_monitor.analysis.offline import InputReport, run_bag, run_thresholds
 from fd_monitor.analysis.summary import summarize_run
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import Monitor
 from fd_monitor.core.plausibility import PREDICTION_FACTOR, Plausibility
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.errors import MessageError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.join import StampJoin

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import yaml
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.qb_certificate import check_certificate, lmi_blocks
 from fd_monitor.core.qb_model import qb_model, spectral_abscissa, unobservable_unstable
 from fd_monitor.design.qb import design_qb, write_gain_file
 from fd_monitor.model.errors import DesignError, GainFileError
-from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.gains import write_gain_doc
 from fd_monitor.model.system import load_system, parse_system
 
 # QB paper Sec. VI, as printed.

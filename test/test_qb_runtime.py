@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from fd_monitor.core.kalman import kalman_gains
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.qb import QBDetector, QBObserver, run_batch
 from fd_monitor.core.simulator import simulate_batch
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

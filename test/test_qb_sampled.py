@@ -13,12 +13,13 @@ import pytest
 import yaml
 from scipy.linalg import expm
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.qb import QBDetector, run_batch, stress_runs
 from fd_monitor.core.qb_certificate import ellipsoid_bound, gains_matrices
 from fd_monitor.core.simulator import Trajectory
 from fd_monitor.design.qb import design_qb
 from fd_monitor.model.errors import GainFileError
-from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.gains import write_gain_doc
 from fd_monitor.model.system import load_system
 
 K = 6000           # 60 s per run

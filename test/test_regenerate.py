@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fd_monitor.model.gains import load_gains
+from fd_monitor.core.methods import load_gains
 from fd_monitor.model.paths import path_for_file, resolve_for_file
 
 ROOT = Path(__file__).resolve().parents[1]

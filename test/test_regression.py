@@ -18,8 +18,9 @@ import yaml
 from fd_monitor.analysis.expectations import analyze_summary, check_expected
 from fd_monitor.analysis.library import load_expected, load_library
 from fd_monitor.commands.analyze import analyze_bag
+from fd_monitor.core.methods import load_gains
 from fd_monitor.model.errors import GainFileError
-from fd_monitor.model.gains import load_gains, write_gain_doc
+from fd_monitor.model.gains import write_gain_doc
 from fd_monitor.model.paths import find_config_file
 
 LIB = load_library()

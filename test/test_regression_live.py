@@ -97,7 +97,7 @@ GENERIC = [b.name for b in LIB.bags if b.live and b.gains != "three_tank_thresho
 
 
 def test_live_subset_has_every_method():
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
 
     methods = {load_gains(LIB[n].gains, verify=False).method for n in LIVE}
     assert methods >= {"thresholds", "hinf_sc", "hminus_switched"}, methods
@@ -106,7 +106,7 @@ def test_live_subset_has_every_method():
 def _monitor_outputs(tmp_path, bag, gains, system, gf, n):
     """``bag``'s /plant topics (and side signals) replayed flat out into a `monitor` process
     on ``gains``; its residual, threshold and alarm topics as recorded (``n`` samples)."""
-    from fd_monitor.core.runtime import runtime_for
+    from fd_monitor.core.methods import runtime_for
 
     side = [f"/plant/{s}" for s in runtime_for(system, gf).side_inputs]
     topics = ["/fd/residual", "/fd/threshold", "/fd/alarm"]
@@ -125,7 +125,7 @@ def test_live_monitor_runs_any_gain_file_like_analyze(tmp_path, name):
     MonitorNode) publishes exactly what `analyze` computes offline: every residual, threshold
     and alarm of every channel, sample for sample; the bag's expectations hold offline
     (test_regression.py), so they hold live."""
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
     from fd_monitor.model.system import load_system
 
     spec = LIB[name]
@@ -197,7 +197,7 @@ def test_live_monitor_bridges_registry_runtimes_like_analyze(tmp_path, name):
     Koenig) and alarm equals analyze's, sample for sample."""
     from test_bridge import _holed_bag
 
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
     from fd_monitor.model.system import load_system
 
     spec = LIB[name]

@@ -15,7 +15,7 @@ import yaml
 
 from fd_monitor.analysis.offline import InputReport
 from fd_monitor.commands.cli import main
-from fd_monitor.model.gains import load_gains
+from fd_monitor.core.methods import load_gains
 from fd_monitor.model.paths import config_dir, path_for_file, resolve_for_file
 
 GAINS = "dc_motor_identified_thresholds"
@@ -188,7 +188,8 @@ def test_a_plant_found_by_name_is_not_recorded_and_old_gain_files_verify(tmp_pat
 
 
 def test_unknown_plant_without_a_recorded_file_names_system(tmp_path, capsys):
-    from fd_monitor.model.gains import load_gains, write_gain_doc
+    from fd_monitor.core.methods import load_gains
+    from fd_monitor.model.gains import write_gain_doc
 
     # a gain file written before plant files were recorded, for a plant that is not shipped
     plant = _own_plant(tmp_path)
@@ -207,8 +208,9 @@ def test_unknown_plant_without_a_recorded_file_names_system(tmp_path, capsys):
 
 
 def test_bad_system_file_key_is_one_line(tmp_path):
+    from fd_monitor.core.methods import load_gains
     from fd_monitor.model.errors import GainFileError
-    from fd_monitor.model.gains import load_gains, write_gain_doc
+    from fd_monitor.model.gains import write_gain_doc
 
     doc = yaml.safe_load((config_dir() / "gains" / f"{GAINS}.yaml").read_text())
     doc["system"]["file"] = 3

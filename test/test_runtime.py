@@ -16,16 +16,11 @@ import yaml
 from fd_monitor.analysis.evaluate import get_runner
 from fd_monitor.commands.analyze import analyze_arrays, analyze_bag
 from fd_monitor.core.generalized_observer import simulate_switched
-from fd_monitor.core.runtime import (
-    RUNTIMES,
-    HinfScRuntime,
-    HminusSwitchedRuntime,
-    runtime_class,
-    runtime_for,
-)
+from fd_monitor.core.methods import RUNTIMES, load_gains, runtime_class, runtime_for
+from fd_monitor.core.runtime import HinfScRuntime, HminusSwitchedRuntime
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.errors import BagError, GainFileError, MessageError
-from fd_monitor.model.gains import load_gains, save_gains
+from fd_monitor.model.gains import save_gains
 from fd_monitor.model.scenario import load_scenario, parse_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import arrays_from, write_bag

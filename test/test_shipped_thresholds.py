@@ -2,7 +2,7 @@
 each gain file's threshold comes from its design file (provenance re-computed here), a
 fault-free run raises no alarm after the settling time, and the faults of the papers'
 simulations alarm on the right channel within a stated delay (the runtime of
-:func:`fd_monitor.core.runtime.runtime_for` on simulated runs, as nodes and ``analyze`` run it).
+:func:`fd_monitor.core.methods.runtime_for` on simulated runs, as nodes and ``analyze`` run it).
 
 Delays measured on these runs: thesis 5.3 r1 0.01 s after f1 (30 s), r2 0.03 s after f2
 (60 s); thesis 6.5 0.01 s for both; Farhat & Koenig the fault sample itself (300).
@@ -26,13 +26,12 @@ from bag_compare import assert_bags_close
 pytest.importorskip("cvxpy")
 
 from fd_monitor.analysis.library import load_expected, load_library
-from fd_monitor.core.runtime import runtime_for
+from fd_monitor.core.methods import load_gains, runtime_for
 from fd_monitor.core.simulator import simulate, simulate_batch
 from fd_monitor.design import hinf_sc, hminus_switched
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.design.hinf_thresholds import bound_thresholds
 from fd_monitor.model.errors import DesignError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 

@@ -15,10 +15,10 @@ import yaml
 
 from fd_monitor.core.generalized_observer import simulate_switched
 from fd_monitor.core.hinf_model import AffineModel
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.plant import rk4_step
 from fd_monitor.core.simulator import simulate, truth_values
 from fd_monitor.model.errors import ScenarioError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.scenario import load_scenario, parse_scenario

@@ -100,8 +100,7 @@ def test_identity_is_canonical(tmp_path: Path) -> None:
 def test_units_come_from_the_plant_file(tmp_path: Path) -> None:
     """``units`` names each channel's unit ("-" where not given); it is not part of the
     plant's identity, and a runtime labels its channels with it, whatever the plant's name."""
-    from fd_monitor.core.runtime import runtime_for
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains, runtime_for
 
     a = load_system(write(tmp_path, MINIMAL, "a.yaml"))
     assert a.state_units == ("-", "-") and a.input_units == ("-",) and a.output_units == ("-",)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import Monitor
 from fd_monitor.model.errors import MessageError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.conversions import decode, to_msg

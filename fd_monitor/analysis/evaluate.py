@@ -4,7 +4,7 @@ A campaign simulates ``runs`` seeded runs of each scenario (vectorised, in chunk
 memory stays bounded), replays them through the detection method of a gain file, and reduces
 the alarms to metrics. The method's batch runner is its runtime's
 :meth:`~fd_monitor.core.runtime.Runtime.run_batch`, looked up by the gain file's ``method`` in
-the one runtime registry (:data:`fd_monitor.core.runtime.RUNTIMES`), so every method runs;
+the one runtime registry (:data:`fd_monitor.core.methods.RUNTIMES`), so every method runs;
 every runner has the signature
 ``run_batch(system, gains, traj, **options) -> fd_monitor.core.batch.BatchResult``. A
 runtime's side signals come from the trajectory's arrays of the same name (``mode``: the
@@ -38,7 +38,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from fd_monitor.core.batch import BatchResult
-from fd_monitor.core.runtime import RUNTIMES, runtime_class, runtime_for
+from fd_monitor.core.methods import RUNTIMES, runtime_class, runtime_for
 from fd_monitor.core.simulator import simulate_batch
 from fd_monitor.model.errors import FdMonitorError, GainFileError
 from fd_monitor.model.gains import GainFile

@@ -29,8 +29,9 @@ from fd_monitor.analysis.summary import (
     truth_facts,
 )
 from fd_monitor.core.generalized_observer import GeneralizedObserver
+from fd_monitor.core.methods import load_gains
 from fd_monitor.core.residual_bank import ResidualBank
-from fd_monitor.model.gains import load_gains, to_plain
+from fd_monitor.model.gains import to_plain
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import read_bag

@@ -15,7 +15,7 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    stamp lost, duplicates are reported (the first is kept), out-of-order stamps are reported
    and joined in stamp order when they come within ``gap_timeout``, holes are reported as
    ``missing`` (their refused stamps left out), stray stamps as ``held``.
-2. :func:`run_bag` steps the gain file's runtime (:func:`fd_monitor.core.runtime.runtime_for`,
+2. :func:`run_bag` steps the gain file's runtime (:func:`fd_monitor.core.methods.runtime_for`,
    one registry keyed by the gain file's ``method``: ``thresholds``, ``qb``, ``hinf_sc``,
    ``hminus_switched``) on each released sample, with the side signals the runtime needs read
    from ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`: ``/plant/rho``,
@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.core.runtime import runtime_for
+from fd_monitor.core.methods import load_gains, runtime_for
 from fd_monitor.model.errors import (
     BagError,
     FdMonitorError,
@@ -57,7 +57,7 @@ from fd_monitor.model.errors import (
     NonFiniteError,
     WrongLengthError,
 )
-from fd_monitor.model.gains import GainFile, load_gains
+from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import gain_system
 from fd_monitor.wire.adapters import Adapter, feed, load_adapter, read_adapted
 from fd_monitor.wire.bags import arrays_from_raw, messages_from_raw, read_raw
@@ -459,7 +459,7 @@ class BagRun:
     ----------
     bag : str
     method : str
-        Gain-file method (a key of :data:`fd_monitor.core.runtime.RUNTIMES`).
+        Gain-file method (a key of :data:`fd_monitor.core.methods.RUNTIMES`).
     gains : str
         Gain file path.
     system : System
@@ -549,7 +549,7 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
             adapter: Any = None, **options: Any) -> BagRun:
     """Run the runtime of a gain file over a bag's ``/plant/u`` and ``/plant/y``.
 
-    The runtime comes from the registry (:func:`fd_monitor.core.runtime.runtime_for`), so
+    The runtime comes from the registry (:func:`fd_monitor.core.methods.runtime_for`), so
     every gain-file method runs; the side signals it needs are read from
     ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`). The runtime bridges a
     hole in the stamps of at most ``MAX_GAP`` samples (``bridge``) and restarts (``reset``) after a
@@ -572,7 +572,7 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
         Read u and y from the robot's topics through this adapter
         (:func:`fd_monitor.wire.adapters.read_adapted`) instead of ``/plant/u``, ``/plant/y``.
     **options
-        Further runtime options (:func:`~fd_monitor.core.runtime.runtime_for`).
+        Further runtime options (:func:`~fd_monitor.core.methods.runtime_for`).
 
     Raises
     ------
@@ -717,7 +717,7 @@ def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
     Parameters
     ----------
     rt : Runtime
-        From :func:`fd_monitor.core.runtime.runtime_for` (fresh or reset).
+        From :func:`fd_monitor.core.methods.runtime_for` (fresh or reset).
     ks : sequence of int
         Increasing stamps.
     us, ys : mapping

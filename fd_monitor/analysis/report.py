@@ -1,7 +1,7 @@
 """Reports: PNG figures and a one-page ``summary.md`` for a bag, or for a Monte Carlo campaign.
 
 Bag report (:func:`bag_report`), from :func:`fd_monitor.analysis.offline.run_bag` (any gain-file
-method: the runtime comes from :func:`fd_monitor.core.runtime.runtime_for`):
+method: the runtime comes from :func:`fd_monitor.core.methods.runtime_for`):
 
 * ``residuals.png`` -- per alarm channel, the filtered residual against the threshold in force
   (``+-R_k``; ``qb``, ``hinf_sc``, ``hminus_switched``: the compared magnitude against its
@@ -39,8 +39,8 @@ from fd_monitor.analysis.expectations import check_expected
 from fd_monitor.analysis.library import expected_path, load_expected
 from fd_monitor.analysis.offline import run_bag
 from fd_monitor.analysis.summary import episodes, summarize_run, truth_at, truth_facts
+from fd_monitor.core.methods import load_gains
 from fd_monitor.model.errors import BagError, FdMonitorError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.system import gain_system
 
 __all__ = ["bag_report", "campaign_report", "figure_residuals", "figure_modes", "figure_bias",

@@ -2,7 +2,7 @@
 
 Reads ``/plant/u`` and ``/plant/y`` (and ``/plant/truth`` when present) from a rosbag2 bag,
 runs the gain file's runtime over every sample (no ROS) -- any method: the runtime comes from
-the registry :func:`fd_monitor.core.runtime.runtime_for` (``thresholds``, ``qb``, ``hinf_sc``,
+the registry :func:`fd_monitor.core.methods.runtime_for` (``thresholds``, ``qb``, ``hinf_sc``,
 ``hminus_switched``), its side signals from ``/plant/rho`` or ``/plant/mode`` when it needs
 them -- and prints
 
@@ -38,7 +38,7 @@ import numpy as np
 from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime, scan_bag
 from fd_monitor.analysis.summary import analyze_run
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
-from fd_monitor.core.runtime import runtime_for
+from fd_monitor.core.methods import runtime_for
 from fd_monitor.model.errors import BagError
 from fd_monitor.model.system import System
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y
@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: np.ndarray,
                    true_mode: np.ndarray | None = None, agei: bool = True,
                    side: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
-    """Run the gain file's runtime (:func:`~fd_monitor.core.runtime.runtime_for`) over arrays
+    """Run the gain file's runtime (:func:`~fd_monitor.core.methods.runtime_for`) over arrays
     and summarise.
 
     Parameters
@@ -129,7 +129,7 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     GainFileError
         Gain file missing, for another plant, or its certificate fails.
     """
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
     from fd_monitor.model.system import gain_system
 
     raw = load_gains(gains_source, verify=False)

@@ -1,9 +1,11 @@
 """``python -m fd_monitor design <method> SYSTEM -o GAINS``: run a designer, write a gain file.
 
-Each method has a command module ``fd_monitor.commands.design_<method>`` with
-``add_arguments(parser)`` (its own options; SYSTEM, ``-o`` and ``--json`` are added here) and
-``run(args) -> int``; the designer it calls is ``fd_monitor.design.<method>``, the only place
-cvxpy is imported.
+The methods, their help lines and their designers come from the method registry
+(:data:`fd_monitor.core.methods.METHODS`): each names its designer's command module
+(``fd_monitor.commands.design_<method>`` for the shipped ones) with ``add_arguments(parser)``
+(its own options; SYSTEM, ``-o`` and ``--json`` are added here) and ``run(args) -> int``; only
+the chosen method's is imported (the designer it calls, ``fd_monitor.design.<method>``, is
+the only place cvxpy is imported).
 """
 
 from __future__ import annotations
@@ -14,27 +16,23 @@ import sys
 from collections.abc import Sequence
 
 from fd_monitor.commands._common import add_json_flag
+from fd_monitor.core.methods import METHODS, MethodRegistry
 
 __all__ = ["METHODS", "add_arguments", "run", "main"]
 
-#: method -> one-line help; the designer is fd_monitor.design.<method>, its command line
-#: fd_monitor.commands.design_<method>.
-METHODS: dict[str, str] = {
-    "qb": "quadratic-boundedness observer (LTI / PWA), Alessandri, Boem & Parisini",
-    "thresholds": "filters, filtered-residual thresholds and AGEI matrix, Heracleous et al.",
-    "hinf_sc": "bank of H-infinity residual generators with a sensitivity constraint (thesis)",
-    "hminus_switched": "switched H-minus generalized observer, Farhat & Koenig",
-}
 
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add one sub-parser per method; only the chosen method's module is imported."""
+def add_arguments(parser: argparse.ArgumentParser,
+                  methods: MethodRegistry | None = None) -> None:
+    """Add one sub-parser per method of ``methods`` (default the registry,
+    :data:`~fd_monitor.core.methods.METHODS`); only the chosen method's designer module is
+    imported."""
     sub = parser.add_subparsers(dest="method", metavar="<method>", required=True,
                                 parser_class=type(parser))
     from fd_monitor.commands.cli import ARGV
 
     chosen = _chosen_method(ARGV)
-    for name, help_ in METHODS.items():
+    for name, method in (METHODS if methods is None else methods).items():
+        help_ = method.help
         p = sub.add_parser(name, help=help_, description=help_)
         p.add_argument("system", metavar="SYSTEM",
                        help="plant file, or the name of a shipped plant (config/systems/)")
@@ -45,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="overwrite an existing -o GAINS file")
         add_json_flag(p)
         if name == chosen:
-            mod = importlib.import_module(f"fd_monitor.commands.design_{name}")
+            mod = importlib.import_module(method.designer)
             mod.add_arguments(p)
             p.set_defaults(_method_run=mod.run)
 

@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Design, write the gain file, re-load it (certificate check) and print a summary."""
-    from fd_monitor.model.gains import load_gains
+    from fd_monitor.core.methods import load_gains
 
     system = load_system(args.system)
     d = design_thresholds(system, scenarios=args.scenario, seeds=args.seeds, tube=args.tube,

@@ -1,7 +1,7 @@
 """``python -m fd_monitor evaluate GAINS -s SCENARIO [...]``: Monte Carlo campaigns.
 
 Simulates ``--runs`` seeded runs of each scenario, replays them through the gain file's method
-(looked up by its ``method``, see :data:`fd_monitor.core.runtime.RUNTIMES`) and prints the
+(looked up by its ``method``, see :data:`fd_monitor.core.methods.RUNTIMES`) and prints the
 false-alarm rate, detection rate and delay per scenario, variant and threshold scale, as a
 table or as JSON. A scenario simulates its own plant P; the gain file is for P, or for a model
 of P with P's inputs, outputs and sample time (an identified plant: its monitor reads P's
@@ -19,9 +19,8 @@ from typing import Any
 
 from fd_monitor.analysis.evaluate import run_campaign
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
-from fd_monitor.core.runtime import runtime_class
+from fd_monitor.core.methods import load_gains, runtime_class
 from fd_monitor.model.errors import FdMonitorError
-from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import check_horizon, load_scenario
 from fd_monitor.model.system import gain_system
 

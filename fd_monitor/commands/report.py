@@ -1,7 +1,7 @@
 """``python -m fd_monitor report BAG [--gains GAINS] -o DIR``: figures and a summary of a bag.
 
 Runs the gain file's runtime over the bag, as ``analyze`` does (any method, from the registry
-:func:`fd_monitor.core.runtime.runtime_for`), and writes into DIR ``residuals.png`` (residuals
+:func:`fd_monitor.core.methods.runtime_for`), and writes into DIR ``residuals.png`` (residuals
 against the threshold in force, alarms shaded, fault onset marked), ``modes.png`` (true and
 estimated mode), ``bias.png`` (methods that estimate a bias: bias estimate against the true
 bias), ``qb_bound.png`` (QB gain files:

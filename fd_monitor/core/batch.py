@@ -5,7 +5,7 @@ Every detection method offers a batch runner with the signature::
     run_batch(system, gains, traj: Trajectory, **options) -> BatchResult
 
 reached through the runtime registry (:meth:`fd_monitor.core.runtime.Runtime.run_batch` of
-``fd_monitor.core.runtime.RUNTIMES[method]``).
+``fd_monitor.core.methods.RUNTIMES[method]``).
 The evaluation (false-alarm rate, detection rate and delay) reads only :attr:`BatchResult.alarm`
 and :attr:`BatchResult.channels`; the optional arrays are for plots and extra metrics.
 

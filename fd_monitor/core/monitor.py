@@ -165,7 +165,7 @@ class Monitor:
     system : System
         Full-state measured plant (y = x + v).
     gains : DiagnosisGains or GainFile
-        A ``thresholds`` gain file (loaded with :func:`fd_monitor.model.gains.load_gains`).
+        A ``thresholds`` gain file (loaded with :func:`fd_monitor.core.methods.load_gains`).
     agei : bool
         False: ablation without AGEI (the observer never executes autonomous transitions and
         the nominal thresholds are always used).

@@ -7,7 +7,7 @@
   the same ellipsoid ``e' P e <= 1``: ``|e_j| <= sqrt((P^-1)_jj)`` and per output
   ``|r_i| <= sqrt(c_i P^-1 c_i') + sum_j |E_ij|``;
 * :func:`gains_matrices` / :func:`gains_model` -- P, L and the model a gain file was made for;
-* :func:`check_certificate` -- what :func:`fd_monitor.model.gains.load_gains` runs on a ``qb``
+* :func:`check_certificate` -- what :func:`fd_monitor.core.methods.load_gains` runs on a ``qb``
   gain file: recomputes the LMIs and bounds and refuses a file whose numbers do not hold.
 """
 

@@ -1,9 +1,11 @@
 """One runtime contract for every gain-file method, found through one registry.
 
-Every gain file's ``method`` has a :class:`Runtime` subclass in :data:`RUNTIMES`; nodes,
-offline analysis (:mod:`fd_monitor.analysis.offline`), reports and Monte Carlo campaigns
-(:mod:`fd_monitor.analysis.evaluate`) all get theirs with :func:`runtime_for` and never branch
-on the method name. A runtime has the same small interface for every method:
+Every gain file's ``method`` has a :class:`Runtime` subclass, registered with its certificate
+check, help line and designer in :data:`fd_monitor.core.methods.METHODS`; nodes, offline
+analysis (:mod:`fd_monitor.analysis.offline`), reports and Monte Carlo campaigns
+(:mod:`fd_monitor.analysis.evaluate`) all get theirs with
+:func:`~fd_monitor.core.methods.runtime_for` and never branch on the method name. A runtime
+has the same small interface for every method:
 
 * :meth:`Runtime.reset` -- start again (the next sample may have any index);
 * :meth:`Runtime.bridge` -- carry the run over lost samples (a short hole): the state
@@ -39,9 +41,9 @@ only not covered by the design's guarantee.
 
 numpy only (no rclpy, no cvxpy).
 
-Why one module of ~950 lines: the runtime contract, the registry and the four method
-runtimes; issue 22 item 1 (one method registry, a module per method) splits it, deferred
-while the runtimes were being changed by other work.
+Why one module of ~900 lines: the runtime contract and the four method runtimes; the
+registry moved to :mod:`fd_monitor.core.methods` (issue 22 item 1); a module per method is
+deferred while the runtimes are being changed by other work.
 """
 
 from __future__ import annotations
@@ -64,13 +66,12 @@ from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.core.qb import QBDetector, QBObserver
 from fd_monitor.core.qb import run_batch as qb_run_batch
 from fd_monitor.core.residual_bank import ResidualBank
-from fd_monitor.model.errors import GainFileError, MessageError
+from fd_monitor.model.errors import MessageError
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.system import System
 
-__all__ = ["RUNTIMES", "HinfScRuntime", "HminusSwitchedRuntime", "QBRuntime", "Runtime",
-           "RuntimeOutput", "RuntimeTrace", "ThresholdsRuntime", "runtime_class",
-           "runtime_for"]
+__all__ = ["HinfScRuntime", "HminusSwitchedRuntime", "QBRuntime", "Runtime",
+           "RuntimeOutput", "RuntimeTrace", "ThresholdsRuntime"]
 
 
 @dataclass(frozen=True)
@@ -305,7 +306,8 @@ class Runtime:
 
     @classmethod
     def options(cls) -> tuple[str, ...]:
-        """Keyword options of the constructor (:func:`runtime_for`)."""
+        """Keyword options of the constructor
+        (:func:`~fd_monitor.core.methods.runtime_for`)."""
         return tuple(p for p in inspect.signature(cls.__init__).parameters
                      if p not in ("self", "system", "gains"))
 
@@ -904,64 +906,3 @@ class HminusSwitchedRuntime(Runtime):
         return RuntimeOutput(k, np.array([nrm]), np.array([thr]), np.array([nrm > thr]),
                              np.array([excess]), q,
                              {"x_hat": self.observer.xhat.copy(), "r": r}, self.observer)
-
-
-# --------------------------------------------------------------------------------------
-# the registry
-
-
-#: gain-file ``method`` -> runtime class (one entry per method).
-RUNTIMES: dict[str, type[Runtime]] = {
-    cls.method: cls for cls in (ThresholdsRuntime, QBRuntime, HinfScRuntime,
-                                HminusSwitchedRuntime)
-}
-
-
-def runtime_class(method: str) -> type[Runtime]:
-    """The runtime class of a gain-file method; GainFileError naming the known methods."""
-    try:
-        return RUNTIMES[method]
-    except (KeyError, TypeError):
-        raise GainFileError(f"method {method!r}: no runtime for it; known methods: "
-                            f"{', '.join(sorted(RUNTIMES))}") from None
-
-
-def runtime_for(system: System, gains: Any, **options: Any) -> Runtime:
-    """The runtime of a loaded gain file for ``system``.
-
-    Parameters
-    ----------
-    system : System
-    gains : GainFile
-        Loaded with :func:`fd_monitor.model.gains.load_gains` (its ``method`` picks the runtime).
-    **options
-        The runtime's keyword options (``agei`` for thresholds, ``rho`` and ``state_bound``
-        for qb, ``discretisation`` for hinf_sc, ``design`` and ``threshold`` for
-        hminus_switched).
-
-    Raises
-    ------
-    GainFileError
-        Unknown method (one line naming the known ones), or an option the runtime does not
-        take.
-
-    Examples
-    --------
-    >>> from fd_monitor.model.gains import load_gains
-    >>> from fd_monitor.model.system import load_system
-    >>> plant = load_system("pwa_cascade")
-    >>> rt = runtime_for(plant, load_gains("pwa_cascade_qb", plant))
-    >>> type(rt).__name__, rt.channels[-1]
-    ('QBRuntime', 'r_norm')
-    >>> out = rt.step(0, [], [0.0, 0.6])        # k, u (this plant has no inputs), y
-    >>> out.alarm.shape == (len(rt.channels),)
-    True
-    """
-    method = getattr(gains, "method", None)
-    cls = runtime_class(str(method) if method is not None else "<none>")
-    known = cls.options()
-    bad = sorted(set(options) - set(known))
-    if bad:
-        raise GainFileError(f"method {cls.method!r}: no option {', '.join(bad)} (options: "
-                            f"{', '.join(known) or 'none'})")
-    return cls(system, gains, **options)

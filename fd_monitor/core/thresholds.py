@@ -351,7 +351,7 @@ def check_certificate(system: System, gains: Any) -> None:
     ----------
     system : System
     gains : GainFile
-        As loaded by :func:`fd_monitor.model.gains.load_gains`.
+        As loaded by :func:`fd_monitor.core.methods.load_gains`.
 
     Raises
     ------

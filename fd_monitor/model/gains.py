@@ -21,10 +21,13 @@ relative to the gain file's own folder with POSIX separators, resolved against i
 (:func:`~fd_monitor.model.paths.path_for_file`,
 :func:`~fd_monitor.model.paths.resolve_for_file`). The certificate is checked
 by the method's ``check_certificate(system, gains)`` in ``fd_monitor.core`` (numpy only), so
-the runtime trusts nothing it cannot recompute. What cannot be recomputed from the plant
-(estimator, AGEI and isolation parameters, design parameters, solver figures, ...) is covered
-by the ``digest`` the designer writes: a SHA-256 of the canonical form of every other key,
-plus a short digest per key path, so that an edit anywhere is refused with the key path that
+the runtime trusts nothing it cannot recompute. This module reads the file and runs the
+checks it is given (:func:`read_gains`): they are the method registry's, a layer above
+(:mod:`fd_monitor.core.methods`), whose :func:`~fd_monitor.core.methods.load_gains` passes
+them down; load gain files with that. What cannot be recomputed from the plant (estimator,
+AGEI and isolation parameters, design parameters, solver figures, ...) is covered by the
+``digest`` the designer writes: a SHA-256 of the canonical form of every other key, plus a
+short digest per key path, so that an edit anywhere is refused with the key path that
 changed. The digest detects edits and bit rot; it is not a signature (anyone can re-run the
 writer), so a file is trusted as far as its origin is.
 """
@@ -33,13 +36,12 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
-import importlib
 import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import yaml
@@ -49,19 +51,21 @@ from fd_monitor.model.paths import find_config_file, path_for_file, resolve_for_
 from fd_monitor.model.system import System
 from fd_monitor.model.yaml_io import read_yaml
 
-__all__ = ["GainFile", "CERTIFICATE_CHECKS", "check_digest", "gain_digest", "gains_from_doc",
-           "load_gains",
-           "save_gains", "to_plain", "from_plain", "write_gain_doc"]
+__all__ = ["GainFile", "CertificateCheck", "check_digest", "gain_digest", "gain_file_from_doc",
+           "read_gains", "save_gains", "to_plain", "from_plain", "write_gain_doc"]
 
 FORMAT_VERSION = 1
 
-#: method -> "module:function" that raises GainFileError when the certificate fails.
-CERTIFICATE_CHECKS: dict[str, str] = {
-    "qb": "fd_monitor.core.qb_certificate:check_certificate",
-    "thresholds": "fd_monitor.core.thresholds:check_certificate",
-    "hinf_sc": "fd_monitor.core.hinf_certificate:check_certificate",
-    "hminus_switched": "fd_monitor.core.generalized_observer:check_certificate",
-}
+
+class CertificateCheck(Protocol):
+    """A method's certificate check: recompute what ``gains`` certifies for ``system``.
+
+    Raises :class:`~fd_monitor.model.errors.GainFileError` when the certificate does not
+    hold; what it returns is ignored. The checks are the method registry's
+    (:data:`fd_monitor.core.methods.METHODS`), passed down to :func:`read_gains`.
+    """
+
+    def __call__(self, system: System, gains: Any, /) -> object: ...
 
 
 @dataclass(frozen=True)
@@ -281,7 +285,8 @@ def save_gains(path: str | Path, method: str, system: System, parameters: Mappin
     ----------
     path : str or pathlib.Path
     method : str
-        One of :data:`CERTIFICATE_CHECKS`.
+        The gain-file method (a name of :data:`fd_monitor.core.methods.METHODS`; the
+        designers write their own).
     system : System
         The plant designed for (its name and SHA-256 are recorded).
     parameters, results, certificate, solver : mapping
@@ -289,9 +294,8 @@ def save_gains(path: str | Path, method: str, system: System, parameters: Mappin
         file's folder (:func:`fd_monitor.model.paths.path_for_file`); read it back with
         :attr:`GainFile.design_file`.
     """
-    if method not in CERTIFICATE_CHECKS:
-        raise GainFileError(f"{path}: method: expected one of {sorted(CERTIFICATE_CHECKS)}, "
-                            f"got {method!r}")
+    if not isinstance(method, str) or not method:
+        raise GainFileError(f"{path}: method: expected a method name, got {method!r}")
     parameters = dict(parameters)
     if parameters.get("design_file"):
         # every path a gain file stores is relative to its own folder (POSIX), so a shipped
@@ -326,14 +330,19 @@ def _plant_file(system: System, gain_path: str | Path) -> dict[str, str]:
     return {"file": path_for_file(src, gain_path)}
 
 
-def load_gains(source: str | Path, system: System | None = None, *,
-               verify: bool = True) -> GainFile:
-    """Read a gain file, check it is for ``system`` and re-verify its certificate.
+def read_gains(source: str | Path, checks: Mapping[str, CertificateCheck],
+               system: System | None = None, *, verify: bool = True) -> GainFile:
+    """Read a gain file, check it is for ``system`` and re-verify its certificate with
+    ``checks``: what :func:`fd_monitor.core.methods.load_gains` runs with the registry's
+    checks (load gain files with that).
 
     Parameters
     ----------
     source : str or pathlib.Path
         A path, or a name in ``config/gains/``.
+    checks : mapping
+        Gain-file method -> its :class:`CertificateCheck`; the keys are the methods known
+        (any other is refused).
     system : System, optional
         The plant it must be for; when given, a different plant SHA-256 is refused and the
         certificate is re-checked against it.
@@ -345,21 +354,15 @@ def load_gains(source: str | Path, system: System | None = None, *,
     ------
     GainFileError
         One line naming the file and the problem.
-
-    Examples
-    --------
-    >>> from fd_monitor.model.system import load_system
-    >>> gf = load_gains("three_tank_thresholds", load_system("three_tank"))
-    >>> gf.method, gf.system_name
-    ('thresholds', 'three_tank')
     """
     path = find_config_file(source, "gains", GainFileError, what="gain file")
-    return gains_from_doc(read_yaml(path, GainFileError), path, system, verify=verify)
+    return gain_file_from_doc(read_yaml(path, GainFileError), path, checks, system,
+                              verify=verify)
 
 
-def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
-                   verify: bool = True) -> GainFile:
-    """:func:`load_gains` on a gain-file document already parsed from ``path``."""
+def gain_file_from_doc(raw: Any, path: str | Path, checks: Mapping[str, CertificateCheck],
+                       system: System | None = None, *, verify: bool = True) -> GainFile:
+    """:func:`read_gains` on a gain-file document already parsed from ``path``."""
     if not isinstance(raw, Mapping):
         raise GainFileError(f"{path}: expected a mapping of gain-file keys")
     for key in ("format_version", "method", "system", "parameters", "results", "certificate"):
@@ -369,8 +372,8 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
         raise GainFileError(f"{path}: format_version: expected {FORMAT_VERSION}, got "
                             f"{raw['format_version']!r}")
     method = raw["method"]
-    if not isinstance(method, str) or method not in CERTIFICATE_CHECKS:
-        raise GainFileError(f"{path}: method: expected one of {sorted(CERTIFICATE_CHECKS)}, "
+    if not isinstance(method, str) or method not in checks:
+        raise GainFileError(f"{path}: method: expected one of {sorted(checks)}, "
                             f"got {method!r}")
     sys_info = raw["system"]
     if not isinstance(sys_info, Mapping) or not {"name", "sha256"} <= set(sys_info):
@@ -399,14 +402,8 @@ def gains_from_doc(raw: Any, path: str | Path, system: System | None = None, *,
                 f"not {system.name} {system.sha256[:12]}: redesign with "
                 f"`python -m fd_monitor design {method} {system.name}`")
         if verify:
-            mod_name, fn_name = CERTIFICATE_CHECKS[method].split(":")
             try:
-                check = getattr(importlib.import_module(mod_name), fn_name)
-            except (ImportError, AttributeError) as exc:
-                raise GainFileError(f"{path}: no certificate check for method {method!r} "
-                                    f"({exc})") from None
-            try:
-                check(system, gf)
+                checks[method](system, gf)
             except GainFileError as exc:
                 raise GainFileError(f"{path}: certificate does not hold: {exc}") from None
             except (KeyError, ValueError, TypeError, IndexError) as exc:

@@ -202,12 +202,12 @@ def gain_system(gains: Any, source: str | Path | None = None,
     Looked up, in this order: ``source`` when given; the plant file the gain file records
     (``system.file``); the plant's name among the shipped plants. Whether it is the plant
     the gain file was designed for is checked by
-    :func:`~fd_monitor.model.gains.load_gains` (its SHA-256).
+    :func:`~fd_monitor.core.methods.load_gains` (its SHA-256).
 
     Parameters
     ----------
     gains : GainFile
-        Loaded (:func:`fd_monitor.model.gains.load_gains`; ``verify=False`` is enough): its
+        Loaded (:func:`fd_monitor.core.methods.load_gains`; ``verify=False`` is enough): its
         ``path``, ``system_name`` and ``system_file``.
     source : str or pathlib.Path, optional
         A plant file or a shipped name given by the user.

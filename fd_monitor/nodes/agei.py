@@ -9,7 +9,7 @@ observer and ``/fd/threshold_override`` (per output; NaN = none) for the detecto
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from rclpy.qos import QoSProfile
@@ -74,10 +74,10 @@ class AgeiNode(FdNode):
         """A new AGEI for another gain file (runtime swap)."""
         self.agei = Agei(self.system, as_gains(self.system, gains), enabled=self.params.enabled)
 
-    runtimes: Mapping[str, str] = {"thresholds": "_thresholds_only"}
-
     def _thresholds_only(self) -> None:
         """The sensor-bias chain's runtime (any other method is refused at start)."""
+
+    runtimes: Mapping[str, Callable[[Any], None]] = {"thresholds": _thresholds_only}
 
     def _start(self, agei: Agei | None) -> None:
         s = self.system

@@ -10,7 +10,7 @@ flags, ``active``, ``k_detect`` (-1 before detection).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 from rclpy.qos import QoSProfile
@@ -121,10 +121,10 @@ class BiasEstimatorNode(BiasReport, FdNode):
         """A new estimator for another gain file (runtime swap)."""
         self.estimator = BiasEstimator(self.system, as_gains(self.system, gains))
 
-    runtimes: Mapping[str, str] = {"thresholds": "_thresholds_only"}
-
     def _thresholds_only(self) -> None:
         """The sensor-bias chain's runtime (any other method is refused at start)."""
+
+    runtimes: Mapping[str, Callable[[Any], None]] = {"thresholds": _thresholds_only}
 
     def _start(self, estimator: BiasEstimator | None) -> None:
         s = self.system

@@ -18,7 +18,7 @@ alarm on ``/fd/alarm``, as :func:`fd_monitor.analysis.offline.run_bag` computes 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -149,7 +149,6 @@ class DetectorNode(ResidualReport, FdNode):
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
-    runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds", "qb": "_start_qb"}
     outputs = (RESIDUAL, THRESHOLD, ALARM)
 
     def __init__(self, detector: ResidualDetector | None = None, system: System | None = None,
@@ -205,6 +204,9 @@ class DetectorNode(ResidualReport, FdNode):
         self._layouts = {t: t.channels(self.detector.channels) for t in self.outputs}
         self.start_inputs([Input.of("est", STATE_ESTIMATE, s, sequence=True)])
         self._step = self._step_qb
+
+    runtimes: Mapping[str, Callable[[Any], None]] = {
+        "thresholds": _start_thresholds, "qb": _start_qb}
 
     def _on_bias(self, msg: Any) -> None:
         if not self.active:

@@ -50,8 +50,9 @@ from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float64MultiArray
 
+from fd_monitor.core.methods import load_gains
 from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
-from fd_monitor.model.gains import GainFile, load_gains
+from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes.adapter_input import AdapterInput
 from fd_monitor.nodes.common import (
@@ -224,8 +225,9 @@ class FdNode(LifecycleNode):
     #: ``run_node`` runs the node on rclpy's EventsExecutor (plain inputs still get their
     #: source timestamps: :func:`~fd_monitor.nodes.common.with_message_info`).
     events_executor = True
-    #: Gain-file method -> name of the method building the node's runtime for it.
-    runtimes: Mapping[str, str] = {}
+    #: Gain-file method (a name of :data:`fd_monitor.core.methods.METHODS`) -> the function
+    #: building the node's runtime for it, called with the node (:meth:`start_runtime`).
+    runtimes: Mapping[str, Callable[[Any], None]] = {}
     #: Output topics, for the start line and the second-publisher check.
     outputs: Sequence[Topic] = ()
 
@@ -448,7 +450,7 @@ class FdNode(LifecycleNode):
 
     def start_runtime(self) -> None:
         """Build the runtime of the gain file's method (the one factory of the chain nodes)."""
-        getattr(self, self.runtimes[self.gain_file.method])()
+        self.runtimes[self.gain_file.method](self)
 
     def publisher(self, topic: Topic) -> Any:
         """A data-path publisher of Float64MultiArray (a declared topic, relative)."""

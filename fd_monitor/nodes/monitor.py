@@ -5,7 +5,7 @@ or the four chain nodes on one executor (``layout:=chain``, ``thresholds`` gain 
 the runtime needs (``plant/rho``: the measured scheduling parameters of an LPV bank without a
 scheduling map; ``plant/mode``: the switching signal of a plant no guard switches) on the
 stamp (plain messages from a driver are stamped on arrival, as the observer does), calls the
-registry's runtime of the gain file (:func:`fd_monitor.core.runtime.runtime_for`, the one
+registry's runtime of the gain file (:func:`fd_monitor.core.methods.runtime_for`, the one
 ``analyze`` runs) once per sample, and publishes:
 
 - a ``thresholds`` gain file (:attr:`~fd_monitor.core.runtime.Runtime.CHAIN`): what the
@@ -36,15 +36,16 @@ nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, cast
 
 import numpy as np
 from rclpy.qos import QoSProfile
 
-from fd_monitor.core.runtime import RUNTIMES, ThresholdsRuntime, runtime_class, runtime_for
+from fd_monitor.core.methods import METHODS, RUNTIMES, load_gains, runtime_class, runtime_for
+from fd_monitor.core.runtime import ThresholdsRuntime
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
-from fd_monitor.model.gains import GainFile, load_gains
+from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
@@ -139,7 +140,6 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
     node_name : str
     """
 
-    runtimes: Mapping[str, str] = {m: "_start" for m in RUNTIMES}
     bias_channel = "bias estimate"
 
     def __init__(self, system: System | None = None, gains: GainFile | None = None,
@@ -186,6 +186,9 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
             *(Input.laid_out(n, side_topic(n), side_topic(n).with_labels({n: rt.side_labels[n]}))
               for n in rt.side_inputs),
         ], gap_timeout=self.params.gap_timeout)
+
+    #: every method of the registry runs here
+    runtimes: Mapping[str, Callable[[Any], None]] = dict.fromkeys(METHODS, _start)
 
     # -- the runtime: built, reset and stepped here only ------------------------------------
 

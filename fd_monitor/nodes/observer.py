@@ -19,7 +19,7 @@ samples) or restarts at the next valid sample, as the offline runner does
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -110,8 +110,6 @@ class ObserverNode(EstimateReport, FdNode):
         See :class:`~fd_monitor.nodes.fd_node.FdNode`.
     """
 
-    runtimes: Mapping[str, str] = {"thresholds": "_start_hybrid", "qb": "_start_qb"}
-
     outputs = (STATE_ESTIMATE,)
 
     def __init__(self, observer: HybridObserver | None = None, system: System | None = None,
@@ -164,6 +162,9 @@ class ObserverNode(EstimateReport, FdNode):
             Input.of("y", PLANT_Y, s, plain_ok=True),
         ], gap_timeout=self.params.gap_timeout)
         self._step = self._step_qb
+
+    runtimes: Mapping[str, Callable[[Any], None]] = {
+        "thresholds": _start_hybrid, "qb": _start_qb}
 
     def reset(self) -> None:
         """Fresh observer state, as the offline runner restarts it after a hole."""
