@@ -98,9 +98,10 @@ def test_docstring_examples_run(name: str) -> None:
 
 def test_key_modules_have_examples() -> None:
     """The public API's modules keep their examples (the package, plants, gain files, the
-    simulator, bags)."""
+    method registry, the simulator, bags)."""
     assert {"fd_monitor", "fd_monitor.model.system", "fd_monitor.model.gains",
-            "fd_monitor.core.simulator", "fd_monitor.wire.bags"} <= set(doctested_modules())
+            "fd_monitor.core.methods", "fd_monitor.core.simulator",
+            "fd_monitor.wire.bags"} <= set(doctested_modules())
 
 
 def test_readme_is_a_front_page() -> None:

@@ -137,7 +137,16 @@ def _is_numeric_tree(v: Any) -> bool:
 
 
 def from_plain(obj: Any) -> Any:
-    """Inverse of :func:`to_plain`: rectangular numeric lists become float arrays."""
+    """Inverse of :func:`to_plain`: rectangular numeric lists become float arrays.
+
+    Examples
+    --------
+    >>> r = from_plain({"L": [[1, 0], [0, 1]], "modes": ["m1", "m2"]})
+    >>> r["L"].shape, r["L"].dtype.name, r["modes"]
+    ((2, 2), 'float64', ['m1', 'm2'])
+    >>> to_plain(r) == {"L": [[1.0, 0.0], [0.0, 1.0]], "modes": ["m1", "m2"]}
+    True
+    """
     if isinstance(obj, Mapping):
         return {k: from_plain(v) for k, v in obj.items()}
     if isinstance(obj, list) and obj and _is_numeric_tree(obj):
