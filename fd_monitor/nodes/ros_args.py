@@ -29,7 +29,11 @@ from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import config_dirs
 from fd_monitor.model.yaml_io import read_yaml
 
-__all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file"]
+__all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file",
+           "take_node_name"]
+
+#: The remap rules that rename a node (``__name`` is the older spelling rcl still reads).
+_NODE_REMAPS = ("__node:=", "__name:=")
 
 
 def find_params_file(name: str) -> Path:
@@ -76,6 +80,38 @@ def resolve_params_files(args: Sequence[str]) -> list[str]:
             i += 1
         i += 1
     return out
+
+
+def take_node_name(args: Sequence[str]) -> tuple[list[str], str | None]:
+    """``args`` without the node-name remap rules (``--ros-args -r __node:=NAME``, what
+    launch_ros' ``Node(name=...)`` passes), and the last NAME given (None: none).
+
+    rcl applies such a rule to every node of the process, so an executable running several
+    nodes (the standalone ``detector``, ``monitor`` with ``layout:=chain``) takes it out
+    and names its nodes from it instead (``det1``, ``det1_observer``, ...): four nodes
+    called ``det1`` would make rcl warn "Publisher already registered" and collide in the
+    graph. A rule for one node only (``observer:__node:=x``) is left to rcl.
+    """
+    out: list[str] = []
+    name: str | None = None
+    in_ros = False
+    i = 0
+    argv = list(args)
+    while i < len(argv):
+        a = argv[i]
+        if a == "--ros-args":
+            in_ros = True
+        elif a == "--":
+            in_ros = False
+        elif (in_ros and a in ("-r", "--remap") and i + 1 < len(argv)
+              and argv[i + 1].startswith(_NODE_REMAPS)):
+            name = argv[i + 1].split(":=", 1)[1]
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    # "--ros-args" left empty is still valid for rcl
+    return out, name
 
 
 def init_ros(args: Sequence[str] | None = None) -> None:
