@@ -166,11 +166,12 @@ def test_standalone_detector_reset_resets_the_whole_chain_and_the_verdict():
     with ros_context() as ctx:
         nodes = make_nodes(context=ctx)
         obs = next(n for n in nodes if n.get_name() == "observer")
-        est = next(n for n in nodes if n.get_name() == "bias_estimator")
         bench = Bench(ctx, nodes, topics=["/fd/bias_estimate", "/fd/fault"])
         assert bench.matched(2)
         bench.send(u, y, range(60))
         assert bench.spin(lambda: len(bench.col.msgs["/fd/bias_estimate"]) >= 60)
+        last = bench.col.decoded("/fd/bias_estimate")[-1]
+        assert last.values[list(last.labels).index("active")] == 1.0   # estimating
         assert bench.spin(lambda: any(d.values[0] > 0.5
                                       for d in bench.col.decoded("/fd/fault")))
         assert bench.spin(lambda: any(s.level == ERROR and s.message.startswith("fault on h1")
