@@ -137,11 +137,11 @@ COMMON_PARAMS = (
 #: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes
 #: that publish ``fd/fault`` (monitor, bias_estimator).
 FAULT_PARAMS = (
-    Param("fault_confirm", 3, "fd/fault: alarms of a channel within fault_window that set its "
-          "fault", low=1, high=100000),
-    Param("fault_window", 1.0, "fd/fault: s of plant time over which alarms are counted",
+    Param("fault_confirm", 3, "fault verdict: alarms of a channel within fault_window that "
+          "set its fault", low=1, high=100000),
+    Param("fault_window", 1.0, "fault verdict: s of plant time over which alarms are counted",
           low=0.0, high=1.0e6),
-    Param("fault_clear_after", 5.0, "fd/fault: s of plant time without evidence (alarm, "
+    Param("fault_clear_after", 5.0, "fault verdict: s of plant time without evidence (alarm, "
           "isolation, significant estimate) after which a fault clears (or ~/reset)",
           low=0.0, high=1.0e6),
 )
