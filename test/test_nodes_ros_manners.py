@@ -146,6 +146,14 @@ def test_aggregator_reads_an_idle_an_active_an_alarmed_and_a_stopped_monitor():
         assert bench.spin(lambda: aggregate(group("a")) == STALEi, 5.0), \
             [(s.name, s.level, s.message) for s in group("a")]
         assert all(s.level == STALE for s in group("a"))
+        # /b stopped after it found a fault: the fault is kept (marked stale) beside STALE
+        # statuses, which the aggregator reads as ERROR
+        def b_stopped():
+            st = {s.name: s for s in group("b")}
+            return st["/b/monitor: input"].level == STALE and any(
+                kv.key == "stale" for kv in st["/b/monitor: fault"].values)
+        assert bench.spin(b_stopped, 5.0)
+        assert aggregate(group("b")) == ERRi
         bench.close()
 
 
@@ -256,7 +264,9 @@ def test_lifecycle_manager_takes_over_inactive_status_and_warns_that_clear():
 def test_renamed_detectors_coexist_and_log_their_shutdown(tmp_path):
     """Two ``detector`` processes renamed as launch_ros does (-r __node:=det1 / det2): eight
     distinct nodes in one domain, no rcl 'Publisher already registered'; SIGINT: each node
-    logs its shutdown transition."""
+    logs its shutdown transition. A lifecycle manager takes the autostarted det1 over."""
+    from lifecycle_msgs.msg import State, Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
     from rclpy.node import Node
 
     with ros_context() as ctx, \
@@ -277,9 +287,17 @@ def test_renamed_detectors_coexist_and_log_their_shutdown(tmp_path):
             (names(), p1.output()[-2000:], p2.output()[-2000:])
         listed = [n for n, _ in probe.get_node_names_and_namespaces() if n in want]
         assert sorted(listed) == sorted(want)                   # each name once
-        # det2 waits for a manager (autostart false): configure reaches det2 alone
-        assert spin_until(ex, lambda: "active: waiting for" in p1.output()
-                          and "det1_observer" in p1.output(), 30.0, [p1])
+        assert spin_until(ex, lambda: "[det1_observer]: active: waiting for" in p1.output(),
+                          30.0, [p1])
+        # a lifecycle manager takes det1 over (rclpy's EventsExecutor in that process)
+        for tid, want in ((Transition.TRANSITION_CONFIGURE, State.PRIMARY_STATE_INACTIVE),
+                          (Transition.TRANSITION_ACTIVATE, State.PRIMARY_STATE_ACTIVE)):
+            req = ChangeState.Request()
+            req.transition.id = tid
+            assert call(ex, probe, ChangeState, "/det1/change_state", req).success, tid
+            got = call(ex, probe, GetState, "/det1/get_state", GetState.Request())
+            assert got.current_state.id == want
+        assert "[det1]: lifecycle manager: configure asked" in p1.output()
         for p in (p1, p2):
             p.signal(signal.SIGINT)
             assert p.wait(30.0) == 0, p.output()[-3000:]
@@ -290,6 +308,16 @@ def test_renamed_detectors_coexist_and_log_their_shutdown(tmp_path):
                 assert f"[{node}]: shut down (from {state})" in out, out[-3000:]
         ex.shutdown()
         probe.destroy_node()
+
+
+def call(ex, node, srv_type, name, request, timeout=15.0):
+    """Call a service of another process from ``node`` spun by ``ex``."""
+    cli = node.create_client(srv_type, name)
+    assert cli.wait_for_service(timeout), name
+    fut = cli.call_async(request)
+    assert spin_until(ex, fut.done, timeout), name
+    node.destroy_client(cli)
+    return fut.result()
 
 
 def test_monitor_chain_takes_its_names_from_the_given_name():
