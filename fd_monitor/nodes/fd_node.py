@@ -352,6 +352,7 @@ class FdNode(LifecycleNode):
         waits = ", ".join(self._waits_for())
         self.get_logger().info(f"active: waiting for {waits}")
         self.diag.set_waiting(WAITING, {"input": f"active: waiting for {waits}"})
+        self._graph_status()                   # a standing graph problem is still one
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
