@@ -121,7 +121,9 @@ def test_best_effort_driver_and_a_topic_of_another_type():
             ex.add_node(nd)
 
         def graph(text):
-            return any(text in s.message for s in col.statuses("monitor: ros graph"))
+            # the message, or one of the problems listed in the values when they are many
+            return any(text in s.message or any(text in kv.value for kv in s.values)
+                       for s in col.statuses("monitor: ros graph"))
 
         assert spin_until(ex, lambda: graph("switching to best effort") and graph(
             "/joint_states: published as std_msgs/msg/String") and js.get_subscription_count()
