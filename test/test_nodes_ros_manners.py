@@ -304,8 +304,9 @@ def test_renamed_detectors_coexist_and_log_their_shutdown(tmp_path):
         for p, d, state in ((p1, "det1", "active"), (p2, "det2", "unconfigured")):
             out = p.output()
             assert "Publisher already registered" not in out, out[-3000:]
+            assert "Failed to publish log message to rosout" not in out, out[-3000:]
             for node in (d, f"{d}_observer", f"{d}_bias_estimator"):
-                assert f"[{node}]: shut down (from {state})" in out, out[-3000:]
+                assert f"[{node}.lifecycle]: shut down (from {state})" in out, out[-3000:]
         ex.shutdown()
         probe.destroy_node()
 

@@ -848,6 +848,13 @@ def run_node(factory: Callable[..., Node | Sequence[Node]], args: Sequence[str] 
             finish = getattr(n, "finish", None)
             if finish is not None:
                 finish()
+        finals = [getattr(n, "final_log", None) for n in nodes]
         for n in nodes:
             n.destroy_node()
+        for final in finals:
+            if final is not None:
+                # after a signal the context is gone: the node's own logger would still try
+                # its dead rosout publisher (rcl prints an error per line); a logger of another
+                # name writes to the console and the log file only
+                rclpy.logging.get_logger(f"{final[0]}.lifecycle").info(final[1])
         rclpy.try_shutdown()

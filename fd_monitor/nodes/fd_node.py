@@ -388,24 +388,34 @@ class FdNode(LifecycleNode):
         self.configured = False
         return TransitionCallbackReturn.SUCCESS
 
+    def _shutdown_text(self, label: str) -> str:
+        done = f"; processed {self.processed} samples" if self.configured else ""
+        return f"shut down (from {label}){done}"
+
     def _log_shutdown(self, label: str) -> None:
         if not self._shut_down:
             self._shut_down = True
-            done = f"; processed {self.processed} samples" if self.configured else ""
-            self.get_logger().info(f"shut down (from {label}){done}")
+            self.get_logger().info(self._shutdown_text(label))
 
     def finish(self) -> None:
-        """The shutdown transition at the end of the process (before ``destroy_node``); when
-        the context is gone already (SIGINT) it cannot be announced, the log line is still
-        written."""
+        """The shutdown transition at the end of the process (before ``destroy_node``).
+
+        When the context is gone already (SIGINT, SIGTERM) no transition can be announced and
+        the node's rosout publisher is dead: the log line is left in ``final_log`` (logger
+        name, text) for :func:`~fd_monitor.nodes.common.run_node` to write once the node is
+        destroyed (console and log file only).
+        """
         state_id, label = self._state_machine.current_state
-        if state_id == State.PRIMARY_STATE_FINALIZED:
+        if state_id == State.PRIMARY_STATE_FINALIZED or self._shut_down:
             return
-        try:
-            self.trigger_shutdown()
-        except Exception:  # the context was shut down: no transition event can be published
-            self._log_shutdown(label)
-            self.active = False
+        if self.context.ok():
+            try:
+                self.trigger_shutdown()
+                return
+            except Exception:  # shut down meanwhile: as below
+                pass
+        self._shut_down, self.active = True, False
+        self.final_log = (self.get_logger().name, self._shutdown_text(label))
 
     def _destroy_entities(self) -> None:
         for e in reversed(self._entities):
