@@ -1,4 +1,4 @@
-"""The worked example of README "Monitor your own robot", measured over many runs.
+"""The worked example of doc/tutorial/own-robot.md, measured over many runs.
 
 A DC motor with viscous and Coulomb friction (config/systems/dc_motor.yaml, the ground truth)
 is recorded as a robot records it (sensor_msgs/JointState on /joint_states, the effort

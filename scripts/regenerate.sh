@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuild every shipped artifact from its documented command (README): the gain files
+# Rebuild every shipped artifact from its documented command (doc/howto/bag-library.md): the gain files
 # config/gains/*.yaml, the identified plant config/systems/dc_motor_identified.yaml, and every
 # library bag bags/<name>/ with its expected.yaml (bags/library.yaml).
 #

@@ -30,7 +30,14 @@ if _ROS:
     # localhost discovery and a domain nobody else on this (shared) machine is using
     from fd_monitor.nodes.domain import isolate_env
 
-    isolate_env(os.environ, keep_domain=True)
+    # pytest-xdist workers (``-n 2``) each take a domain from their own residue class, so two
+    # workers starting together never probe, find free and take the same id
+    _worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    _count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    _ids = None
+    if _worker.startswith("gw") and _count > 1:
+        _ids = [d for d in range(1, 101) if d % _count == int(_worker[2:]) % _count]
+    isolate_env(os.environ, keep_domain=True, candidates=_ids)
 elif "ROS_DOMAIN_ID" not in os.environ:
     os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="fd_monitor_roslog_"))

@@ -106,7 +106,8 @@ def test_an_alarm_after_an_excursion_is_marked_until_the_monitor_restarts():
 
 
 def test_user_set_points_no_alarm_episode_inside_the_region():
-    """Two set points of the README's user-set-point campaign (benchmarks/campaign_envelope.py,
+    """Two set points of the user-set-point campaign of doc/theory/thresholds.md
+    (benchmarks/campaign_envelope.py,
     seeds 2048 and 2049: 10 fault-free runs of 300 s, noise and uncertainty at their bounds)
     where the default file raises false alarms long after the plant came back inside its box
     (a bias estimate started by an earlier alarm outside): every alarm episode is marked by

@@ -271,7 +271,8 @@ def test_fault_free_guard_crossings_no_false_alarm_and_ablation(system, gains):
 @pytest.mark.parametrize("sensor", ["h1", "h3"])
 def test_bias_detected_isolated_and_estimated(system, gains, sensor):
     """5 mm bias at 200 s, 20 runs: detected within the filter window, the faulty sensor alone
-    isolated; at 400 s |sigma^ - sigma| < 1.5 mm (1.5 v_bar, the README's tolerance) and
+    isolated; at 400 s |sigma^ - sigma| < 1.5 mm (1.5 v_bar, the tolerance of
+    doc/theory/thresholds.md) and
     healthy |sigma^_j| below the isolation threshold (the isolation rule's guarantee)."""
     i = system.outputs.index(sensor)
     tr = simulate_batch(_bias_scenario(sensor, 0.005, 200.0), range(200, 220))

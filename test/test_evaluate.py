@@ -92,8 +92,8 @@ def test_table_ii_fault_free(scenarios, gains):
     every sample, 20 s transient excluded), threshold rho * rho_max on the bias estimates:
     0 % false alarms for rho >= 0.10 and 100 % at 0.01.
 
-    400 runs (the first 400 of the README's 1000; about 12 s on 2 cores): a rate that is 0 in
-    all 400 is below 0.75 % with 95 % confidence (3 / 400). At rho = 0.05 the README's 19.4 %
+    400 runs (the first 400 of doc/theory/qb.md's 1000; about 12 s on 2 cores): a rate that is 0 in
+    all 400 is below 0.75 % with 95 % confidence (3 / 400). At rho = 0.05 doc/theory/qb.md's 19.4 %
     (1000 runs) must hold within 4 binomial standard deviations of 400 runs (+-0.079)."""
     runs = 400
     rows = run_campaign(gains, scenarios[:1], runs, chunk=200, rhos=TABLE_II_RHOS,
@@ -102,5 +102,5 @@ def test_table_ii_fault_free(scenarios, gains):
     fa = {r.rho: r.false_alarm_rate for r in rows}
     assert fa[0.01] == 1.0
     assert fa[0.10] == fa[0.15] == fa[0.20] == 0.0
-    p = 0.194                    # the README's rate at 0.05 (the paper reports 59.6 %)
+    p = 0.194                    # doc/theory/qb.md's rate at 0.05 (the paper reports 59.6 %)
     assert abs(fa[0.05] - p) <= 4 * np.sqrt(p * (1 - p) / runs), fa[0.05]

@@ -1,6 +1,6 @@
 """The package's layers run one way: each imports only the layers below it, and nothing cycles.
 
-The layer order is written once, here (README "Development" draws it). Every import of a
+The layer order is written once, here (doc/development.md draws it). Every import of a
 ``fd_monitor`` module counts, at module level or inside a function, because a function-level
 import is still a dependency the reader has to know about.
 """

@@ -1,7 +1,7 @@
 """Every command speaks adapters (issue 19, item 4): `analyze`, `report`, `evaluate`, `validate`
 on a robot's own bag and adapter file, and a plant found from its gain file. Bags are written
-into tmp_path (the simulated dc_motor as ros2_control publishes it, README "Monitor your own
-robot"); the commands run in-process through the CLI's `main`."""
+into tmp_path (the simulated dc_motor as ros2_control publishes it,
+doc/tutorial/own-robot.md); the commands run in-process through the CLI's `main`."""
 
 from __future__ import annotations
 
@@ -234,7 +234,7 @@ def test_evaluate_runs_a_plants_scenarios_on_its_identified_models_gain_file(cap
     rows = {r["scenario"]: r for r in doc["rows"]}
     assert rows["dc_motor_nominal"]["false_alarm_rate"] == 0.0
     # 0.1 rad/s bias and 0.2 N m of effort lost at 30 s: detected in every run within 1 s
-    # (README, the worked example: delay 0 and 1 samples)
+    # (doc/tutorial/own-robot.md, the worked example: delay 0 and 1 samples)
     for name in ("dc_motor_bias_velocity", "dc_motor_actuator"):
         r = rows[name]
         assert r["false_alarm_rate"] == 0.0 and r["detection_rate"] == 1.0, r

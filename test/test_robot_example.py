@@ -1,4 +1,4 @@
-"""The worked example of README "Monitor your own robot", end to end and offline: a DC motor
+"""The worked example of doc/tutorial/own-robot.md, end to end and offline: a DC motor
 with viscous and Coulomb friction (config/systems/dc_motor.yaml, the ground truth) recorded
 as a robot records it (sensor_msgs/JointState + the effort controller's Float64MultiArray),
 identified from those bags (`identify --adapter`), designed (`design thresholds --envelope

@@ -1,4 +1,4 @@
-"""The worked example live (README "Monitor your own robot"): `monitor -p adapter:=dc_motor`
+"""The worked example live (doc/tutorial/own-robot.md): `monitor -p adapter:=dc_motor`
 reads the simulated motor's sensor_msgs/JointState and its effort controller's
 Float64MultiArray over real DDS, runs the identified plant's gain file, and raises the alarm
 after an actuator fault; messages it cannot read (unknown joint, NaN) are one line each on

@@ -163,7 +163,7 @@ def test_thesis_banks_fault_free_no_alarm_and_overlapping_faults_isolated(name, 
 def test_farhat_koenig_fault_free_random_switching_no_alarm_after_settling():
     """Fifty runs the threshold design did not see (seeds 1000-1049; it used 100-299):
     random switching, no alarm once armed (25 s after the start). (`evaluate` on 2,000
-    such runs, seeds 1000-2999: 0 false alarms; see the README.)"""
+    such runs, seeds 1000-2999: 0 false alarms; see doc/theory/hinf.md.)"""
     s = load_system("farhat_koenig")
     gf = load_gains("farhat_koenig_hminus_switched", s)
     sc = load_scenario("farhat_koenig_nominal")

@@ -1,4 +1,5 @@
-"""The README's "Using it from a ROS 2 workspace" block, run literally in a fresh workspace.
+"""The "Using it from a ROS 2 workspace" block (doc/tutorial/ros-workspace.md), run literally
+in a fresh workspace.
 
 The block (marked ``<!-- workspace:commands``) is run by bash in a temporary ``$HOME`` with
 these stand-ins, and nothing else changed:
@@ -33,9 +34,9 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 MARK = "<!-- workspace:commands"
 
 
-def readme_block() -> list[str]:
-    """The command lines of the marked bash block of the README."""
-    text = (REPO / "README.md").read_text()
+def workspace_block() -> list[str]:
+    """The command lines of the marked bash block of the tutorial page."""
+    text = (REPO / "doc" / "tutorial" / "ros-workspace.md").read_text()
     after = text[text.index(MARK):]
     m = re.search(r"```bash\n(.*?)```", after, re.S)
     assert m is not None, "no ```bash block after the workspace:commands mark"
@@ -68,7 +69,7 @@ def ros_env(tmp_path: Path) -> Path:
 
 
 def script(lines: list[str], repo_head: str, ws_install: Path) -> str:
-    """The README lines with the stand-ins of the module docstring."""
+    """The page's lines with the stand-ins of the module docstring."""
     out = ["set -e"]
     seen = set()
     for ln in lines:
@@ -100,8 +101,8 @@ def script(lines: list[str], repo_head: str, ws_install: Path) -> str:
     return "\n".join(out) + "\n"
 
 
-def test_readme_workspace_commands_work_literally(tmp_path: Path) -> None:
-    lines = readme_block()
+def test_workspace_commands_work_literally(tmp_path: Path) -> None:
+    lines = workspace_block()
     assert any(ln.startswith("colcon build") for ln in lines)
     exes = [m.group(1) for ln in lines for m in re.finditer(r"ros2 run fd_monitor (\w+)", ln)]
     assert exes, "the block runs no fd_monitor executable"

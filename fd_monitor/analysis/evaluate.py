@@ -279,8 +279,10 @@ def _scenario_alarms(runner: Callable[..., BatchResult], gains: GainFile, sc: Sc
                 with np.errstate(divide="ignore", invalid="ignore"):
                     ratio = (res.residual[..., sel] / thr).max(axis=2)  # (N, K)
             for j, rho in enumerate(rho_list):
-                alarm = (ratio > rho) if rho is not None else res.alarm[..., sel].any(axis=2)
-                fa.setdefault((label, j), []).append(alarm[:, k_tr:k_on].any(axis=1))
+                # asarray: numpy's stubs type a reduction as a scalar or an array
+                alarm = np.asarray((ratio > rho) if rho is not None
+                                   else res.alarm[..., sel].any(axis=2))
+                fa.setdefault((label, j), []).append(np.asarray(alarm[:, k_tr:k_on].any(axis=1)))
                 if onset is not None:
                     first.setdefault((label, j), []).append(_first_true(alarm[:, k_on:]))
             bar.update(1, f"{sc.name} {label}")

@@ -22,6 +22,10 @@ What the written plant file is (schema: :mod:`fd_monitor.model.system`):
 * provenance as comments at the top (bags with SHA-256, method, fit and validation errors,
   sample counts) and a summary in ``description``; no date, so the same bags and options give
   the same file byte for byte.
+
+Why one module of ~950 lines: one command's pipeline (bags to a dataset, modes and guards,
+the fit driver, bounds, validation, the written file, the plot); the numerics are already in
+``core/identify.py``.
 """
 
 from __future__ import annotations

@@ -29,6 +29,10 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
    :func:`~fd_monitor.analysis.summary.analyze_run`).
 
 Nothing here imports rclpy (the message decoding is the nodes' pure conversion function).
+
+Why one module of ~770 lines: reading a bag through the one input policy and running a
+runtime over it is one pipeline (input report, bag scan, run), which the regression suite
+compares bit for bit with the live nodes.
 """
 
 from __future__ import annotations
@@ -125,7 +129,9 @@ class InputReport:
         for e in self.errors:
             s = e["sample"]
             if e["kind"] in _SAMPLE_KINDS and isinstance(s, (list, tuple)):
-                lost[e["kind"]] = int(lost.get(e["kind"], 0)) + int(s[1]) - int(s[0]) + 1
+                n = lost.get(e["kind"], 0)
+                assert isinstance(n, int)  # a kind is a count or a set of stamps, never both
+                lost[e["kind"]] = n + int(s[1]) - int(s[0]) + 1
             elif e["kind"] in _STAMP_KINDS and isinstance(s, int) and s >= 0:
                 got = lost.setdefault(e["kind"], set())
                 assert isinstance(got, set)

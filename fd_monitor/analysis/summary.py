@@ -50,7 +50,7 @@ def collapse(seq: Sequence[Any]) -> list[Any]:
     return out
 
 
-def segments(ks: Sequence[int], modes: Sequence[str]) -> list[list[Any]]:
+def segments(ks: Sequence[int] | np.ndarray, modes: Sequence[str]) -> list[list[Any]]:
     """``[[mode, first_sample, samples], ...]``: runs of one mode."""
     out: list[list[Any]] = []
     for k, m in zip(ks, modes):
@@ -230,9 +230,9 @@ def region_mark(outside: np.ndarray, starts: np.ndarray, a: int, b: int
     A gain file's fault-free guarantee holds for a run that stays inside its region, and the
     monitor carries an excursion in its memory until it restarts (the residual filter's window,
     the estimated mode, a bias estimate started by an alarm raised outside the region; the
-    README's campaign shows alarms 200 s after the plant came back inside, from a 1.5 mm bias
-    estimate started outside). So the episode is outside when the region was left at any
-    sample from the run's last (re)start up to ``b``.
+    campaign of doc/theory/thresholds.md shows alarms 200 s after the plant came back
+    inside, from a 1.5 mm bias estimate started outside). So the episode is outside when the
+    region was left at any sample from the run's last (re)start up to ``b``.
 
     Parameters
     ----------

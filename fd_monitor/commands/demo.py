@@ -124,7 +124,7 @@ def _env(out: Path) -> dict[str, str]:
     from fd_monitor.nodes.domain import isolate_env
 
     # Its own domain: a foreign node in it would feed the chain or count as a subscriber.
-    env = isolate_env(dict(os.environ))
+    env = dict(isolate_env(dict(os.environ)))
     env["ROS_LOG_DIR"] = str(out / "ros_logs")
     env["PYTHONUNBUFFERED"] = "1"
     root = Path(__file__).resolve().parents[2]

@@ -56,8 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--y-topic", default=PLANT_Y.absolute,
                         help=f"outputs topic (default {PLANT_Y.absolute})")
     parser.add_argument("--adapter", default=None, metavar="MAP",
-                        help="message mapping for a robot's own message types (see README "
-                             "'Monitor your own robot'); replaces --u-topic/--y-topic")
+                        help="message mapping for a robot's own message types (see "
+                             "doc/tutorial/own-robot.md); replaces --u-topic/--y-topic")
     parser.add_argument("--name", default=None,
                         help="plant name (default: the output file's stem)")
     parser.add_argument("--sample-time", type=float, default=None,

@@ -34,7 +34,7 @@ from fd_monitor.core.filters import as_floats
 from fd_monitor.core.thresholds import AgeiRow, DiagnosisGains
 from fd_monitor.model.system import System
 
-__all__ = ["Agei", "AgeiOutput", "MONITORING", "EXPECTING", "TRIGGERING", "decision_rule"]
+__all__ = ["Agei", "AgeiOutput", "MONITORING", "EXPECTING", "TRIGGERING"]
 
 MONITORING, EXPECTING, TRIGGERING = 0, 1, 2
 
@@ -45,16 +45,6 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a
 
-
-
-def decision_rule(w: np.ndarray, op: str, xi_minus: float, xi_plus: float) -> np.ndarray:
-    """lambda(w, op, xi) of eq. 20 (elementwise, on |w|); returns bool array."""
-    aw = np.abs(w)
-    if op == "==":
-        return (aw >= xi_minus) & (aw <= xi_plus)
-    if op in (">", ">="):
-        return aw >= xi_minus
-    return aw <= xi_plus
 
 
 @dataclass(frozen=True)

@@ -197,16 +197,6 @@ class FilterBank:
             self._yout[0] = out
         return out
 
-    def snapshot(self) -> tuple[np.ndarray, np.ndarray, bool]:
-        """Copy of the internal state (for rollback on invalid input)."""
-        return self._xin.copy(), self._yout.copy(), self.started
-
-    def restore(self, snap: tuple[np.ndarray, np.ndarray, bool]) -> None:
-        """Restore a :meth:`snapshot`."""
-        self._xin[...] = snap[0]
-        self._yout[...] = snap[1]
-        self.started = snap[2]
-
 
 def linear_map(rows: Sequence[Sequence[tuple[float, int]]]) -> Callable[[Sequence[float]],
                                                                          list[float]]:

@@ -26,7 +26,7 @@ from fd_monitor.model.system import System
 __all__ = ["KalmanDesign", "kalman_gains", "DEFAULT_Q_FAULT"]
 
 #: Default random-walk variance of the fault-model states per sample (state units^2); tuned
-#: on pwa_cascade (README, section qb): the detection delay of the 0.5 bias step is close to
+#: on pwa_cascade (doc/theory/qb.md): the detection delay of the 0.5 bias step is close to
 #: the QB observer's while the fault-free estimate stays smooth.
 DEFAULT_Q_FAULT = 1e-7
 

@@ -30,7 +30,7 @@ invariant and attractive, and (6), (8), (11) hold as in continuous time.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -49,7 +49,6 @@ __all__ = [
     "QBObserver",
     "QBDetector",
     "run_batch",
-    "summary_bounds",
     "STRESS_POLICIES",
     "stress_runs",
 ]
@@ -371,12 +370,6 @@ def run_batch(system: System, gains: Any, traj: Any, *, rho: float = 1.0,
                        threshold=thr, x_hat=X, mode_hat=Q,
                        extra={"threshold_scalable": True, "estimator": estimator,
                               "rho": rho, "state_bound": state_bound})
-
-
-def summary_bounds(gains: Any, names: Sequence[str]) -> dict[str, float]:
-    """Per-state guaranteed bounds of a gain file as a name -> value mapping (for reports)."""
-    comp = np.asarray(gains.results["component_bound"], dtype=float)
-    return {n: float(c) for n, c in zip(names, comp)}
 
 
 #: Disturbance policies of :func:`stress_runs`.

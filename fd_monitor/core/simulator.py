@@ -321,7 +321,17 @@ def simulate_batch(scenario: Scenario, seeds: Sequence[int],
 
 def simulate(scenario: Scenario, seed: int | None = None,
              n_samples: int | None = None) -> Trajectory:
-    """Simulate a single run (batch of one); default seed: the scenario's."""
+    """Simulate a single run (batch of one); default seed: the scenario's.
+
+    Examples
+    --------
+    >>> from fd_monitor.model.scenario import load_scenario
+    >>> traj = simulate(load_scenario("three_tank_bias_h1"), n_samples=20)
+    >>> traj.y.shape                        # [run, sample, output]
+    (1, 20, 3)
+    >>> bool((simulate(load_scenario("three_tank_bias_h1"), n_samples=20).y == traj.y).all())
+    True
+    """
     return simulate_batch(scenario, [scenario.seed if seed is None else seed], n_samples)
 
 

@@ -54,6 +54,10 @@ Abar_j) >= 0`` and ``P_j A_j V (C V)^+ Wout = 0``; for the pole region ``Mr (x) 
 Mr' (x) (P_j Abar_j)' >= 0``) extends the vertex conditions to the box (6.63). ``P_j = 0``
 is the common-P design, so the affine optimum is never worse; the solver's answer can be, by
 its tolerance (an absolute gap of 1e-8 is ~1 % of gamma^2 at the 1e-6 LMI margin).
+
+Why one module of ~550 lines: one designer (a generator per fault, the DC gains, the bank
+and its gain-file document); its design section and thresholds already live in
+``hinf_spec.py`` and ``hinf_thresholds.py``.
 """
 
 from __future__ import annotations
@@ -280,9 +284,12 @@ class _Problem:
 
     def gamma2(self) -> dict[str, float]:
         """Squared attenuation bounds at the last solution."""
+        # solved scalars (cvxpy types a value as ndarray | None)
         if self.spec.kind == "uncertain":
-            return {"nuisance": float(self.g.value) ** 2}
-        return {k: float(v.value) for k, v in self.gv.items()}
+            g: Any = self.g.value
+            return {"nuisance": float(g) ** 2}
+        values: dict[str, Any] = {k: v.value for k, v in self.gv.items()}
+        return {k: float(v) for k, v in values.items()}
 
     def cost(self) -> float:
         """``a g + b g_w + c g_n`` (squared bounds) at the last solution."""

@@ -362,7 +362,7 @@ def _with_k(faults: list[FaultDir], A: np.ndarray, C: np.ndarray, origin: str,
         k_found = None
         Ak = np.eye(n)
         for k in range(n):
-            if np.linalg.norm(C @ Ak @ f.F) > 1e-12 * max(1.0, np.linalg.norm(f.F)):
+            if np.linalg.norm(C @ Ak @ f.F) > 1e-12 * max(1.0, float(np.linalg.norm(f.F))):
                 k_found = k
                 break
             Ak = A @ Ak

@@ -12,7 +12,7 @@ common free matrix ``E`` (q x n):
    (41)-(44);
 5. ``F_i = A1_i - L_i A2_i``, ``G_i = G1_i - L_i G2_i`` (23, 24).
 
-Readings of the paper (see the README section): ``L_{2,i}`` acts through an orthonormal
+Readings of the paper (see doc/theory/hinf.md): ``L_{2,i}`` acts through an orthonormal
 basis ``U_i`` of range(Gamma_i^perp) (``L_{2,i} = Lt_i U_i'``, the same family of observers,
 better conditioned); LMI (26)/(39) are read with ``V_k = eps_k' P_{alpha(k-1)} eps_k``
 (``U_i = P_i L_i``); in (44) ``P^a_i = diag(P_eps,i, P_h,i)`` so that ``L_i = P_eps,i^-1 U_i``
@@ -35,6 +35,10 @@ Design file section::
       decay_rate: 0.98                            # LMI (26) with rho^2 P_j (H-minus gains)
       threshold: {method: none}                   # or {method: monte_carlo, scenario,
                                                   #     runs, settle, margin} (_threshold)
+
+Why one module of ~530 lines: the Farhat & Koenig design is one procedure (E, T, K, the LMIs
+per mode, the Monte Carlo threshold section, the checks) read top to bottom against Sec.
+III-IV of the paper; split, the derivation would be scattered.
 """
 
 from __future__ import annotations
@@ -515,6 +519,7 @@ def _threshold(system: System, th: Mapping[str, Any] | None, results: dict[str, 
     traj = simulate_batch(sc, list(range(sc.seed, sc.seed + th["runs"])))
     for name, obs in results["observers"].items():
         res = HminusSwitchedRuntime.run_batch(system, results, traj, design=name).residual
+        assert res is not None  # the H-minus batch always carries its residual norms
         obs["threshold"] = float(monte_carlo_thresholds(res, th["settle"], th["margin"])[0])
     return {"method": "monte_carlo", "scenario": sc.name, "runs": th["runs"],
             "settle_s": th["settle"] * system.sample_time, "margin": th["margin"]}

@@ -58,6 +58,10 @@ wanders. This designer instead
 Strict inequalities are imposed with a margin (``--margin``, default 1e-6): ``-M_i >= margin I``,
 ``alpha_j >= margin`` and ``lambda_min(P) >= margin`` (so rho_max below 1/sqrt(margin) = 1000
 state units; rescale the plant's states if its errors are larger).
+
+Why one module of ~560 lines: the LMIs of Theorems 1-2, the beta search and the independent
+check of the returned point belong together (the check re-evaluates the same LMIs); the
+docstring alone is 60 lines of the paper's equations.
 """
 
 from __future__ import annotations
@@ -281,7 +285,7 @@ def _min_norm_gains(model: QBModel, P: np.ndarray, alpha: np.ndarray, beta: floa
     dt = time.perf_counter() - t0
     if status != cp.OPTIMAL or Y[0].value is None:
         return np.zeros(0), status, dt
-    return np.array([np.linalg.solve(Pn, y.value) for y in Y]), status, dt
+    return np.array([np.linalg.solve(Pn, np.asarray(y.value)) for y in Y]), status, dt
 
 
 def _min_norm_band(model: QBModel, beta: float, lam: float, delta: float,
@@ -309,7 +313,7 @@ def _min_norm_band(model: QBModel, beta: float, lam: float, delta: float,
     if status != cp.OPTIMAL or P.value is None:
         return np.zeros(0), np.zeros(0), np.zeros(0), status, dt
     Pv = _sym(np.asarray(P.value))
-    L = np.array([np.linalg.solve(Pv, y.value) for y in Y])
+    L = np.array([np.linalg.solve(Pv, np.asarray(y.value)) for y in Y])
     return lam * Pv, L, lam * np.asarray(alpha.value), status, dt
 
 
@@ -448,7 +452,8 @@ def _design(system: System, model: QBModel, beta: float | None, margin: float,
         P1 = _sym(np.asarray(prob.P.value))
         alpha1 = _fit_alpha(np.asarray(prob.alpha.value), beta)
         if fallback is None:
-            fallback = (P1, np.array([np.linalg.solve(P1, Y.value) for Y in prob.Y]), alpha1)
+            fallback = (P1, np.array([np.linalg.solve(P1, np.asarray(Y.value)) for Y in prob.Y]),
+                        alpha1)
         if k == 1.0:
             break
         L, st2, dt = _min_norm_gains(model, P1, alpha1, beta, margin)

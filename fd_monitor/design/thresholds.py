@@ -68,6 +68,10 @@ Isolation threshold: the l1 bound of the map (v, eta) -> sigma~_i of the lineari
 dynamics plus the peak response to the presmoother's initial-error bound (worst mode): a healthy
 sensor's |sigma^_i| stays below it (to first order). Isolation delay: samples for the response
 of sigma~ to a unit bias to fall below 5 % (worst mode).
+
+Why one module of ~680 lines: the Heracleous et al. design is one pipeline over one plant
+(filters, thresholds, AGEI matrix, estimator gains); the envelope bounds are already in
+``envelope.py``.
 """
 
 from __future__ import annotations
@@ -183,7 +187,7 @@ def _certified_region(system: System, reg: dict[str, Any], tube: float,
         return {"source": "declared", "state_lo": env.state_lo, "state_hi": env.state_hi,
                 "input_lo": env.input_lo, "input_hi": env.input_hi}
     s = len(system.modes)
-    out = {"source": "scenarios", "state_lo": np.zeros((s, system.n)),
+    out: dict[str, Any] = {"source": "scenarios", "state_lo": np.zeros((s, system.n)),
            "state_hi": np.zeros((s, system.n)), "input_lo": np.zeros((s, system.nu)),
            "input_hi": np.zeros((s, system.nu))}
     for q in range(s):
@@ -408,7 +412,7 @@ def _agei_row(smp: _Sampling, j: int, A: np.ndarray, r_bar: np.ndarray, spec: Fi
         beyond = side * (smp.reg["x"][:, c.index] - c.value)
         reach = float(max(beyond.max(), 0.0)) + tube
         d_band = min(1.5 * d_rec, reach)
-        mu = np.abs(mism(rng.uniform(0.0, d_band, x.shape[0])))
+        mu = np.abs(mism(np.asarray(rng.uniform(0.0, d_band, x.shape[0]))))
         v = smp.noise(x.shape[0])
         xx = x.copy()
         xx[:, c.index] = c.value + side * rng.uniform(0.0, d_band, x.shape[0])

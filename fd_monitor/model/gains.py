@@ -345,6 +345,13 @@ def load_gains(source: str | Path, system: System | None = None, *,
     ------
     GainFileError
         One line naming the file and the problem.
+
+    Examples
+    --------
+    >>> from fd_monitor.model.system import load_system
+    >>> gf = load_gains("three_tank_thresholds", load_system("three_tank"))
+    >>> gf.method, gf.system_name
+    ('thresholds', 'three_tank')
     """
     path = find_config_file(source, "gains", GainFileError, what="gain file")
     return gains_from_doc(read_yaml(path, GainFileError), path, system, verify=verify)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["NonlinearModel", "get_model", "register_model", "model_names", "GRAVITY",
+__all__ = ["NonlinearModel", "get_model", "register_model", "GRAVITY",
            "SCHEDULING_MAPS"]
 
 GRAVITY = 9.81  # m/s^2
@@ -82,11 +82,6 @@ def get_model(name: str) -> NonlinearModel:
                        f"{name!r})") from None
 
 
-def model_names() -> list[str]:
-    """Names of the registered models."""
-    return sorted(_REGISTRY)
-
-
 def rk4(rhs: Callable[[np.ndarray, np.ndarray, Params], np.ndarray], x: np.ndarray,
         u: np.ndarray, params: Params, dt: float, substeps: int) -> np.ndarray:
     """Classical fourth-order Runge-Kutta over ``dt`` in ``substeps`` equal steps, u held."""
@@ -133,18 +128,17 @@ def _three_tank_rhs(x: np.ndarray, u: np.ndarray, p: Params) -> np.ndarray:
 
 
 def _three_tank_step(x: np.ndarray, u: np.ndarray, p: Params, dt: float) -> np.ndarray:
-    # One run: floats, or the observer's per-run parameter arrays of size 1.
+    # One run: floats, or the observer's per-run parameter arrays of size 1. union-attr:
+    # after `type(v) is float` fails, v may still be a float subclass for mypy, so the union
+    # keeps float and `v.size` is flagged (the exact-type test is the cheap one here).
     if x.size == 3 and all(type(v) is float or v.size == 1 for v in p.values()):  # type: ignore[union-attr]
         return _three_tank_step_scalar(x, u, p, dt)
     return rk4(_three_tank_rhs, x, u, p, dt, int(p["substeps"]))
 
 
-def _sgn(v: float) -> float:
-    return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-
-
 def _three_tank_step_scalar(x: np.ndarray, u: np.ndarray, p: Params, dt: float) -> np.ndarray:
     """One run of :func:`_three_tank_step` on Python floats (see :func:`_three_tank_floats`)."""
+    # union-attr: as in _three_tank_step, `type(v) is not float` leaves float in the union.
     f = {k: v if type(v) is float else v.item() for k, v in p.items()}  # type: ignore[union-attr]
     return np.array(_three_tank_floats(x.reshape(-1).tolist(), u.reshape(-1).tolist(), f,
                                        dt)).reshape(x.shape)
@@ -170,7 +164,7 @@ def _three_tank_floats(x: Sequence[float], u: Sequence[float], f: Mapping[str, f
     sqrt = math.sqrt
 
     def rhs(h1: float, h2: float, h3: float) -> tuple[float, float, float]:
-        # inline forms of _sgn(d) and max(v, 0.0) (the same values; calls cost here)
+        # inline forms of sign(d) and max(v, 0.0) (the same values; calls cost here)
         d13 = h1 - h3
         d32 = h3 - h2
         q13 = a13 * (1.0 if d13 > 0.0 else (-1.0 if d13 < 0.0 else 0.0)) * sqrt(g2 * abs(d13))
@@ -246,7 +240,7 @@ SCHEDULING_MAPS: dict[str, Callable[[np.ndarray, Mapping[str, Any]], np.ndarray]
 
 # --------------------------------------------------------------------------------------
 # dc_motor: a motor (or a robot joint's drive) with viscous and Coulomb friction, effort
-# (torque) commanded; the worked example of README "Monitor your own robot".
+# (torque) commanded; the worked example of doc/tutorial/own-robot.md.
 
 
 def _dc_motor_rhs(x: np.ndarray, u: np.ndarray, p: Params) -> np.ndarray:

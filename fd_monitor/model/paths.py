@@ -12,7 +12,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-__all__ = ["check_output", "config_dirs", "config_dir", "default_gain_path", "find_config_file",
+__all__ = ["check_output", "config_dirs", "default_gain_path", "find_config_file",
            "path_for_file", "repo_root", "resolve_for_file"]
 
 
@@ -40,14 +40,6 @@ def config_dirs() -> list[Path]:
         if c.is_dir() and c not in seen:
             seen.append(c)
     return seen
-
-
-def config_dir() -> Path:
-    """The first existing ``config/`` folder; raise FileNotFoundError if there is none."""
-    dirs = config_dirs()
-    if not dirs:
-        raise FileNotFoundError("no fd_monitor config folder found (set FD_MONITOR_CONFIG)")
-    return dirs[0]
 
 
 def find_config_file(source: str | Path, kind: str, error: type[Exception],

@@ -3,6 +3,9 @@
 
 Every parser takes the file's :class:`~fd_monitor.model.validate.Checker`, so every error
 names the file, the key path and what was expected.
+
+Why one module of ~570 lines: one short parser per top-level key of the plant file (15
+sections), sharing one ``Checker`` and the canonical form, which must see every section.
 """
 
 from __future__ import annotations

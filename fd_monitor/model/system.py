@@ -163,11 +163,6 @@ class System:
             g for g in self.guards if g.source == mode and (kind is None or g.kind == kind)
         )
 
-    @property
-    def is_linear(self) -> bool:
-        """True when every mode has linear (affine) dynamics."""
-        return all(m.dynamics == "linear" for m in self.modes)
-
 
 def load_system(source: str | Path) -> System:
     """Load and validate a plant description.
@@ -186,6 +181,14 @@ def load_system(source: str | Path) -> System:
     ------
     SystemFileError
         With a message naming the file, the key path and what was expected.
+
+    Examples
+    --------
+    >>> plant = load_system("three_tank")
+    >>> plant.states, plant.nu, plant.sample_time
+    (('h1', 'h2', 'h3'), 3, 0.1)
+    >>> len(plant.sha256)
+    64
     """
     path = find_config_file(source, "systems", SystemFileError, what="plant")
     data = read_yaml(path)

@@ -12,8 +12,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from rclpy.qos import QoSProfile
+
 from fd_monitor.core.agei import Agei
 from fd_monitor.core.thresholds import as_gains
+from fd_monitor.model.gains import GainFile
+from fd_monitor.model.system import System
 from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
 from fd_monitor.wire.topics import (
@@ -55,7 +59,8 @@ class AgeiNode(FdNode):
 
     outputs = (GUARD_EVENT, THRESHOLD_OVERRIDE)
 
-    def __init__(self, agei: Agei | None = None, system=None, gains=None, qos=None,
+    def __init__(self, agei: Agei | None = None, system: System | None = None,
+                 gains: GainFile | None = None, qos: QoSProfile | None = None,
                  node_name: str = "agei", **kwargs: Any) -> None:
         self._agei_arg = agei
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -103,7 +103,7 @@ class RecorderNode(Node):
             # a quiet topic still gets its last messages on disk within ~flush_seconds
             self.create_timer(writer.flush_seconds / 2, writer.tick)
 
-    def _callback(self, topic: str):  # type: ignore[no-untyped-def]
+    def _callback(self, topic: str) -> Callable[..., None]:
         def cb(raw: bytes, info: Any = None) -> None:
             if self.done.done():
                 return

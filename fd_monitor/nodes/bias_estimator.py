@@ -11,11 +11,15 @@ flags, ``active``, ``k_detect`` (-1 before detection).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
+
+from rclpy.qos import QoSProfile
 
 from fd_monitor.core.bias_estimator import BiasEstimator
 from fd_monitor.core.thresholds import as_gains
-from fd_monitor.nodes.common import OK, WARN, NodeUsage, run_node
+from fd_monitor.model.gains import GainFile
+from fd_monitor.model.system import System
+from fd_monitor.nodes.common import OK, WARN, Diagnostics, NodeUsage, run_node
 from fd_monitor.nodes.fault import FaultReport
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, FAULT_PARAMS, FdNode, Input
 from fd_monitor.wire.topics import (
@@ -47,14 +51,27 @@ USAGE = NodeUsage(
                (DIAGNOSTICS, "input, estimate and fault status")))
 
 
+class BiasHost(Protocol):
+    """What :class:`BiasReport` needs of its node (a protocol: mypy checks each host)."""
+
+    diag: Diagnostics
+    system: System
+    bias_channel: str
+    _last_active: bool
+    _last_isolated: list[str]
+
+    def gain_values(self) -> dict[str, str]: ...
+    def get_logger(self) -> Any: ...
+
+
 class BiasReport:
     """Log lines (detection, isolation) and the /diagnostics status ``bias_channel`` of a
     node running the bias estimator (bias_estimator, monitor). Uses the node's ``diag``,
-    ``system``, ``_last_active`` and ``_last_isolated``."""
+    ``system``, ``_last_active`` and ``_last_isolated`` (:class:`BiasHost`)."""
 
     bias_channel = "estimate"
 
-    def report_bias(self, k: int, out: Any) -> None:
+    def report_bias(self: BiasHost, k: int, out: Any) -> None:
         """Report the estimator's output at k (a BiasOutput)."""
         s = self.system
         isolated = [o for o, f in zip(s.outputs, out.isolated) if f]
@@ -91,8 +108,9 @@ class BiasEstimatorNode(FaultReport, BiasReport, FdNode):
 
     outputs = (BIAS_ESTIMATE,)
 
-    def __init__(self, estimator: BiasEstimator | None = None, system=None, gains=None,
-                 qos=None, node_name: str = "bias_estimator", **kwargs: Any) -> None:
+    def __init__(self, estimator: BiasEstimator | None = None, system: System | None = None,
+                 gains: GainFile | None = None, qos: QoSProfile | None = None,
+                 node_name: str = "bias_estimator", **kwargs: Any) -> None:
         self._estimator_arg = estimator
         self._last_active = False
         self._last_isolated: list[str] = []

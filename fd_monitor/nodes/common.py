@@ -20,6 +20,10 @@ Acknowledgements travel on Fast DDS heartbeats, whose default period (3 s) would
 wait last about a second; :func:`use_dds_profile` points Fast DDS at
 ``config/fastdds_pacing.xml`` (2 ms heartbeats) in such a source and at ``config/fastdds.xml``
 (20 ms) in the other nodes, unless the user chose a profile file.
+
+Why one module of ~730 lines: the helpers every node shares (QoS, parameters, diagnostics,
+pacing, DDS profiles, help text, ``run_node``); issue 22 item 2 splits it into one file per
+job, deferred while the nodes were being changed by other work.
 """
 
 from __future__ import annotations

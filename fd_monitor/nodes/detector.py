@@ -19,20 +19,24 @@ alarm on ``/fd/alarm``, as :func:`fd_monitor.analysis.offline.run_bag` computes 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
+from rclpy.qos import QoSProfile
 
 from fd_monitor.core.detector import ResidualDetector, no_override
 from fd_monitor.core.qb import QBDetector
 from fd_monitor.core.qb_model import qb_model
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, MessageError
+from fd_monitor.model.gains import GainFile
+from fd_monitor.model.system import System
 from fd_monitor.nodes import agei, bias_estimator, observer
 from fd_monitor.nodes.common import (
     ERROR,
     OK,
     WARN,
+    Diagnostics,
     NodeUsage,
     Param,
     run_node,
@@ -72,15 +76,33 @@ USAGE = NodeUsage(
                (DIAGNOSTICS, "one status per channel: residual, threshold, margin")))
 
 
+class ResidualHost(Protocol):
+    """What :class:`ResidualReport` needs of its node (a protocol: mypy checks each host)."""
+
+    diag: Diagnostics
+    params: Any
+    detector: Any
+    channels: list[str]
+    sigma_hat: Any
+    _alarmed: set[str]
+    _episode: int
+
+    def mode_name(self, mode: int) -> str: ...
+    def gain_values(self) -> dict[str, str]: ...
+    def get_logger(self) -> Any: ...
+    def _log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None: ...
+
+
 class ResidualReport:
     """Per-channel /diagnostics and alarm log lines of a detecting node (detector, monitor).
 
     Uses the node's ``channels`` (one ``residual <name>`` status each), ``diag``,
     ``params.warn_share``, ``system``, ``detector``, ``sigma_hat`` (latest bias estimate),
-    ``_alarmed`` and ``_episode``.
+    ``_alarmed`` and ``_episode`` (:class:`ResidualHost`).
     """
 
-    def _report(self, k: int, mode: int, signal: Any, threshold: Any, alarm: Any) -> None:
+    def _report(self: ResidualHost, k: int, mode: int, signal: Any, threshold: Any,
+                alarm: Any) -> None:
         share = self.params.warn_share
         qb = not isinstance(self.detector, ResidualDetector)
         self._log_alarms(k, signal, threshold, alarm)
@@ -98,7 +120,8 @@ class ResidualReport:
                 values["sigma_hat"] = float(self.sigma_hat[i])
             self.diag.update(ch, level, msg, values)
 
-    def _log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None:
+    def _log_alarms(self: ResidualHost, k: int, signal: Any, threshold: Any, alarm: Any
+                    ) -> None:
         """One line when a channel's alarm starts, one when every alarm is over."""
         now = {ch for i, ch in enumerate(self.channels) if alarm[i]}
         log = self.get_logger()
@@ -129,8 +152,9 @@ class DetectorNode(ResidualReport, FdNode):
     runtimes: Mapping[str, str] = {"thresholds": "_start_thresholds", "qb": "_start_qb"}
     outputs = (RESIDUAL, THRESHOLD, ALARM)
 
-    def __init__(self, detector: ResidualDetector | None = None, system=None, gains=None,
-                 qos=None, node_name: str = "detector", **kwargs: Any) -> None:
+    def __init__(self, detector: ResidualDetector | None = None, system: System | None = None,
+                 gains: GainFile | None = None, qos: QoSProfile | None = None,
+                 node_name: str = "detector", **kwargs: Any) -> None:
         self._detector_arg = detector
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
         if self.params.layout not in LAYOUTS:
@@ -218,10 +242,12 @@ class DetectorNode(ResidualReport, FdNode):
             self.publish_array(pub, lay.labels, k, lay.encode(pay))
         self._report(k, mode, pay["residual"], pay["threshold"], pay["alarm"])
 
-    def _step_thresholds(self, k, mode, x_hat, y_t, inputs):
+    def _step_thresholds(self, k: int, mode: int, x_hat: np.ndarray, y_t: np.ndarray,
+                         inputs: dict[str, Any]) -> dict[str, Any]:
         return self.detector.step(k, y_t, x_hat, mode, inputs["override"]).payload()
 
-    def _step_qb(self, k, mode, x_hat, y_t, inputs):
+    def _step_qb(self, k: int, mode: int, x_hat: np.ndarray, y_t: np.ndarray,
+                 inputs: dict[str, Any]) -> dict[str, Any]:
         det = self.detector
         sig = det.signals(x_hat, y_t - self._C[mode] @ x_hat)
         thr = det.rho * det.bounds(mode)

@@ -13,7 +13,7 @@ import os
 import random
 import subprocess
 import sys
-from collections.abc import Mapping, MutableMapping
+from collections.abc import Mapping, MutableMapping, Sequence
 
 __all__ = ["die_with_parent", "domain_is_free", "free_domain", "hold_domain", "isolate_env"]
 
@@ -91,7 +91,8 @@ def domain_is_free(domain: int, env: Mapping[str, str] | None = None) -> bool:
         return False
 
 
-def free_domain(env: Mapping[str, str] | None = None, tries: int = 5) -> int:
+def free_domain(env: Mapping[str, str] | None = None, tries: int = 5,
+                candidates: Sequence[int] | None = None) -> int:
     """A random ROS_DOMAIN_ID in 1..100 with no other ROS node in it on this machine.
 
     Parameters
@@ -101,18 +102,22 @@ def free_domain(env: Mapping[str, str] | None = None, tries: int = 5) -> int:
     tries : int
         Domains probed at most (3 s each when free); the last one is returned if all
         are taken.
+    candidates : sequence of int, optional
+        The ids to draw from (default 1..100): parallel test workers draw from disjoint
+        sets, so two of them probing at the same moment cannot both take one id.
     """
+    pool = list(range(1, 101) if candidates is None else candidates)
     rng = random.SystemRandom()
-    domain = rng.randint(1, 100)
+    domain = rng.choice(pool)
     for _ in range(max(1, tries)):
         if domain_is_free(domain, env):
             return domain
-        domain = rng.randint(1, 100)
+        domain = rng.choice(pool)
     return domain
 
 
-def isolate_env(env: MutableMapping[str, str], keep_domain: bool = False
-                ) -> MutableMapping[str, str]:
+def isolate_env(env: MutableMapping[str, str], keep_domain: bool = False,
+                candidates: Sequence[int] | None = None) -> MutableMapping[str, str]:
     """Make ``env`` a DDS environment of its own on this machine (the demo, the test suite).
 
     Discovery on localhost only (``ROS_AUTOMATIC_DISCOVERY_RANGE``; the deprecated
@@ -126,6 +131,8 @@ def isolate_env(env: MutableMapping[str, str], keep_domain: bool = False
         Changed in place (``os.environ`` or a child's copy).
     keep_domain : bool
         Keep a ``ROS_DOMAIN_ID`` already set (a test run given its domain).
+    candidates : sequence of int, optional
+        Ids :func:`free_domain` may choose from (default 1..100).
 
     Returns
     -------
@@ -136,5 +143,5 @@ def isolate_env(env: MutableMapping[str, str], keep_domain: bool = False
     env.pop("ROS_LOCALHOST_ONLY", None)
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     if not (keep_domain and "ROS_DOMAIN_ID" in env):
-        env["ROS_DOMAIN_ID"] = str(free_domain(env))
+        env["ROS_DOMAIN_ID"] = str(free_domain(env, candidates=candidates))
     return env

@@ -13,17 +13,18 @@ stale, when the input stops).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.core.verdict import FaultVerdict, VerdictOutput, VerdictRule
-from fd_monitor.nodes.common import ERROR, OK, incompatible_text, pub_events
-from fd_monitor.wire.topics import FAULT, fault_layout
+from fd_monitor.model.system import System
+from fd_monitor.nodes.common import ERROR, OK, Diagnostics, incompatible_text, pub_events
+from fd_monitor.wire.topics import FAULT, Layout, fault_layout
 
-__all__ = ["FaultReport", "fault_qos"]
+__all__ = ["FaultHost", "FaultReport", "fault_qos"]
 
 
 def fault_qos() -> QoSProfile:
@@ -33,13 +34,41 @@ def fault_qos() -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+class FaultHost(Protocol):
+    """What :class:`FaultReport` needs of its node (a protocol: mypy checks each host)."""
+
+    params: Any
+    system: System
+    diag: Diagnostics
+    fault_status: str
+    verdict: FaultVerdict
+    _fault_names: list[str]
+    _fault_layout: Layout
+    _fault_pub: Any
+    _faulty_before: list[str]
+    _entities: list[Any]
+    _pubs: list[Any]
+
+    def _graph_note(self, line: str, cause: str | None = None) -> None: ...
+    def publish_array(self, pub: Any, labels: Sequence[str], stamp: int,
+                      values: Any) -> None: ...
+    def get_logger(self) -> Any: ...
+    def fault_text(self, out: VerdictOutput) -> str: ...
+
+
 class FaultReport:
     """The fault verdict of a chain node (a mixin of :class:`~fd_monitor.nodes.fd_node.FdNode`
-    subclasses). Uses the node's ``system``, ``params``, ``diag``, ``publish_array``."""
+    subclasses; :class:`FaultHost`)."""
 
     fault_status = "fault"
+    verdict: FaultVerdict
+    _fault_names: list[str]
+    _fault_layout: Layout
+    _fault_pub: Any
+    _faulty_before: list[str]
 
-    def start_verdict(self, channels: Sequence[str], significance: Any = None) -> None:
+    def start_verdict(self: FaultHost, channels: Sequence[str],
+                      significance: Any = None) -> None:
         """Build the verdict for ``channels`` (at configure; ``significance``: (m,) |estimate|
         that counts as evidence, None without an estimator), its publisher and status."""
         p = self.params
@@ -48,8 +77,9 @@ class FaultReport:
         self.verdict = FaultVerdict(len(channels), rule, significance)
         self._fault_names = list(channels)
         self._fault_layout = fault_layout(channels)
-        name = self.resolve_topic_name(FAULT.name)
-        self._fault_pub = self.create_publisher(
+        node: Any = self                        # an rclpy Node
+        name = node.resolve_topic_name(FAULT.name)
+        self._fault_pub = node.create_publisher(
             Float64MultiArray, FAULT.name, fault_qos(),
             **pub_events(lambda info: self._graph_note(
                 incompatible_text(name, "publisher", info), f"qos {name}")))
@@ -57,14 +87,14 @@ class FaultReport:
         self._pubs.append(self._fault_pub)
         self.diag.add(self.fault_status, self.params.stale_timeout, keep_on_stale=True)
 
-    def reset_verdict(self) -> None:
+    def reset_verdict(self: FaultHost) -> None:
         """No fault (a new run)."""
         verdict = getattr(self, "verdict", None)
         if verdict is not None:
             verdict.reset()
         self._faulty_before: list[str] = []
 
-    def step_verdict(self, k: int, alarm: Any, estimate: Any = None,
+    def step_verdict(self: FaultHost, k: int, alarm: Any, estimate: Any = None,
                      isolated: Any = None) -> VerdictOutput:
         """Step the verdict with sample ``k``; publish and report it when it changed."""
         out = self.verdict.step(k, alarm, estimate, isolated)
@@ -84,18 +114,18 @@ class FaultReport:
         if faulty != getattr(self, "_faulty_before", []):
             log = self.get_logger()
             if faulty:
-                log.warning(f"fault verdict at sample {k}: {self._fault_text(out)}")
+                log.warning(f"fault verdict at sample {k}: {self.fault_text(out)}")
             else:
                 log.info(f"fault verdict at sample {k}: no fault (evidence gone for "
                          f"{self.verdict.rule.clear_after} samples)")
         self._faulty_before = faulty
         if faulty:
-            self.diag.update(self.fault_status, ERROR, self._fault_text(out), values)
+            self.diag.update(self.fault_status, ERROR, self.fault_text(out), values)
         else:
             self.diag.update(self.fault_status, OK, "no fault", values)
         return out
 
-    def _fault_text(self, out: VerdictOutput) -> str:
+    def fault_text(self: FaultHost, out: VerdictOutput) -> str:
         """``fault on h1 (since sample 42, isolated)`` for every channel at fault."""
         parts = []
         for i, c in enumerate(self._fault_names):

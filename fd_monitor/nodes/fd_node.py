@@ -36,6 +36,10 @@ of the others), reported, and dropped before it reaches the join.
 Feedback messages (``fd/bias_estimate``, ``fd/guard_event``, ``fd/threshold_override``) are
 stamped with the sample they are *for* (k + 1 when decided at k), so every join is on equal
 stamps.
+
+Why one module of ~760 lines: one lifecycle base class with its inputs and reports; issue 22
+item 2 (reports as small objects, one job per file) splits it, deferred while the nodes were
+being changed by other work.
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ import numpy as np
 from lifecycle_msgs.msg import State, Transition
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from std_msgs.msg import Empty, Float64MultiArray
@@ -89,10 +94,6 @@ from fd_monitor.wire.topics import RESET, Layout, Topic
 
 __all__ = ["COMMON_PARAMS", "FAULT_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode",
            "Input", "load_plant_and_gains"]
-
-#: Gain-file methods the chain nodes can run; each node lists the ones it runs in its
-#: ``runtimes`` (method -> name of the method that builds that runtime).
-RUNTIMES = ("thresholds", "qb")
 
 #: The join's hole timeout, of every node that joins plant/u and plant/y.
 GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have been complete "
@@ -260,8 +261,8 @@ class FdNode(LifecycleNode):
     outputs: Sequence[Topic] = ()
 
     def __init__(self, node_name: str, params: Sequence[Param] = (),
-                 system: System | None = None, gains: GainFile | None = None, qos=None,
-                 **kwargs: Any) -> None:
+                 system: System | None = None, gains: GainFile | None = None,
+                 qos: QoSProfile | None = None, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = declare_parameters(self, (*COMMON_PARAMS, *params))
         self._injected = (system, gains)
@@ -642,7 +643,8 @@ class FdNode(LifecycleNode):
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
-        self._held = {i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
+        self._held: dict[str, deque[tuple[int, np.ndarray]]] = {
+            i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
         self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
         self._data_inputs = {}
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
@@ -716,8 +718,8 @@ class FdNode(LifecycleNode):
                 self._pair_plain()
                 return
             if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
-                              inp.stamp_offset, inp.sequence and d.values[i_restart] > 0.5,
-                              inp.sequence and d.values[i_bridge] > 0.5):
+                              inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
+                              bool(inp.sequence and d.values[i_bridge] > 0.5)):
                 self._input_ok()
         return cb
 
@@ -950,9 +952,3 @@ class FdNode(LifecycleNode):
             cached = self._gain_values = (g, {"gain_file": g.id,
                                               "certificate": g.certificate_status})
         return cached[1]
-
-
-def require(condition: bool, message: str) -> None:
-    """Raise a start-up FdMonitorError unless ``condition``."""
-    if not condition:
-        raise FdMonitorError(message)

@@ -37,15 +37,16 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
+from rclpy.qos import QoSProfile
 
-from fd_monitor.core.runtime import RUNTIMES, runtime_class, runtime_for
+from fd_monitor.core.runtime import RUNTIMES, ThresholdsRuntime, runtime_class, runtime_for
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile, load_gains
-from fd_monitor.model.system import load_system
+from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
@@ -148,7 +149,8 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
     runtimes: Mapping[str, str] = {m: "_start" for m in RUNTIMES}
     bias_channel = "bias estimate"
 
-    def __init__(self, system=None, gains=None, qos=None, node_name: str = "monitor",
+    def __init__(self, system: System | None = None, gains: GainFile | None = None,
+                 qos: QoSProfile | None = None, node_name: str = "monitor",
                  **kwargs: Any) -> None:
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
 
@@ -213,7 +215,7 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
                                  f"signals differ from the running ones")
         self.runtime = rt
         #: the thresholds detector (its residual reports add sigma^), else None
-        self.detector = rt.monitor.detector if rt.CHAIN else None
+        self.detector = cast(ThresholdsRuntime, rt).monitor.detector if rt.CHAIN else None
         #: /diagnostics status (and alarm log) name of each of the runtime's channels
         self.channels = [f"residual {c}" for c in rt.channels]
         self.outputs = CHAIN_OUTPUTS if rt.CHAIN else RUNTIME_OUTPUTS

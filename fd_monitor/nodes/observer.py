@@ -20,14 +20,17 @@ samples) or restarts at the next valid sample, as the offline runner does
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
+from rclpy.qos import QoSProfile
 
 from fd_monitor.core.envelope import CertifiedRegion, describe_excess
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
 from fd_monitor.core.qb import QBObserver
-from fd_monitor.nodes.common import OK, WARN, NodeUsage, run_node
+from fd_monitor.model.gains import GainFile
+from fd_monitor.model.system import System
+from fd_monitor.nodes.common import OK, WARN, Diagnostics, NodeUsage, run_node
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, GAP_TIMEOUT, MAX_GAP_PARAM, FdNode, Input
 from fd_monitor.wire.topics import (
     BIAS_ESTIMATE,
@@ -59,12 +62,24 @@ USAGE = NodeUsage(
                 "region' when x^ or u leave the gain file's certified envelope)")))
 
 
+class EstimateHost(Protocol):
+    """What :class:`EstimateReport` needs of its node (a protocol: mypy checks each host)."""
+
+    diag: Diagnostics
+    system: System
+    _was_outside: bool
+
+    def mode_name(self, mode: int) -> str: ...
+    def gain_values(self) -> dict[str, str]: ...
+    def get_logger(self) -> Any: ...
+
+
 class EstimateReport:
     """The ``estimate`` /diagnostics status of a node running the observer (observer,
     monitor): the mode, WARN outside the gain file's certified region. Uses the node's
-    ``diag``, ``system``, ``mode_name`` and ``_was_outside``."""
+    ``diag``, ``system``, ``mode_name`` and ``_was_outside`` (:class:`EstimateHost`)."""
 
-    def report_estimate(self, k: int, mode: int, x_hat: Any, out: Any,
+    def report_estimate(self: EstimateHost, k: int, mode: int, x_hat: Any, out: Any,
                         names: Sequence[str] | None = None) -> None:
         """Report q^_k, x^_k and the excess over the certified region (None: no region;
         ``names``: of its entries, default the states then the inputs)."""
@@ -99,8 +114,9 @@ class ObserverNode(EstimateReport, FdNode):
 
     outputs = (STATE_ESTIMATE,)
 
-    def __init__(self, observer: HybridObserver | None = None, system=None, gains=None,
-                 qos=None, node_name: str = "observer", **kwargs: Any) -> None:
+    def __init__(self, observer: HybridObserver | None = None, system: System | None = None,
+                 gains: GainFile | None = None, qos: QoSProfile | None = None,
+                 node_name: str = "observer", **kwargs: Any) -> None:
         self._observer_arg = observer
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
 

@@ -26,8 +26,10 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from typing import Any
 
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray
 
@@ -131,8 +133,8 @@ class PlantSimNode(Node):
         Passed to :class:`rclpy.node.Node` (e.g. ``parameter_overrides``, ``context``).
     """
 
-    def __init__(self, simulator: PlantSimulator | None = None, qos=None,
-                 node_name: str = "plant_sim", **kwargs) -> None:
+    def __init__(self, simulator: PlantSimulator | None = None, qos: QoSProfile | None = None,
+                 node_name: str = "plant_sim", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         p = self.params = declare_parameters(self, PARAMS)
         if simulator is None:

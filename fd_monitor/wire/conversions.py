@@ -217,9 +217,9 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
     expected = tuple(labels) if labels is not None else None
     n = size if size is not None else (len(expected) if expected is not None else None)
     if n is not None and values.size != n:
-        names = f" ({','.join(expected)})" if expected else ""
+        listed = f" ({','.join(expected)})" if expected else ""
         raise WrongLengthError(f"{where}: wrong length: {values.size} values, expected "
-                               f"{n}{names}")
+                               f"{n}{listed}")
     if expected is not None and got_labels and got_labels != expected:
         raise MessageError(f"{where}: channels {','.join(got_labels)}: expected "
                            f"{','.join(expected)}")

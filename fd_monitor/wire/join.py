@@ -44,6 +44,10 @@ stamps become a new run (restart at the smallest complete one, :attr:`Sample.new
   held stamp arrived after its last progress (held stamps older than the last progress are
   forgotten: a duplicate or a stray stamp inside a live stream);
 * downstream role: at once, when the sequence input flags a restart at a held stamp.
+
+Why one module of ~530 lines: one class, ``StampJoin``, whose state (pending samples, holes,
+bridges, restarts, feedback waits) keeps one invariant; a third of the lines are docstrings
+and comments stating its rules.
 """
 
 from __future__ import annotations
@@ -207,6 +211,8 @@ class StampJoin:
 
     def reset(self) -> None:
         """Forget everything: the next complete sample starts a run (a reset service)."""
+        # The constructor is the one list of the join's state, so a reset re-runs it (mypy
+        # refuses calls of __init__ on an instance: misc).
         self.__init__(self.required, self.feedback, self.max_pending,  # type: ignore[misc]
                       sequence=self.sequence, gap_timeout=self.gap_timeout,
                       horizon=self.horizon, restart_after=self.restart_after,
