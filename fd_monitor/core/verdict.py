@@ -26,6 +26,7 @@ it on ``/diagnostics``; the offline tests step it on the runtime's outputs.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -70,19 +71,19 @@ class VerdictRule:
 
 @dataclass(frozen=True)
 class VerdictOutput:
-    """The verdict at sample ``k``.
+    """The verdict at sample ``k`` (per-channel tuples: cheap to build at every sample).
 
     Attributes
     ----------
     k : int
-    fault : numpy.ndarray
-        (m,) bool: a fault is present on the channel.
-    isolated : numpy.ndarray
-        (m,) bool: isolated by the estimator during the current fault episode.
-    estimate : numpy.ndarray
+    fault : tuple of bool
+        (m,) a fault is present on the channel.
+    isolated : tuple of bool
+        (m,) isolated by the estimator during the current fault episode.
+    estimate : tuple of float
         (m,) the latest estimate (sensor bias, in the output's unit); NaN without one.
-    since : numpy.ndarray
-        (m,) int: the sample the fault was set at; -1 without a fault.
+    since : tuple of int
+        (m,) the sample the fault was set at; -1 without a fault.
     changed : bool
         The verdict (fault, isolated, since) changed at k, or the estimate of a faulty
         channel moved by more than its significance since the last change: what is worth
@@ -90,20 +91,26 @@ class VerdictOutput:
     """
 
     k: int
-    fault: np.ndarray
-    isolated: np.ndarray
-    estimate: np.ndarray
-    since: np.ndarray
+    fault: tuple[bool, ...]
+    isolated: tuple[bool, ...]
+    estimate: tuple[float, ...]
+    since: tuple[int, ...]
     changed: bool
 
     def payload(self) -> dict[str, Any]:
-        """Field name -> value: ``fault``, ``isolated``, ``estimate``, ``since``."""
-        return {"fault": self.fault, "isolated": self.isolated, "estimate": self.estimate,
-                "since": self.since}
+        """Field name -> (m,) array: ``fault``, ``isolated``, ``estimate``, ``since``."""
+        return {"fault": np.array(self.fault, dtype=float),
+                "isolated": np.array(self.isolated, dtype=float),
+                "estimate": np.array(self.estimate, dtype=float),
+                "since": np.array(self.since, dtype=float)}
 
     def faulty(self, channels: Sequence[str]) -> list[str]:
         """The names of the channels at fault."""
         return [c for c, f in zip(channels, self.fault) if f]
+
+
+def _floats(v: Any) -> list[float]:
+    return [float(x) for x in (v.tolist() if hasattr(v, "tolist") else v)]
 
 
 class FaultVerdict:
@@ -123,19 +130,23 @@ class FaultVerdict:
                  significance: Any = None) -> None:
         self.n = int(n)
         self.rule = rule or VerdictRule()
-        self.significance = (None if significance is None
-                             else np.abs(np.asarray(significance, dtype=float)).reshape(n))
+        self.significance: list[float] | None = None
+        if significance is not None:
+            sig = [abs(x) for x in _floats(np.ravel(np.asarray(significance, dtype=float)))]
+            if len(sig) != self.n:
+                raise ValueError(f"verdict: {len(sig)} significance values for {n} channels")
+            self.significance = sig
         self.reset()
 
     def reset(self) -> None:
         """No fault on any channel (a new run)."""
         n = self.n
         self._alarms: list[deque[int]] = [deque() for _ in range(n)]
-        self.fault = np.zeros(n, dtype=bool)
-        self.isolated = np.zeros(n, dtype=bool)
-        self.since = np.full(n, -1, dtype=np.int64)
-        self._last_evidence = np.full(n, -1, dtype=np.int64)
-        self._reported_estimate = np.full(n, np.nan)
+        self.fault = [False] * n
+        self.isolated = [False] * n
+        self.since = [-1] * n
+        self._last_evidence = [-1] * n
+        self._reported: list[float] = [math.nan] * n
         self._started = False
 
     def step(self, k: int, alarm: Any, estimate: Any = None,
@@ -154,38 +165,39 @@ class FaultVerdict:
             (m,) the estimator's isolation flags at k.
         """
         rule, n = self.rule, self.n
-        alarm = np.asarray(alarm, dtype=bool).reshape(n)
-        est = (np.full(n, np.nan) if estimate is None
-               else np.asarray(estimate, dtype=float).reshape(n))
-        iso = (np.zeros(n, dtype=bool) if isolated is None
-               else np.asarray(isolated, dtype=bool).reshape(n))
-        evidence = alarm | iso
-        if self.significance is not None and estimate is not None:
-            evidence |= np.abs(est) > self.significance
-        before = (self.fault.copy(), self.isolated.copy())
+        al = _floats(alarm)
+        est = [math.nan] * n if estimate is None else _floats(estimate)
+        iso = [0.0] * n if isolated is None else _floats(isolated)
+        if len(al) != n or len(est) != n or len(iso) != n:
+            raise ValueError(f"verdict at sample {k}: expected {n} values per input")
+        sig = self.significance if estimate is not None else None
+        changed = not self._started
+        moved = False
         for i in range(n):
             alarms = self._alarms[i]
-            if alarm[i]:
+            if al[i]:
                 alarms.append(k)
             while alarms and alarms[0] <= k - rule.window:
                 alarms.popleft()
-            if evidence[i]:
+            if al[i] or iso[i] or (sig is not None and abs(est[i]) > sig[i]):
                 self._last_evidence[i] = k
             if not self.fault[i]:
                 if iso[i] or len(alarms) >= rule.confirm:
                     self.fault[i], self.since[i] = True, k
                     self.isolated[i] = bool(iso[i])
+                    changed = True
             elif k - self._last_evidence[i] >= rule.clear_after:
                 self.fault[i], self.isolated[i], self.since[i] = False, False, -1
+                changed = True
             else:
-                self.isolated[i] |= bool(iso[i])
-        changed = (not self._started or not np.array_equal(before[0], self.fault)
-                   or not np.array_equal(before[1], self.isolated))
-        if not changed and self.significance is not None and estimate is not None:
-            moved = np.abs(est - self._reported_estimate) > self.significance
-            changed = bool(np.any(self.fault & ~np.isnan(self._reported_estimate) & moved))
+                if iso[i] and not self.isolated[i]:
+                    self.isolated[i] = changed = True
+                # a faulty channel's estimate that moved by more than its significance
+                if sig is not None and abs(est[i] - self._reported[i]) > sig[i]:
+                    moved = True
+        changed = changed or moved
         if changed:
-            self._reported_estimate = est.copy()
+            self._reported = list(est)
         self._started = True
-        return VerdictOutput(int(k), self.fault.copy(), self.isolated.copy(), est,
-                             self.since.copy(), bool(changed))
+        return VerdictOutput(int(k), tuple(self.fault), tuple(self.isolated), tuple(est),
+                             tuple(self.since), changed)
