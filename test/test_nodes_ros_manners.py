@@ -172,14 +172,18 @@ def test_standalone_detector_reset_resets_the_whole_chain_and_the_verdict():
 
     u, y = bias_data(80, 0.05)
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx)
+        # no hole or new run declared on a loaded machine: only the reset restarts the run
+        nodes = make_nodes(context=ctx, parameter_overrides=params(gap_timeout=30.0,
+                                                                   restart_after=30.0))
         obs = next(n for n in nodes if n.get_name() == "observer")
         bench = Bench(ctx, nodes, topics=["/fd/bias_estimate", "/fd/fault"])
         assert bench.matched(2)
         bench.send(u, y, range(60))
         assert bench.spin(lambda: len(bench.col.msgs["/fd/bias_estimate"]) >= 60)
-        last = bench.col.decoded("/fd/bias_estimate")[-1]
-        assert last.values[list(last.labels).index("active")] == 1.0   # estimating
+        before = {m.stamp: m for m in bench.col.decoded("/fd/bias_estimate")}
+        i_active = list(before[60].labels).index("active")
+        assert before[60].values[i_active] == 1.0                       # estimating
+        assert obs.join.restarts == 0 and obs.join.new_runs == 0
         assert bench.spin(lambda: any(d.values[0] > 0.5
                                       for d in bench.col.decoded("/fd/fault")))
         assert bench.spin(lambda: any(s.level == ERROR and s.message.startswith("fault on h1")
@@ -198,7 +202,6 @@ def test_standalone_detector_reset_resets_the_whole_chain_and_the_verdict():
         bench.send(u, y, range(60, 70))                  # continues the stamps: a new run
         assert bench.spin(lambda: len(bench.col.msgs["/fd/bias_estimate"]) >= 70)
         after = [m for m in bench.col.decoded("/fd/bias_estimate") if m.stamp > 60]
-        i_active = list(after[0].labels).index("active")
         assert all(m.values[i_active] == 0.0 for m in after)          # not latched any more
         assert bench.spin(lambda: decode(bench.col.msgs["/fd/fault"][-1],
                                          "/fd/fault").values[0] == 0.0)
