@@ -337,7 +337,8 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
                        adapter)
     (out / "summary.md").write_text(md, encoding="utf-8")
     return {"summary": summary, "figures": {k: str(v) for k, v in figs.items()},
-            "summary_md": str(out / "summary.md"), "expected_failures": fails}
+            "summary_md": str(out / "summary.md"), "expected_failures": fails,
+            "integrity": run.integrity}
 
 
 def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],

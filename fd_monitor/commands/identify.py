@@ -19,7 +19,7 @@ from fd_monitor.analysis.identify import (
     plot_validation,
     write_plant,
 )
-from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.commands._common import add_json_flag, number, print_json, print_table
 from fd_monitor.core.identify import IdentificationError
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--holdout", nargs="+", default=[], metavar="BAG",
                         help="held-out bags for validation and the bounds (default: the last "
                              "--split of each fit bag)")
-    parser.add_argument("--split", type=float, default=0.3,
+    parser.add_argument("--split", type=number(0, 1, low_open=True, high_open=True), default=0.3,
                         help="held-out fraction of each fit bag without --holdout (default 0.3)")
     parser.add_argument("--model", choices=MODELS, default="auto",
                         help="mode dynamics: linear (x+ = A x + B u), affine (+ offset), "
@@ -60,21 +60,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "'Monitor your own robot'); replaces --u-topic/--y-topic")
     parser.add_argument("--name", default=None,
                         help="plant name (default: the output file's stem)")
-    parser.add_argument("--sample-time", type=float, default=None,
+    parser.add_argument("--sample-time", type=number(0, low_open=True), default=None,
                         help="s (default: from the bags' timestamps)")
-    parser.add_argument("--margin", type=float, default=1.2,
+    parser.add_argument("--margin", type=number(1), default=1.2,
                         help="factor on every bound, >= 1 (default 1.2)")
-    parser.add_argument("--max-window", type=float, default=10.0,
+    parser.add_argument("--max-window", type=number(0, low_open=True), default=10.0,
                         help="longest moving-average window the uncertainty bound looks "
                              "through, s (default 10: a modelling error below the noise shows "
                              "only in averages)")
     parser.add_argument("--estimator", choices=ESTIMATORS, default="iv",
                         help="iv: lagged measurements as instruments (unbiased on noisy, "
                              "closed-loop data; default); ls: plain least squares")
-    parser.add_argument("--sparsity", type=float, default=0.01,
+    parser.add_argument("--sparsity", type=number(0, 1), default=0.01,
                         help="sparse: drop a term contributing less than this fraction of the "
                              "increment's spread (default 0.01)")
-    parser.add_argument("--max-radius", type=float, default=None,
+    parser.add_argument("--max-radius", type=number(0, low_open=True), default=None,
                         help="clip the eigenvalue magnitudes of each mode's A to this (e.g. "
                              "0.9999) and refit B and the offsets: a stable model for a plant "
                              "known to be stable (default: no clipping)")

@@ -12,7 +12,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from fd_monitor.commands._common import add_json_flag, emit
+from fd_monitor.commands._common import add_json_flag, count, emit, number
 from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["add_arguments", "run", "main"]
@@ -23,12 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", metavar="BAGDIR", help="rosbag2 bag folder")
     parser.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
                         help="topics to replay (default: every Float64MultiArray topic)")
-    parser.add_argument("--rate", type=float, default=1.0,
+    parser.add_argument("--rate", type=number(0), default=1.0,
                         help="speed factor on the bag's timestamps; 0 = flat out, lossless "
                              "(default 1.0)")
-    parser.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+    parser.add_argument("--wait-subscribers", type=count(0, 10_000), default=0, metavar="N",
                         help="wait until every topic has N matched subscriptions")
-    parser.add_argument("--wait-timeout", type=float, default=30.0, metavar="S",
+    parser.add_argument("--wait-timeout", type=number(0), default=30.0, metavar="S",
                         help="s to wait for them, then fail (0 = forever; default 30)")
     parser.add_argument("--remap", action="append", default=[], metavar="FROM:=TO",
                         help="publish bag topic FROM on TO (repeatable)")

@@ -13,7 +13,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from fd_monitor.commands._common import add_json_flag, emit, print_json, print_table
+from fd_monitor.commands._common import add_json_flag, count, emit, number, print_json, print_table
 from fd_monitor.model.errors import ScenarioError
 
 __all__ = ["add_arguments", "run", "simulate_to_bag"]
@@ -35,9 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--expected", action="store_true",
                         help="with --library: also (re)write each bag's expected.yaml from "
                              "`analyze` of the new bag and its truth")
-    parser.add_argument("--seed", type=int, default=None,
+    parser.add_argument("--seed", type=count(0), default=None,
                         help="random seed (default: the scenario's)")
-    parser.add_argument("--duration", type=float, default=None,
+    parser.add_argument("--duration", type=number(0, low_open=True), default=None,
                         help="s of plant time (default: the scenario's)")
     parser.add_argument("--adapter", metavar="MAP", default=None,
                         help="write u and y as the robot's messages on the topics of this "

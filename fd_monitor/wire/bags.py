@@ -73,6 +73,7 @@ __all__ = [
     "FLUSH_SECONDS",
     "BagDamage",
     "BagDamageWarning",
+    "BagUncheckedWarning",
     "BagWriter",
     "TopicArrays",
     "array_msg",
@@ -477,6 +478,10 @@ class BagDamage:
     file: str
     offset: int
     what: str
+    #: ``damage`` (messages lost or changed), or ``unchecked`` (chunks with CRC 0, which the
+    #: MCAP specification defines as "not computed": nothing is known to be wrong, bit
+    #: errors in them just cannot be detected).
+    kind: str = "damage"
 
     def __str__(self) -> str:
         return f"{self.file}: byte {self.offset}: {self.what}"
@@ -484,6 +489,11 @@ class BagDamage:
 
 class BagDamageWarning(FdMonitorWarning):
     """A bag is damaged or incomplete; what could be read was read (see :class:`BagDamage`)."""
+
+
+class BagUncheckedWarning(FdMonitorWarning):
+    """A bag's chunks carry no CRC (CRC 0, "not computed" in the MCAP specification): not
+    damage, but bit errors in them cannot be detected."""
 
 
 def mcap_file(path: str | Path) -> Path:
@@ -503,6 +513,11 @@ def mcap_file(path: str | Path) -> Path:
             files = info["rosbag2_bagfile_information"]["relative_file_paths"]
             if len(files) != 1 or not str(files[0]).endswith(".mcap"):
                 raise ValueError(f"expected one .mcap file, got {files}")
+            if Path(str(files[0])).name != str(files[0]):
+                # rosbag2 lists the bag's own files, by name: a path elsewhere would read
+                # another bag's data under this bag's name
+                raise ValueError(f"relative_file_paths names {str(files[0])!r}, not a file "
+                                 f"of this bag folder")
         except (yaml.YAMLError, UnicodeDecodeError, OSError, KeyError, TypeError,
                 ValueError) as exc:
             raise BagError(f"{p}: not a readable rosbag2 bag: metadata.yaml: "
@@ -707,9 +722,12 @@ class _Scan:
                 self.report(n, f"the summary lists {self.statistics.message_count} messages "
                                f"but {self.messages} were read")
         if self.unchecked_chunks:
-            self.report(8, f"{self.unchecked_chunks} chunks carry no CRC: bit errors in them "
-                           f"cannot be detected (rewrite with `python -m fd_monitor bag "
-                           f"recover`)")
+            # CRC 0 is "not computed" (MCAP spec; rosbags writes it): a note, not damage
+            self.damage.append(BagDamage(
+                str(self.file), 8, f"{self.unchecked_chunks} chunks carry no CRC (CRC 0: not "
+                                   f"computed by their writer): bit errors in them cannot be "
+                                   f"detected (`python -m fd_monitor bag recover` rewrites "
+                                   f"the bag with CRCs)", "unchecked"))
 
     def _data_end(self, buf: Any, pos: int, end: int) -> None:
         try:
@@ -823,7 +841,8 @@ def _scan(path: str | Path, damage: list[BagDamage] | None
             for d in found:
                 # one location, so Python's default filter says each damage once even when
                 # a command reads the bag several times
-                warnings.warn(str(d), BagDamageWarning, stacklevel=1)
+                warnings.warn(str(d), BagDamageWarning if d.kind == "damage"
+                              else BagUncheckedWarning, stacklevel=1)
 
 
 def read_raw(path: str | Path, topics: Sequence[str] | None = None, *,

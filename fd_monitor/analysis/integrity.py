@@ -1,0 +1,304 @@
+"""The input contract of every command that reads a bag: what was not used, and why.
+
+``analyze``, ``report``, ``replay``, ``identify`` and ``bag check`` read a bag through
+:func:`fd_monitor.analysis.offline.scan_bag` (every chunk's CRC checked, damage skipped and
+reported) and its ``/plant/...`` messages through the nodes' input policy
+(:func:`fd_monitor.analysis.offline.read_streams`, or :func:`read_samples` when no plant is
+known: ``identify``, ``replay``). What they did not use is one record, :func:`integrity`::
+
+    {"clean": false,                       # nothing below (but unchecked_chunks) is non-zero
+     "skipped_chunks": 1,                  # damaged regions of the MCAP skipped
+     "damage": ["<file>: byte 4711: ..."], # one line each
+     "unchecked_chunks": 0,                # chunks with CRC 0 ("not computed"): not damage
+     "metadata": [],                       # metadata.yaml disagreeing with the MCAP it names
+     "samples_present": 3000, "samples_used": 2950,
+     "lost_samples": 50,                   # present - used
+     "samples_skipped": {"missing": 48, "non_finite": 2},   # reason -> samples not used
+     "refused_samples": {"non_finite": 2}, # received but refused (decode, limits), by reason
+     "dropped_messages": {"duplicate": 1}} # messages dropped without losing a sample
+
+``--json`` prints it as ``integrity``; ``--strict`` turns a record that is not ``clean`` into
+exit status 2 (:func:`enforce_strict`, one line saying what). The limits of offline reading
+(:data:`MAX_LABEL_CHARS`, :data:`MAX_DISTINCT_LABELS`, :data:`MAX_MAGNITUDE`) are checked
+message by message before anything is kept.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from fd_monitor.model.errors import BagError, FdMonitorError
+from fd_monitor.model.plant_schema import MAX_MAGNITUDE
+from fd_monitor.model.yaml_io import read_yaml
+
+__all__ = ["MAX_DISTINCT_LABELS", "MAX_LABEL_CHARS", "MAX_MAGNITUDE", "add_strict_flag",
+           "bounded_labels", "describe", "enforce_strict", "integrity", "metadata_problems",
+           "read_samples"]
+
+#: Longest channel-label string (``layout.dim[0].label``) of a message read offline,
+#: characters; a longer one is refused as ``malformed`` (a label is a few channel names).
+MAX_LABEL_CHARS = 4096
+#: Most distinct label strings on one topic of a bag; beyond it the bag is refused (one
+#: topic carries one plant's channels: a few layouts at most, never thousands).
+MAX_DISTINCT_LABELS = 64
+
+#: Kinds of input errors that refuse a received sample (its stamp is lost).
+_REFUSED = ("non_finite", "wrong_length", "malformed", "implausible")
+#: Kinds that drop a message without losing a sample.
+_DROPPED = ("duplicate", "out_of_order", "late", "held", "dropped", "stray", "decimated")
+
+
+def add_strict_flag(parser: Any) -> None:
+    """Add ``--strict`` (exit status 2 when the input was not used whole)."""
+    parser.add_argument("--strict", action="store_true",
+                        help="exit with status 2 when anything of the bag was not used "
+                             "(damaged chunks, refused or missing samples, dropped messages, "
+                             "metadata.yaml disagreeing with the MCAP); see `integrity` in "
+                             "--json")
+
+
+def metadata_problems(bag: str | Path, present: Mapping[str, tuple[str, int]],
+                      damaged: bool = False) -> list[str]:
+    """Where a bag folder's ``metadata.yaml`` disagrees with the MCAP it names.
+
+    Parameters
+    ----------
+    bag : str or pathlib.Path
+        The bag folder (an ``.mcap`` given directly has no metadata: nothing to compare).
+    present : mapping
+        topic -> (message type, messages read) of the MCAP.
+    damaged : bool
+        Messages were lost to damage: fewer read than listed is then expected, not said.
+
+    Returns
+    -------
+    list of str
+        One line each (empty: they agree).
+    """
+    p = Path(bag)
+    if not p.is_dir():
+        return []
+    meta = p / "metadata.yaml"
+    if not meta.is_file():
+        return ["no metadata.yaml (its writer died, or it was removed): the topics, types and "
+                "counts of the .mcap cannot be cross-checked"]
+    try:
+        info = read_yaml(meta, BagError)["rosbag2_bagfile_information"]
+        listed = {str(e["topic_metadata"]["name"]): (str(e["topic_metadata"]["type"]),
+                                                     int(e["message_count"]))
+                  for e in info.get("topics_with_message_count") or []}
+        total = int(info.get("message_count", sum(n for _t, n in listed.values())))
+        files = [str(f.get("path")) for f in info.get("files") or [] if isinstance(f, Mapping)]
+        rel = [str(f) for f in info["relative_file_paths"]]
+    except (FdMonitorError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        return [f"metadata.yaml unreadable ({str(exc).splitlines()[0][:200]})"]
+    out: list[str] = []
+    if files and files != rel:
+        out.append(f"metadata.yaml: files {files} but relative_file_paths {rel}")
+    for t in sorted(set(listed) | set(present)):
+        if t not in present:
+            if listed[t][1] and not damaged:
+                out.append(f"metadata.yaml lists {t} ({listed[t][1]} messages), the .mcap has "
+                           f"no message on it")
+            continue
+        ty, n = present[t]
+        if t not in listed:
+            out.append(f"the .mcap has {t} ({n} messages), metadata.yaml does not list it")
+            continue
+        if listed[t][0] != ty:
+            out.append(f"{t}: metadata.yaml says type {listed[t][0]}, the .mcap {ty}")
+        if listed[t][1] != n and (n > listed[t][1] or not damaged):
+            out.append(f"{t}: metadata.yaml says {listed[t][1]} messages, the .mcap has {n}")
+    read = sum(n for _t, n in present.values())
+    if total != read and (read > total or not damaged):
+        out.append(f"metadata.yaml says {total} messages in all, the .mcap has {read}")
+    return out
+
+
+def integrity(scan: Any, rep: Any = None) -> dict[str, Any]:
+    """The integrity record of a bag read by ``scan`` (a
+    :class:`~fd_monitor.analysis.offline.BagScan`) and, when samples were read, their
+    :class:`~fd_monitor.analysis.offline.InputReport` (see the module docstring)."""
+    damage = [d for d in scan.damage if d.kind == "damage"]
+    unchecked = sum(int(str(d.what).split()[0]) for d in scan.damage if d.kind != "damage")
+    doc: dict[str, Any] = {"clean": True, "skipped_chunks": len(damage),
+                           "damage": [str(d) for d in damage], "unchecked_chunks": unchecked,
+                           "metadata": list(scan.metadata)}
+    refused: dict[str, int] = {}
+    dropped: dict[str, int] = {}
+    if rep is not None:
+        counts = rep.sample_counts()
+        skipped = dict(counts["skipped"])
+        doc.update(samples_present=counts["present"], samples_used=counts["used"],
+                   lost_samples=counts["present"] - counts["used"], samples_skipped=skipped)
+        refused = {k: v for k, v in skipped.items() if k in _REFUSED}
+        for e in rep.errors:
+            if e["kind"] in _DROPPED:
+                dropped[e["kind"]] = dropped.get(e["kind"], 0) + 1
+    doc["refused_samples"] = refused
+    doc["dropped_messages"] = dict(sorted(dropped.items()))
+    doc["clean"] = not (damage or doc["metadata"] or doc.get("lost_samples") or refused
+                        or dropped)
+    return doc
+
+
+def describe(doc: Mapping[str, Any]) -> str:
+    """One line: what of the bag was not used (``doc`` from :func:`integrity`)."""
+    parts = []
+    if doc["skipped_chunks"]:
+        parts.append(f"{doc['skipped_chunks']} damaged region(s) skipped")
+    if doc.get("lost_samples"):
+        parts.append(f"{doc['lost_samples']} of {doc['samples_present']} samples not used ("
+                     + ", ".join(f"{k} {n}" for k, n in doc["samples_skipped"].items()) + ")")
+    if doc["dropped_messages"]:
+        parts.append("messages dropped: " + ", ".join(f"{k} {n}" for k, n in
+                                                      doc["dropped_messages"].items()))
+    if doc["metadata"]:
+        parts.append(f"metadata.yaml disagrees with the MCAP: {doc['metadata'][0]}"
+                     + (f" (and {len(doc['metadata']) - 1} more)"
+                        if len(doc["metadata"]) > 1 else ""))
+    return "; ".join(parts) or "every message and sample used"
+
+
+def enforce_strict(doc: Mapping[str, Any], bag: str | Path, strict: bool) -> None:
+    """``--strict``: raise a one-line :class:`BagError` (exit status 2) unless ``doc`` is
+    clean; nothing without ``strict``."""
+    if strict and not doc["clean"]:
+        raise BagError(f"{bag}: input not used whole (--strict): {describe(doc)}")
+
+
+def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str] | None]
+                 = (), limits: Sequence[Any] = (), *, max_gap: int = 0
+                 ) -> tuple[list[int], list[np.ndarray], Any]:
+    """The samples of a bag without a plant file (``identify``, ``replay``), through the same
+    input policy as ``analyze`` (:func:`fd_monitor.analysis.offline.read_streams`).
+
+    Parameters
+    ----------
+    scan : BagScan
+        The bag, read once (:func:`~fd_monitor.analysis.offline.scan_bag`).
+    topics : sequence of str
+        The joined Float64MultiArray topics (e.g. u then y).
+    labels : sequence
+        Per topic the expected channel labels, or None: the first readable message's.
+    limits : sequence
+        Per topic a (m, 2) array of [low, high] per channel, or None: every value must be
+        of magnitude <= :data:`MAX_MAGNITUDE` (a sample outside is refused as
+        ``implausible``, like the runtime's range test).
+    max_gap : int
+        Holes of at most this many samples are bridged (reported in ``bridges``).
+
+    Returns
+    -------
+    (list, list, InputReport)
+        Released stamps (a new run after a restart renumbered to follow the last stamp with
+        a hole of one sample, so no one-step pair crosses it), per topic the (K, m) values,
+        the report.
+
+    Raises
+    ------
+    BagError
+        A topic missing or not a Float64MultiArray, more than :data:`MAX_DISTINCT_LABELS`
+        label strings on a topic.
+    """
+    from fd_monitor.analysis.offline import InputReport, _bag_errors, _join_messages
+    from fd_monitor.wire.join import Sample
+    from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY
+
+    topics = list(topics)
+    present = scan.present
+    for t in topics:
+        if t not in present:
+            raise BagError(f"{scan.bag}: no topic {t} in the bag (topics: "
+                           f"{', '.join(sorted(present)) or 'none'})")
+        if present[t][0] != FLOAT64_MULTI_ARRAY:
+            raise BagError(f"{scan.bag}: {t} is recorded as {present[t][0]}, expected "
+                           f"{FLOAT64_MULTI_ARRAY}")
+    labs = list(labels) + [None] * (len(topics) - len(labels))
+    lims = list(limits) + [None] * (len(topics) - len(limits))
+    for i, t in enumerate(topics):
+        if labs[i] is None:
+            first = scan.first_labels(t)
+            if first is None:
+                raise BagError(f"{scan.bag}: {t}: its first message names no channels "
+                               f"(layout.dim[0].label): cannot tell them apart")
+            if len(",".join(first)) > MAX_LABEL_CHARS:
+                raise BagError(f"{scan.bag}: {t}: channel labels of over {MAX_LABEL_CHARS} "
+                               f"characters (limit MAX_LABEL_CHARS)")
+            labs[i] = tuple(first)
+    names = {t: f"s{i}" for i, t in enumerate(topics)}
+    rep = InputReport()
+    ks: list[int] = []
+    cols: list[list[np.ndarray]] = [[] for _ in topics]
+    shift = [0]
+
+    def check(v: np.ndarray, i: int) -> str | None:
+        lim = lims[i]
+        if lim is None:
+            bad = np.flatnonzero(~(np.abs(v) <= MAX_MAGNITUDE))
+            if bad.size:
+                return (f"{labs[i][bad[0]]} = {v[bad[0]]!r}: outside +-{MAX_MAGNITUDE:g} "
+                        f"(implausible)")
+            return None
+        lo, hi = np.asarray(lim, float)[:, 0], np.asarray(lim, float)[:, 1]
+        bad = np.flatnonzero(~((v >= lo) & (v <= hi)))
+        if bad.size:
+            j = bad[0]
+            return (f"{labs[i][j]} = {v[j]!r}: outside its limits [{lo[j]:g}, {hi[j]:g}] "
+                    f"(implausible)")
+        return None
+
+    def step(s: Sample) -> bool:
+        vals = [np.asarray(s.inputs[names[t]], float) for t in topics]
+        for i, v in enumerate(vals):
+            why = check(v, i)
+            if why is not None:
+                rep.errors.append({"kind": "implausible", "topic": topics[i], "sample": s.k,
+                                   "message": f"{topics[i]} stamp {s.k}: {why}"})
+                return False
+        k = s.k + shift[0]
+        if ks and k <= ks[-1]:            # a new run whose stamps start again: after a hole
+            shift[0] += ks[-1] + 2 - k
+            k = ks[-1] + 2
+        ks.append(k)
+        for i, v in enumerate(vals):
+            cols[i].append(v)
+        return True
+
+    with _bag_errors(scan.bag):
+        _join_messages(bounded_labels(scan.messages(topics), scan.bag),
+                       {t: tuple(labs[i] or ()) for i, t in enumerate(topics)}, names,
+                       [names[t] for t in topics], rep, step, max_gap)
+    return ks, [np.vstack(c) if c else np.zeros((0, len(labs[i] or ())))
+                for i, c in enumerate(cols)], rep
+
+
+def bounded_labels(messages: Iterable[tuple[str, int, Any]], bag: Any
+                   ) -> Iterator[tuple[str, int, Any]]:
+    """``(topic, log time, message)`` with the label limits of offline reading checked:
+    more than :data:`MAX_DISTINCT_LABELS` label strings on a topic refuse the bag (BagError);
+    a label longer than :data:`MAX_LABEL_CHARS` is replaced by a short marker, so the message
+    is refused for its channels with a short line (and no long string is kept)."""
+    seen: dict[str, set[str]] = {}
+    for topic, t, msg in messages:
+        dims = msg.layout.dim
+        label = str(dims[0].label) if dims else ""
+        if len(label) > MAX_LABEL_CHARS:
+            marker = f"<label of {len(label)} characters, over {MAX_LABEL_CHARS}>"
+            msg = SimpleNamespace(data=msg.data, layout=SimpleNamespace(
+                dim=[SimpleNamespace(label=marker, size=dims[0].size, stride=dims[0].stride)],
+                data_offset=msg.layout.data_offset))
+            label = marker
+        got = seen.setdefault(topic, set())
+        if label not in got:
+            got.add(label)
+            if len(got) > MAX_DISTINCT_LABELS:
+                raise BagError(f"{bag}: {topic}: more than {MAX_DISTINCT_LABELS} distinct "
+                               f"channel label strings (limit MAX_DISTINCT_LABELS: one topic "
+                               f"carries one plant's channels)")
+        yield topic, t, msg
