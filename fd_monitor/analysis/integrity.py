@@ -25,7 +25,7 @@ message by message before anything is kept.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -38,7 +38,7 @@ from fd_monitor.model.yaml_io import read_yaml
 
 __all__ = ["MAX_DISTINCT_LABELS", "MAX_LABEL_CHARS", "MAX_MAGNITUDE", "add_strict_flag",
            "bounded_labels", "describe", "enforce_strict", "integrity", "metadata_problems",
-           "read_samples"]
+           "read_joined", "read_samples"]
 
 #: Longest channel-label string (``layout.dim[0].label``) of a message read offline,
 #: characters; a longer one is refused as ``malformed`` (a label is a few channel names).
@@ -173,7 +173,9 @@ def enforce_strict(doc: Mapping[str, Any], bag: str | Path, strict: bool) -> Non
 
 
 def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str] | None]
-                 = (), limits: Sequence[Any] = (), *, max_gap: int = 0
+                 = (), limits: Sequence[Any] = (), *, max_gap: int = 0,
+                 on_sample: Callable[[int], Any] | None = None,
+                 on_message: Callable[[str, int, Any], Any] | None = None
                  ) -> tuple[list[int], list[np.ndarray], Any]:
     """The samples of a bag without a plant file (``identify``, ``replay``), through the same
     input policy as ``analyze`` (:func:`fd_monitor.analysis.offline.read_streams`).
@@ -192,6 +194,11 @@ def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str
         ``implausible``, like the runtime's range test).
     max_gap : int
         Holes of at most this many samples are bridged (reported in ``bridges``).
+    on_sample : callable, optional
+        Called with the stamp (as received) of each sample kept.
+    on_message : callable, optional
+        Called with ``(topic, log time ns, message)`` of each message read, before any is
+        joined.
 
     Returns
     -------
@@ -266,16 +273,28 @@ def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str
             shift[0] += ks[-1] + 2 - k
             k = ks[-1] + 2
         ks.append(k)
+        if on_sample is not None:
+            on_sample(s.k)
         for i, v in enumerate(vals):
             cols[i].append(v)
         return True
 
     with _bag_errors(scan.bag):
-        _join_messages(bounded_labels(scan.messages(topics), scan.bag),
+        msgs = bounded_labels(scan.messages(topics), scan.bag)
+        if on_message is not None:
+            msgs = _tap(msgs, on_message)
+        _join_messages(msgs,
                        {t: tuple(labs[i] or ()) for i, t in enumerate(topics)}, names,
                        [names[t] for t in topics], rep, step, max_gap)
     return ks, [np.vstack(c) if c else np.zeros((0, len(labs[i] or ())))
                 for i, c in enumerate(cols)], rep
+
+
+def _tap(messages: Iterable[tuple[str, int, Any]], f: Callable[[str, int, Any], Any]
+         ) -> Iterator[tuple[str, int, Any]]:
+    for m in messages:
+        f(*m)
+        yield m
 
 
 def bounded_labels(messages: Iterable[tuple[str, int, Any]], bag: Any
@@ -302,3 +321,55 @@ def bounded_labels(messages: Iterable[tuple[str, int, Any]], bag: Any
                                f"channel label strings (limit MAX_DISTINCT_LABELS: one topic "
                                f"carries one plant's channels)")
         yield topic, t, msg
+
+
+def read_joined(bag: str | Path, u_topic: str, y_topic: str, *, strict: bool = False
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[str, ...],
+                           tuple[str, ...], dict[str, Any]]:
+    """A bag's joined (u, y) samples for ``identify``: :func:`read_samples` of
+    :func:`~fd_monitor.analysis.offline.scan_bag`, the labels of each topic's first message
+    the reference (no plant is known yet), every value of magnitude <=
+    :data:`MAX_MAGNITUDE`.
+
+    What was not used is warned once (one line) and returned as the :func:`integrity`
+    record; ``strict`` refuses it (:func:`enforce_strict`).
+
+    Returns
+    -------
+    (k, u, y, t_ns, u_labels, y_labels, integrity)
+        (K,) stamps (a new run renumbered after the last, one sample apart), (K, nu),
+        (K, ny), (K,) log times of the y messages (ns), the labels, the record.
+
+    Raises
+    ------
+    BagError
+        Missing bag or topic, no usable sample, or ``strict`` and not clean.
+    """
+    import warnings
+
+    from fd_monitor.analysis.offline import scan_bag
+    from fd_monitor.model.errors import FdMonitorWarning
+    from fd_monitor.wire.conversions import readable_stamp
+
+    scan = scan_bag(bag)
+    times: dict[int, int] = {}
+
+    def timed(topic: str, t: int, msg: Any) -> None:
+        if topic == y_topic:
+            k = readable_stamp(msg)
+            if k is not None:
+                times.setdefault(k, int(t))
+
+    raw: list[int] = []
+    ks, (u, y), rep = read_samples(scan, [u_topic, y_topic], on_sample=raw.append,
+                                   on_message=timed)
+    doc = integrity(scan, rep)
+    if not ks:
+        raise BagError(f"{bag}: no usable (u, y) sample on {u_topic} and {y_topic} "
+                       f"({describe(doc)})")
+    enforce_strict(doc, bag, strict)
+    if not doc["clean"]:
+        warnings.warn(f"{bag}: {describe(doc)}", FdMonitorWarning, stacklevel=2)
+    t_ns = np.array([times.get(k, 0) for k in raw], dtype=np.int64)
+    return (np.asarray(ks, dtype=np.int64), u, y, t_ns, tuple(scan.first_labels(u_topic) or ()),
+            tuple(scan.first_labels(y_topic) or ()), doc)

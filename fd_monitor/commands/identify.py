@@ -19,6 +19,7 @@ from fd_monitor.analysis.identify import (
     plot_validation,
     write_plant,
 )
+from fd_monitor.analysis.integrity import add_strict_flag
 from fd_monitor.commands._common import add_json_flag, number, print_json, print_table
 from fd_monitor.core.identify import IdentificationError
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
@@ -84,6 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="figure: held-out one-step prediction vs measurement and the "
                              "error within its stated bound")
     add_json_flag(parser)
+    add_strict_flag(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -99,19 +101,20 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not args.force:
         raise IdentificationError(f"{out}: exists (would overwrite; use --force)")
     name = args.name or out.stem.replace("-", "_").replace(".", "_")
+    integrity: dict[str, Any] = {}         # bag -> what of it was not used
     res = identify_bags(args.bags, holdout=args.holdout, u_topic=args.u_topic,
                         y_topic=args.y_topic, mode_topic=args.mode_topic, adapter=adapter,
                         name=name, model=args.model, modes=args.modes, guards=args.guard,
                         margin=args.margin, split=args.split, max_window=args.max_window,
                         estimator=args.estimator, sparsity=args.sparsity,
                         sample_time=args.sample_time, exclude_inputs=args.exclude_input,
-                        max_radius=args.max_radius)
+                        max_radius=args.max_radius, strict=args.strict, integrity=integrity)
     write_plant(res, out, force=args.force)
     if args.plot:
         plot_validation(res, args.plot)
     s = res.summary
     if args.json:
-        print_json({"plant_file": str(out), "plot": args.plot, **s})
+        print_json({"plant_file": str(out), "plot": args.plot, **s, "integrity": integrity})
         return 0
     print(f"identified {s['plant']} -> {out}: {s['model']} modes ({s['modes_structure']}), "
           f"estimator {s['estimator']}, Ts = {s['sample_time']:g} s")
