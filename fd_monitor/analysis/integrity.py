@@ -37,7 +37,8 @@ from fd_monitor.model.plant_schema import MAX_MAGNITUDE
 from fd_monitor.model.yaml_io import read_yaml
 
 __all__ = ["MAX_DISTINCT_LABELS", "MAX_LABEL_CHARS", "MAX_MAGNITUDE", "add_strict_flag",
-           "bounded_labels", "describe", "enforce_strict", "integrity", "metadata_problems",
+           "bag_integrity", "bounded_labels", "describe",
+           "enforce_strict", "integrity", "metadata_problems",
            "read_joined", "read_samples"]
 
 #: Longest channel-label string (``layout.dim[0].label``) of a message read offline,
@@ -373,3 +374,42 @@ def read_joined(bag: str | Path, u_topic: str, y_topic: str, *, strict: bool = F
     t_ns = np.array([times.get(k, 0) for k in raw], dtype=np.int64)
     return (np.asarray(ks, dtype=np.int64), u, y, t_ns, tuple(scan.first_labels(u_topic) or ()),
             tuple(scan.first_labels(y_topic) or ()), doc)
+
+
+def bag_integrity(bag: str | Path, strict: bool = False, *, warn: bool = True,
+                  note: str = "") -> tuple[Any, dict[str, Any]]:
+    """The contract for a command that reads a bag without a plant file (``replay``, ``bag
+    check``): the bag read once (:func:`~fd_monitor.analysis.offline.scan_bag`: damage,
+    metadata) and its ``/plant/u``, ``/plant/y`` through the input policy
+    (:func:`read_samples`: stamps, labels, limits).
+
+    Returns
+    -------
+    (BagScan, dict)
+        The scan and its :func:`integrity` record; with ``warn`` what was not used is said
+        once (one line, ``note`` appended), with ``strict`` refused (:func:`enforce_strict`).
+    """
+    import warnings
+
+    from fd_monitor.analysis.offline import scan_bag
+    from fd_monitor.model.errors import FdMonitorWarning
+    from fd_monitor.wire.topics import PLANT_U, PLANT_Y
+
+    scan = scan_bag(bag, warn=warn)      # a missing or broken bag fails here, one line
+    topics = [t.absolute for t in (PLANT_U, PLANT_Y) if t.absolute in scan.present]
+    rep = None
+    if PLANT_Y.absolute in topics:
+        try:
+            rep = read_samples(scan, topics)[2]
+        except BagError as exc:
+            if strict:
+                raise
+            if warn:
+                warnings.warn(f"{exc} (stamps and labels not checked)", FdMonitorWarning,
+                              stacklevel=2)
+    doc = integrity(scan, rep)
+    enforce_strict(doc, bag, strict)
+    if warn and not doc["clean"]:
+        warnings.warn(f"{bag}: {describe(doc)}" + (f" ({note})" if note else ""),
+                      FdMonitorWarning, stacklevel=2)
+    return scan, doc

@@ -16,6 +16,7 @@ import argparse
 import warnings
 from pathlib import Path
 
+from fd_monitor.analysis.integrity import add_strict_flag
 from fd_monitor.commands._common import add_json_flag, emit
 from fd_monitor.model.errors import FdMonitorError
 
@@ -30,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            description="read every message and report damage")
     check.add_argument("bag", metavar="BAG", help="bag folder (or its .mcap file)")
     add_json_flag(check)
+    add_strict_flag(check)
     rec = sub.add_parser("recover", help="rewrite the readable messages into a complete bag",
                          description="rewrite the readable messages into a complete bag")
     rec.add_argument("bag", metavar="BAG", help="bag folder (or its .mcap file)")
@@ -49,14 +51,12 @@ def run(args: argparse.Namespace) -> int:
 
     damage: list[BagDamage]
     if args.action == "check":
-        from fd_monitor.analysis.integrity import integrity
-        from fd_monitor.analysis.offline import scan_bag
+        from fd_monitor.analysis.integrity import bag_integrity, describe
 
-        scan = scan_bag(args.bag, warn=False)
-        doc = integrity(scan)
+        scan, doc = bag_integrity(args.bag, args.strict, warn=False)
         lines = doc["damage"] + [f"{args.bag}: {m}" for m in doc["metadata"]]
         counts = {t: n for t, (_, n) in scan.present.items()}
-        note = (f"{doc['unchecked_chunks']} chunks carry no CRC (CRC 0: not computed by their "
+        note = (f"{doc['unchecked_chunks']} chunk(s) carry no CRC (CRC 0: not computed by their "
                 f"writer): they cannot be checked for bit errors" if doc["unchecked_chunks"]
                 else None)
         emit({"bag": str(args.bag), "messages": counts, "damage": lines,
@@ -67,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"damage: {line}")
             if note:
                 print(f"note: {note}")
+            if "samples_present" in doc:
+                print(f"samples: {describe(doc)}")
         return 1 if lines else 0
     src = Path(args.bag)
     out = Path(args.output) if args.output else src.with_name(

@@ -724,7 +724,7 @@ class _Scan:
         if self.unchecked_chunks:
             # CRC 0 is "not computed" (MCAP spec; rosbags writes it): a note, not damage
             self.damage.append(BagDamage(
-                str(self.file), 8, f"{self.unchecked_chunks} chunks carry no CRC (CRC 0: not "
+                str(self.file), 8, f"{self.unchecked_chunks} chunk(s) carry no CRC (CRC 0: not "
                                    f"computed by their writer): bit errors in them cannot be "
                                    f"detected (`python -m fd_monitor bag recover` rewrites "
                                    f"the bag with CRCs)", "unchecked"))
