@@ -62,7 +62,7 @@ from fd_monitor.analysis.offline import INPUT_ERROR_KINDS
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import config_dirs
 from fd_monitor.model.validate import Checker
-from fd_monitor.model.yaml_io import read_yaml
+from fd_monitor.model.yaml_io import check_regular_file, read_yaml
 from fd_monitor.wire.topics import PLANT_Y
 
 __all__ = ["CORRUPTION_KINDS", "FORMAT_VERSION", "BagSpec", "Corruption", "Library",
@@ -238,8 +238,7 @@ def load_library(path: str | Path | None = None) -> Library:
         One line naming the file and the key.
     """
     p = Path(path) if path is not None else default_library()
-    if not p.is_file():
-        raise LibraryError(f"{p}: library spec not found")
+    check_regular_file(p, LibraryError, "library spec")
     ck = _checker(p)
     data = read_yaml(p, LibraryError)
     if not isinstance(data, Mapping) or not isinstance(data.get("bags"), list):
@@ -306,8 +305,7 @@ def load_expected(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     if p.is_dir():
         p = expected_path(p)
-    if not p.is_file():
-        raise LibraryError(f"{p}: expected results not found")
+    check_regular_file(p, LibraryError, "expected results file")
     ck = _checker(p)
     d = read_yaml(p, LibraryError)
     if not isinstance(d, Mapping):
