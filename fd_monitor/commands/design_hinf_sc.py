@@ -48,6 +48,8 @@ def run(args: argparse.Namespace) -> int:
             raise DesignError(f"--lambda: expected a number < 0, got {args.lam}")
         section["lambda"] = args.lam
     if args.grid is not None:
+        if not args.grid[2].is_integer() or args.grid[2] < 1:
+            raise DesignError(f"--grid NUM {args.grid[2]:g}: expected an integer >= 1")
         section["lambda_grid"] = {"start": args.grid[0], "stop": args.grid[1],
                                   "num": int(args.grid[2])}
     if args.compare_pure:

@@ -53,7 +53,7 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     as the robot's messages on its topics (header stamps t_k) instead of ``/plant/u`` and
     ``/plant/y``; the truth and side signals stay.
     """
-    from fd_monitor.analysis.generate import simulate_bag
+    from fd_monitor.analysis.generate import check_bag_size, simulate_bag
     from fd_monitor.model.scenario import check_horizon, load_scenario
 
     sc = load_scenario(scenario_source)
@@ -63,6 +63,9 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
         raise ScenarioError(f"--duration {duration}: expected a finite number of s")
     if duration is not None:
         check_horizon(sc.system, duration, "--duration", ScenarioError)
+    check_bag_size(sc.system, sc.duration if duration is None else duration,
+                   "--duration" if duration is not None else f"{sc.source}: duration",
+                   ScenarioError)
     if duration is not None and duration < sc.system.sample_time:
         raise ScenarioError(f"--duration {duration}: expected at least one sample "
                             f"({sc.system.sample_time} s)")
