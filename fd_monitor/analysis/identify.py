@@ -31,7 +31,7 @@ import itertools
 import math
 import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -897,15 +897,22 @@ def _validation(Ms: Sequence[AffineModel], R: _Rows, q: np.ndarray, v_bar: np.nd
 def identify_bags(bags: Sequence[str | Path], *, holdout: Sequence[str | Path] = (),
                   u_topic: str = PLANT_U.absolute, y_topic: str = PLANT_Y.absolute,
                   mode_topic: str | None = None, adapter: Any = None, strict: bool = False,
-                  integrity: dict[str, Any] | None = None, **options: Any) -> Identified:
+                  integrity: dict[str, Any] | None = None,
+                  progress: Callable[[str], Any] | None = None, **options: Any) -> Identified:
     """:func:`identify` on bags (read with :func:`load_dataset`, ``strict`` and
-    ``integrity`` as there); ``options`` as there."""
+    ``integrity`` as there); ``options`` as there; ``progress`` is called with a line
+    before each bag is read and before the fit."""
     if not bags:
         raise IdentificationError("no bag to identify from")
     read = dict(u_topic=u_topic, y_topic=y_topic, mode_topic=mode_topic, adapter=adapter,
                 sample_time=options.get("sample_time"), strict=strict, integrity=integrity)
-    fit = [load_dataset(b, **read) for b in bags]
-    held = [load_dataset(b, **read) for b in holdout]
+    say = progress or (lambda _line: None)
+    every = [*bags, *holdout]
+    fit, held = [], []
+    for i, b in enumerate(every):
+        say(f"identify: reading {b} ({i + 1}/{len(every)})")
+        (fit if i < len(bags) else held).append(load_dataset(b, **read))
+    say(f"identify: fitting {len(fit)} record(s), {len(held)} held out")
     return identify(fit, held, sources=[str(b) for b in [*bags, *holdout]], **options)
 
 

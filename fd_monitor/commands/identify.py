@@ -88,6 +88,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_strict_flag(parser)
 
 
+def _progress() -> Any:
+    """Progress lines on a terminal's stderr (none in a pipe: stderr then carries only
+    warnings and errors)."""
+    import sys
+
+    if not sys.stderr.isatty():
+        return None
+    return lambda line: print(line, file=sys.stderr, flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     """Identify, write the plant file (and plot), print the summary."""
     from pathlib import Path
@@ -108,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
                         margin=args.margin, split=args.split, max_window=args.max_window,
                         estimator=args.estimator, sparsity=args.sparsity,
                         sample_time=args.sample_time, exclude_inputs=args.exclude_input,
-                        max_radius=args.max_radius, strict=args.strict, integrity=integrity)
+                        max_radius=args.max_radius, strict=args.strict, integrity=integrity,
+                        progress=_progress())
     write_plant(res, out, force=args.force)
     if args.plot:
         plot_validation(res, args.plot)

@@ -717,6 +717,10 @@ class _Scan:
         if not ended:
             self.report(min(pos, n), "no end of data: the writer did not close the bag "
                                      "(crashed or killed); everything before was read")
+        elif not self._ends_with_footer(buf):
+            self.report(n, "the file does not end with an MCAP footer and magic: bytes "
+                           "appended after the bag, or its end damaged (every message before "
+                           "the end of data was read)")
         elif self.statistics is not None and not self.damage:
             if self.statistics.message_count != self.messages:
                 self.report(n, f"the summary lists {self.statistics.message_count} messages "
@@ -728,6 +732,14 @@ class _Scan:
                                    f"computed by their writer): bit errors in them cannot be "
                                    f"detected (`python -m fd_monitor bag recover` rewrites "
                                    f"the bag with CRCs)", "unchecked"))
+
+    @staticmethod
+    def _ends_with_footer(buf: Any) -> bool:
+        """The file ends with a footer record and the MCAP magic (nothing appended)."""
+        n = len(buf)
+        foot = n - 8 - 29
+        return (foot >= 8 and bytes(buf[n - 8:]) == MCAP_MAGIC and buf[foot] == Opcode.FOOTER
+                and struct.unpack_from("<Q", buf, foot + 1)[0] == 20)
 
     def _data_end(self, buf: Any, pos: int, end: int) -> None:
         try:
