@@ -337,6 +337,11 @@ def read_streams(bag: str | Path, system: Any,
         if present[t][0] != FLOAT64_MULTI_ARRAY:
             raise BagError(f"{bag}: {t} is recorded as {present[t][0]}, expected "
                            f"{FLOAT64_MULTI_ARRAY}")
+        # a bag of another plant (or u and y swapped) would have every message refused
+        first = scan.first_labels(t)
+        if first and tuple(first) != tuple(labels[t]):
+            raise BagError(f"{bag}: {t} has channels {list(first)[:10]} but plant "
+                           f"{system.name} has {list(labels[t])}: a bag of another plant?")
     us: dict[int, np.ndarray] = {}
     ys: dict[int, np.ndarray] = {}
     sides: dict[str, dict[int, np.ndarray]] = {n: {} for n in side}
