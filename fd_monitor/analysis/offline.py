@@ -65,6 +65,7 @@ from fd_monitor.wire.bags import (
     read_raw,
 )
 from fd_monitor.wire.conversions import decode, readable_stamp
+from fd_monitor.wire.input_checks import bounded_labels, integrity, metadata_problems
 from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.stream import (
     GAP_TIMEOUT,
@@ -231,8 +232,6 @@ def scan_bag(bag: str | Path, warn: bool = True) -> BagScan:
     BagError
         Missing bag, not a bag, unreadable data (the bag named).
     """
-    from fd_monitor.analysis.integrity import metadata_problems
-
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     present: dict[str, tuple[str, int]] = {}
@@ -356,8 +355,6 @@ def read_streams(bag: str | Path, system: Any,
         return True if step is None else step(s)
 
     required = [names[t] for t in topics]
-    from fd_monitor.analysis.integrity import bounded_labels
-
     with _bag_errors(bag):
         _join_messages(bounded_labels(scan.messages(topics), bag), labels, names, required,
                        rep, keep,
@@ -653,8 +650,6 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
                        f"{refused[0][1] if refused else 'see the input errors'})")
     out = _fields(rt, rt.stack(outs, list(rep.restarts), list(rep.bridges)), truth, refused,
                   rep)
-    from fd_monitor.analysis.integrity import integrity
-
     return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
                   transient=float(transient), integrity=integrity(scan, rep), **out)
 
