@@ -2,12 +2,14 @@
 
 Run: .venv/bin/python benchmarks/fuzz_inputs.py [--examples 2000] [--only plant decode ...]
 
-The targets and strategies are the suite's (``test/test_fuzz.py``: plant, scenario and
-gain-file readers, message decoding, the offline reader on generated streams and on
-corrupted bag bytes); here each runs ``--examples`` random (not derandomised) examples and
-every exception that is not an ``FdMonitorError`` is counted as a crash and printed once
-per type and place, instead of stopping the run. Prints one row per target and the total;
-exits 1 when there was a crash.
+The targets and strategies are the suite's (``test/test_fuzz.py``: plant, scenario, gain,
+library, ``expected.yaml``, adapter, ROS parameter and design files, a bag's ``metadata.yaml``,
+message decoding, the offline reader (``analyze``/``report``) and identify's reader on
+generated streams, the offline reader and ``bag check`` on corrupted bag bytes, and every
+numeric option of the command line); here each runs ``--examples`` random (not derandomised)
+examples and every exception that is not an ``FdMonitorError`` is counted as a crash and
+printed once per type and place, instead of stopping the run. Prints one row per target and the
+total; exits 1 when there was a crash.
 """
 
 from __future__ import annotations

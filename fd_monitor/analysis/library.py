@@ -347,6 +347,8 @@ def load_expected(path: str | Path) -> dict[str, Any]:
         if key in d and not isinstance(d[key], list):
             _fail(ck, key, "a list", d[key])
     be = d.get("bias_estimate") or {}
+    if not isinstance(be, Mapping):
+        _fail(ck, "bias_estimate", "channel -> {value, tolerance}", be)
     for c, a in be.items():
         if not isinstance(a, Mapping) or set(a) != {"value", "tolerance"}:
             _fail(ck, f"bias_estimate.{c}", "{value, tolerance}", a)
