@@ -588,3 +588,34 @@ def test_subprocess_one_line_exit_2(tmp_path, nominal, argv, fragment):
     assert p.returncode == 2, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1 and fragment in p.stderr
     assert "Traceback" not in p.stderr and "RuntimeWarning" not in p.stderr
+
+
+def test_evaluate_stops_cleanly_on_ctrl_c(tmp_path):
+    import signal
+
+    src = find_config_file("three_tank_nominal", "scenarios", FileNotFoundError)
+    doc = yaml.safe_load(src.read_text())
+    doc.update(duration=5.0, system=str(find_config_file("three_tank", "systems",
+                                                          FileNotFoundError)))
+    scen = tmp_path / "short.yaml"              # 50 samples a run: the bar comes at once
+    scen.write_text(yaml.safe_dump(doc))
+    p = subprocess.Popen([sys.executable, "-m", "fd_monitor", "evaluate", GAINS, "-s",
+                          str(scen), "--runs", "1000000", "--chunk", "1"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert p.stderr is not None
+        seen = b""
+        while b"evaluate [" not in seen:        # the progress bar: the campaign runs
+            ch = p.stderr.read(1)
+            assert ch, "evaluate ended before its progress bar"
+            seen += ch
+        p.send_signal(signal.SIGINT)
+        _out, rest = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    err = (seen + rest).decode()
+    assert p.returncode == 130, err
+    assert err.rstrip().splitlines()[-1] == ("fd_monitor: interrupted (Ctrl-C): evaluate "
+                                             "stopped, nothing more written")
+    assert "Traceback" not in err

@@ -103,10 +103,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"fd_monitor: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        # Ctrl-C in a long command (evaluate, identify, design): one line, no traceback,
-        # after any progress bar on the terminal
-        lead = "\n" if sys.stderr.isatty() else ""
-        print(f"{lead}fd_monitor: interrupted (Ctrl-C): {args.command} stopped, nothing more "
+        # Ctrl-C in a long command (evaluate, identify, design): one line, no traceback
+        # (evaluate ends its progress bar's line first)
+        print(f"fd_monitor: interrupted (Ctrl-C): {args.command} stopped, nothing more "
               f"written", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into `head` and closed: not an error

@@ -15,6 +15,7 @@ measurements). Table II of the QB paper::
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from fd_monitor.analysis.evaluate import run_campaign
@@ -128,9 +129,14 @@ def run(args: argparse.Namespace) -> int:
             variants[est] = opts
     else:
         variants[gains.method] = common
-    rows = run_campaign(gains, scenarios, args.runs, seed0=args.seed0, chunk=args.chunk,
-                        rhos=args.rho, transient=args.transient, channels=args.channels,
-                        variants=variants, progress=not args.no_progress, system=system)
+    try:
+        rows = run_campaign(gains, scenarios, args.runs, seed0=args.seed0, chunk=args.chunk,
+                            rhos=args.rho, transient=args.transient, channels=args.channels,
+                            variants=variants, progress=not args.no_progress, system=system)
+    except KeyboardInterrupt:
+        if not args.no_progress:          # end the progress bar's line before the message
+            sys.stderr.write("\n")
+        raise
     if args.report is not None:
         from fd_monitor.analysis.report import campaign_report
 
