@@ -619,3 +619,31 @@ def test_evaluate_stops_cleanly_on_ctrl_c(tmp_path):
     assert err.rstrip().splitlines()[-1] == ("fd_monitor: interrupted (Ctrl-C): evaluate "
                                              "stopped, nothing more written")
     assert "Traceback" not in err
+
+
+def _label_bag(path: Path, nominal, label_of) -> Path:
+    from fd_monitor.wire.bags import write_messages
+
+    (lu, _s, vu, tu), (ly, _s2, vy, _t) = nominal[U], nominal[Y]
+    msgs = []
+    for k in range(100):
+        msgs += [(U, tu[k], k, lu, vu[k]), (Y, tu[k], k, label_of(k, ly), vy[k])]
+    return write_messages(path, msgs)
+
+
+def test_long_labels_are_refused_short(tmp_path, capsys, nominal):
+    # 100 kB label strings on 20 messages: refused as malformed, each with a short line
+    long = ("h" * 100_000, "h2", "h3")
+    bag = _label_bag(tmp_path / "b", nominal, lambda k, ly: long if 40 <= k < 60 else ly)
+    code, out, _ = _run(capsys, ["analyze", bag, "--gains", GAINS, "--json"])
+    doc = json.loads(out)
+    assert code == 0 and doc["integrity"]["refused_samples"] == {"malformed": 20}
+    assert max(len(e["message"]) for e in doc["input_errors"]) < 300
+
+
+def test_too_many_distinct_labels_is_one_line(tmp_path, capsys, nominal):
+    bag = _label_bag(tmp_path / "b", nominal, lambda k, ly: (f"a{k}", "b", "c"))
+    _one_line(capsys, ["analyze", bag, "--gains", GAINS],
+              re.compile(r"(has channels|more than 64 distinct channel label strings)"))
+    _one_line(capsys, ["bag", "check", bag, "--strict"],
+              "more than 64 distinct channel label strings (limit MAX_DISTINCT_LABELS")

@@ -150,7 +150,9 @@ def bounded_labels(messages: Iterable[tuple[str, int, Any]], bag: Any
         dims = msg.layout.dim
         label = str(dims[0].label) if dims else ""
         if len(label) > MAX_LABEL_CHARS:
-            marker = f"<label of {len(label)} characters, over {MAX_LABEL_CHARS}>"
+            # one name per value, so the message is refused for its channels (malformed)
+            marker = ",".join([f"<label of {len(label)} characters over {MAX_LABEL_CHARS}>"]
+                              + ["?"] * max(int(dims[0].size) - 1, 0))
             msg = SimpleNamespace(data=msg.data, layout=SimpleNamespace(
                 dim=[SimpleNamespace(label=marker, size=dims[0].size, stride=dims[0].stride)],
                 data_offset=msg.layout.data_offset))
