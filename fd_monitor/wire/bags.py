@@ -57,6 +57,7 @@ from mcap.records import (
 )
 
 from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError, WrongLengthError
+from fd_monitor.model.yaml_io import read_yaml
 from fd_monitor.wire.conversions import (
     MAX_STAMP,
     ArrivalStamper,
@@ -509,7 +510,7 @@ def mcap_file(path: str | Path) -> Path:
     meta = p / "metadata.yaml"
     if meta.is_file():
         try:
-            info = yaml.safe_load(meta.read_text(encoding="utf-8"))
+            info = read_yaml(meta, BagError)       # the strict reader: size, tags, UTF-8
             files = info["rosbag2_bagfile_information"]["relative_file_paths"]
             if len(files) != 1 or not str(files[0]).endswith(".mcap"):
                 raise ValueError(f"expected one .mcap file, got {files}")
@@ -518,8 +519,7 @@ def mcap_file(path: str | Path) -> Path:
                 # another bag's data under this bag's name
                 raise ValueError(f"relative_file_paths names {str(files[0])!r}, not a file "
                                  f"of this bag folder")
-        except (yaml.YAMLError, UnicodeDecodeError, OSError, KeyError, TypeError,
-                ValueError) as exc:
+        except (BagError, OSError, KeyError, TypeError, ValueError) as exc:
             raise BagError(f"{p}: not a readable rosbag2 bag: metadata.yaml: "
                            f"{str(exc).splitlines()[0]}") from None
         f = p / str(files[0])
