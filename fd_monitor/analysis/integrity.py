@@ -240,7 +240,7 @@ def read_joined(bag: str | Path, u_topic: str, y_topic: str, *, strict: bool = F
 
 
 def bag_integrity(bag: str | Path, strict: bool = False, *, warn: bool = True,
-                  note: str = "") -> tuple[Any, dict[str, Any]]:
+                  note: str = "", enforce: bool = True) -> tuple[Any, dict[str, Any]]:
     """The contract for a command that reads a bag without a plant file (``replay``, ``bag
     check``): the bag read once (:func:`~fd_monitor.analysis.offline.scan_bag`: damage,
     metadata) and its ``/plant/u``, ``/plant/y`` through the input policy
@@ -250,7 +250,9 @@ def bag_integrity(bag: str | Path, strict: bool = False, *, warn: bool = True,
     -------
     (BagScan, dict)
         The scan and its :func:`integrity` record; with ``warn`` what was not used is said
-        once (one line, ``note`` appended), with ``strict`` refused (:func:`enforce_strict`).
+        once (one line, ``note`` appended), with ``strict`` refused (:func:`enforce_strict`;
+        ``enforce=False``: left to the caller, e.g. after it printed its table; a bag whose
+        samples cannot be read at all is refused at once either way).
     """
     import warnings
 
@@ -271,7 +273,7 @@ def bag_integrity(bag: str | Path, strict: bool = False, *, warn: bool = True,
                 warnings.warn(f"{exc} (stamps and labels not checked)", FdMonitorWarning,
                               stacklevel=2)
     doc = integrity(scan, rep)
-    enforce_strict(doc, bag, strict)
+    enforce_strict(doc, bag, strict and enforce)
     if warn and not doc["clean"]:
         warnings.warn(f"{bag}: {describe(doc)}" + (f" ({note})" if note else ""),
                       FdMonitorWarning, stacklevel=2)

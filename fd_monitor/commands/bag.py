@@ -51,9 +51,9 @@ def run(args: argparse.Namespace) -> int:
 
     damage: list[BagDamage]
     if args.action == "check":
-        from fd_monitor.analysis.integrity import bag_integrity, describe
+        from fd_monitor.analysis.integrity import bag_integrity, describe, enforce_strict
 
-        scan, doc = bag_integrity(args.bag, args.strict, warn=False)
+        scan, doc = bag_integrity(args.bag, args.strict, warn=False, enforce=False)
         lines = doc["damage"] + [f"{args.bag}: {m}" for m in doc["metadata"]]
         counts = {t: n for t, (_, n) in scan.present.items()}
         note = (f"{doc['unchecked_chunks']} chunk(s) carry no CRC (CRC 0: not computed by their "
@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"note: {note}")
             if "samples_present" in doc:
                 print(f"samples: {describe(doc)}")
+        enforce_strict(doc, args.bag, args.strict)      # after the table, as analyze does
         return 1 if lines else 0
     src = Path(args.bag)
     out = Path(args.output) if args.output else src.with_name(
