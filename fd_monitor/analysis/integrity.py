@@ -4,7 +4,8 @@
 :func:`fd_monitor.analysis.offline.scan_bag` (every chunk's CRC checked, damage skipped and
 reported) and its ``/plant/...`` messages through the nodes' input policy
 (:func:`fd_monitor.analysis.offline.read_streams`, or :func:`read_samples` when no plant is
-known: ``identify``, ``replay``). What they did not use is one record, :func:`integrity`::
+known: ``identify``, ``replay``, ``bag check``). What they did not use is one record,
+:func:`~fd_monitor.wire.input_checks.integrity`::
 
     {"clean": false,                       # nothing below (but unchecked_chunks) is non-zero
      "skipped_chunks": 1,                  # damaged regions of the MCAP skipped
