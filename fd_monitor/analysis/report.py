@@ -368,6 +368,10 @@ def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],
     lines += ["", "- fault onsets (truth): " + (", ".join(
         f"{n} at {t:.2f} s" for n, t in onsets) or "none (fault free)"),
         f"- estimated mode sequence: {' -> '.join(s.get('modes', []))}"]
+    if run.integrity:           # the bag-reading contract (fd_monitor.analysis.integrity)
+        from fd_monitor.wire.input_checks import describe
+
+        lines.append(f"- input integrity: {describe(run.integrity)}")
     if s.get("input_errors"):
         lines.append("- input errors: " + "; ".join(
             f"{k}: {v}" for k, v in s["input_errors"].items()))
