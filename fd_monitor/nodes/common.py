@@ -297,6 +297,9 @@ class Param:
         Read at start only (changing it later would have no effect).
     low, high : float, optional
         Inclusive range of a numeric parameter.
+    choices : tuple of str
+        The values a string parameter may take (empty: any), checked at declaration,
+        before the node configures.
     """
 
     name: str
@@ -305,6 +308,7 @@ class Param:
     read_only: bool = True
     low: float | None = None
     high: float | None = None
+    choices: tuple[str, ...] = ()
 
     def descriptor(self) -> ParameterDescriptor:
         """The ParameterDescriptor declared with the parameter."""
@@ -326,13 +330,26 @@ class Param:
 def declare_parameters(node: Node, params: Iterable[Param]) -> SimpleNamespace:
     """Declare every parameter with its descriptor; return their values as attributes.
 
+    A parameter the node's parameter files (or ``-p``) set that it does not declare is
+    warned about once, all named in one line (a typo would otherwise be ignored).
+
     Raises
     ------
     FdMonitorError
-        One line naming the node and the parameter when an override has the wrong type or
-        is out of range (e.g. ``rate_factor:=1`` for a double: write ``1.0``).
+        One line naming the node and the parameter when an override has the wrong type, is
+        out of range (e.g. ``rate_factor:=1`` for a double: write ``1.0``) or not one of
+        its ``choices``.
     """
     out = SimpleNamespace()
+    params = tuple(params)
+    declared = {p.name for p in params}
+    unknown = sorted(n for n in getattr(node, "_parameter_overrides", {})
+                     if n not in declared and not node.has_parameter(n)
+                     and n not in _ROS_PARAMETERS and not n.startswith("qos_overrides."))
+    if unknown:
+        node.get_logger().warning(
+            f"parameter file sets {', '.join(unknown)}, which node {node.get_name()} does not "
+            f"declare: ignored (a typo? `--help` lists its parameters)")
     for p in params:
         try:
             node.declare_parameter(p.name, p.default, p.descriptor())
@@ -340,8 +357,16 @@ def declare_parameters(node: Node, params: Iterable[Param]) -> SimpleNamespace:
             raise FdMonitorError(f"node {node.get_name()}: parameter {p.name}: {exc} "
                                  f"(expected {type(p.default).__name__}, default "
                                  f"{p.default!r})") from None
-        setattr(out, p.name, node.get_parameter(p.name).value)
+        value = node.get_parameter(p.name).value
+        if p.choices and value not in p.choices:
+            raise FdMonitorError(f"node {node.get_name()}: parameter {p.name}: {value!r}: "
+                                 f"expected one of {', '.join(p.choices)}")
+        setattr(out, p.name, value)
     return out
+
+
+#: Parameters rclpy itself declares on every node (not a typo when a file sets them).
+_ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 
 
 # -- diagnostics -----------------------------------------------------------------------------

@@ -59,7 +59,8 @@ PARAMS = (
     WARN_SHARE,
     Param("layout", "standalone", "standalone: the detector executable also runs observer, "
           "agei and bias_estimator in its process (fed plant/u and plant/y it detects on its "
-          "own); chain: the detector alone, fed fd/state_estimate by an observer process"),
+          "own); chain: the detector alone, fed fd/state_estimate by an observer process",
+          choices=("standalone", "chain")),
 )
 
 LAYOUTS = ("standalone", "chain")

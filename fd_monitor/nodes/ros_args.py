@@ -27,7 +27,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import config_dirs
-from fd_monitor.model.yaml_io import read_yaml
+from fd_monitor.model.yaml_io import check_regular_file, read_yaml
 
 __all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file",
            "take_node_name"]
@@ -50,6 +50,8 @@ def find_params_file(name: str) -> Path:
     if found is None and not p.is_absolute():
         rel = Path(*p.parts[1:]) if len(p.parts) > 1 and p.parts[0] == "config" else p
         found = next((d / rel for d in dirs if (d / rel).is_file()), None)
+    if found is None and p.exists():       # a folder, a FIFO: say so, not "not found"
+        check_regular_file(p, FdMonitorError, "parameter file")
     if found is None:
         where = "" if p.is_absolute() else (
             f" (looked in {Path.cwd()}" + "".join(f", {d}" for d in dirs) + ")")
@@ -59,7 +61,27 @@ def find_params_file(name: str) -> Path:
         raise FdMonitorError(f"{found}: not a ROS 2 parameter file: expected a mapping "
                              f"'<node name>: {{ros__parameters: {{...}}}}' at the top, got "
                              f"{type(data).__name__}")
+    _check_params_tree(found, data, "")
     return found
+
+
+def _check_params_tree(path: Path, tree: dict, where: str) -> None:
+    """Every key of a parameter file is a node or namespace name whose mapping leads to
+    ``ros__parameters`` (a mapping): what rcl accepts, refused here in one line before rcl
+    prints its own multi-line parse error."""
+    for key, value in tree.items():
+        at = f"{where}{key}"
+        if key == "ros__parameters":
+            if not isinstance(value, dict):
+                raise FdMonitorError(f"{path}: {at}: expected a mapping of parameters, got "
+                                     f"{type(value).__name__}")
+            continue
+        if not isinstance(value, dict) or not value:
+            raise FdMonitorError(
+                f"{path}: {at}: not inside ros__parameters (expected '<node name>: "
+                f"{{ros__parameters: {{name: value, ...}}}}'; got {type(value).__name__} "
+                f"{str(value)[:40]!r})")
+        _check_params_tree(path, value, f"{at}.")
 
 
 def resolve_params_files(args: Sequence[str]) -> list[str]:
