@@ -912,7 +912,8 @@ def identify_bags(bags: Sequence[str | Path], *, holdout: Sequence[str | Path] =
                 sample_time=options.get("sample_time"), strict=strict, integrity=integrity)
     say = progress or (lambda _line: None)
     every = [*bags, *holdout]
-    fit, held = [], []
+    fit: list[Dataset] = []
+    held: list[Dataset] = []
     for i, b in enumerate(every):
         say(f"identify: reading {b} ({i + 1}/{len(every)})")
         (fit if i < len(bags) else held).append(load_dataset(b, **read))
