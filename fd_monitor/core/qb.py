@@ -30,6 +30,8 @@ invariant and attractive, and (6), (8), (11) hold as in continuous time.
 
 from __future__ import annotations
 
+import math
+
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -168,8 +170,13 @@ class QBObserver:
         if self.k is not None and k != self.k + 1:
             raise ValueError(f"QBObserver.step: sample {k} after {self.k}: samples must be "
                              f"consecutive (reset the observer after a gap)")
-        uu = _as_array(u, (sys_.nu,), "u")
-        yy = _as_array(y, (sys_.ny,), "y")
+        if type(u) is np.ndarray and type(y) is np.ndarray and u.dtype == y.dtype == float \
+                and u.shape == (sys_.nu,) and y.shape == (sys_.ny,) \
+                and all(map(math.isfinite, u.tolist() + y.tolist())):
+            uu, yy = u, y                        # validated by the caller (the runtime)
+        else:
+            uu = _as_array(u, (sys_.nu,), "u")
+            yy = _as_array(y, (sys_.ny,), "y")
         # Range test only: the estimate converges from x0, it is no one-sample prediction.
         self.plausibility.check(k, uu, yy)
         mode, x = self.mode, self.x.copy()
@@ -182,10 +189,11 @@ class QBObserver:
         mode, x = self.mode, self.x
         z = np.concatenate([uu, yy, [1.0]])
         xn = self.Phi[mode] @ x + self.Gam[mode] @ z
-        q = np.array([mode])
-        q = self._plant.next_mode(q, x[None], uu[None], "controlled")
-        q = self._plant.next_mode(q, xn[None], uu[None], "autonomous")
-        self.x, self.mode = xn, int(q[0])
+        # the plant's guards on one run (SampledPlant.next_mode's comparisons, on floats)
+        ul = uu.tolist()
+        q = self._plant.next_mode1(mode, (), ul, "controlled")
+        q = self._plant.next_mode1(q, xn.tolist(), ul, "autonomous")
+        self.x, self.mode = xn, q
 
     def bridge(self, k: int, u: Any, y: Any) -> None:
         """The next sample is ``(k, u_k, y_k)``, those between are lost: predict through the
