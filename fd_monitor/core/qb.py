@@ -31,7 +31,6 @@ invariant and attractive, and (6), (8), (11) hold as in continuous time.
 from __future__ import annotations
 
 import math
-
 from collections.abc import Mapping, Sequence
 from typing import Any
 

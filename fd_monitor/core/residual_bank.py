@@ -322,13 +322,13 @@ class ResidualBank:
             return
         lo, hi = model.rho_min, model.rho_max
         c, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        choice = self._disc_mode
-        if choice == "auto":
-            choice = self._uniform_choice(c, half)
-            if choice is None:
-                self.fallback = ("the exact/hold choice is not the same over the parameter "
-                                 "box (checked on a grid)")
-                return
+        found = self._disc_mode if self._disc_mode != "auto" else \
+            self._uniform_choice(c, half)
+        if found is None:
+            self.fallback = ("the exact/hold choice is not the same over the parameter box "
+                             "(checked on a grid)")
+            return
+        choice: str = found
         n, nu, p, r = self._n, model.B0.shape[1], self._p, self._r
         C = model.C
         mats = self._table_mats(c, choice)

@@ -723,7 +723,7 @@ class HinfScRuntime(Runtime):
         """Observers re-initialised from the next measurement; thresholds re-armed."""
         self._k0: int | None = None
         self._k_next: int | None = None
-        self._held: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        self._held: tuple[Any, Any, np.ndarray | None] | None = None
 
     def bridge(self, k: int, u: Any, y: Any,
                side: Mapping[str, Any] | None = None) -> None:
