@@ -149,7 +149,8 @@ class MonitorOutput:
     @property
     def mode(self) -> int:
         """q^_k."""
-        return int(np.asarray(self.observer.mode))
+        m = self.observer.mode
+        return m if type(m) is int else int(np.asarray(m))
 
     @property
     def sigma_hat(self) -> np.ndarray:
