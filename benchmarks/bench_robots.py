@@ -18,7 +18,7 @@ Printed per N (the 1-minute load average with each line):
 * the floor: a bare rclpy process with the same two subscriptions at the same rate, measured
   the same way (``--floor``; what any Python ROS node receiving u and y costs here).
 
-Run: ``.venv/bin/python benchmarks/bench_fleet.py [--robots 1 8 16 32] [--rate 100]
+Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
 [--seconds 10] [--floor]``. Isolated ROS_DOMAIN_ID, loopback discovery.
 """
 
@@ -51,7 +51,7 @@ from fd_monitor.core.simulator import simulate
 from fd_monitor.model.scenario import load_scenario
 use_dds_profile(); rclpy.init()
 N, rate, secs = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
-node = rclpy.create_node("fleet_driver")
+node = rclpy.create_node("robots_driver")
 sc = load_scenario("three_tank_bias_h1")
 K = int(rate * secs)
 tr = simulate(sc, None, K + 20)
@@ -157,7 +157,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
                                    "--ros-args", "-r", f"__ns:=/robot{i}"], env=e,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
                  for i in range(n_robots)]
-    node = rclpy.create_node(f"fleet_rx_{n_robots}")
+    node = rclpy.create_node(f"robots_rx_{n_robots}")
     arrivals: list[dict[int, float]] = [{} for _ in range(n_robots)]
     if not floor:
         for i in range(n_robots):
