@@ -12,7 +12,8 @@
   Stated tolerance: ``|r_fast - r_ref| <= RTOL * (threshold or max |r|)`` with
   RTOL = 1e-9; the alarms agree wherever the reference's residual is farther than that
   from its threshold.
-* ``qb``: the guards of one run on Python floats (:meth:`SampledPlant.next_mode1`) equal the
+* ``qb``: the signals of one run on Python floats equal QBDetector.signals, and the guards
+  of one run on Python floats (:meth:`SampledPlant.next_mode1`) equal the
   batch comparisons (:meth:`SampledPlant.next_mode`) bit for bit.
 """
 
@@ -26,7 +27,7 @@ import pytest
 from fd_monitor.analysis.library import load_library
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.residual_bank import TABLE_TOL, ResidualBank
-from fd_monitor.core.runtime import HinfScRuntime
+from fd_monitor.core.runtime import HinfScRuntime, runtime_for
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.system import load_system
 from fd_monitor.wire.bags import read_bag
@@ -140,3 +141,22 @@ def test_guards_of_one_run_equal_the_batch_comparisons(plant):
         batch = sp.next_mode(q, x, u, kind)
         one = [sp.next_mode1(int(q[i]), x[i].tolist(), u[i].tolist(), kind) for i in range(N)]
         assert one == batch.tolist()
+
+
+@pytest.mark.parametrize("name", ["pwa_cascade_b1_step", "pwa_cascade_sampled_b1_step"])
+def test_qb_signals_on_floats_equal_the_detector_bit_for_bit(name):
+    """QBRuntime.step's signals on Python floats (sums of squares left to right) equal
+    QBDetector.signals (numpy) on a library bag of each shipped qb gain file."""
+    spec = LIB[name]
+    system, gf = _loaded(Path(load_gains(spec.gains, verify=False).path).stem)
+    b = read_bag(spec.folder, [PLANT_U.absolute, PLANT_Y.absolute])
+    u, y = b[PLANT_U.absolute].values, b[PLANT_Y.absolute].values
+    k = np.arange(len(y))
+    rt = runtime_for(system, gf)
+    assert rt._floats
+    fast = rt.run(k, u, y)
+    rt.reset()
+    rt._floats = False
+    ref = rt.run(k, u, y)
+    assert np.array_equal(fast.residual, ref.residual)
+    assert np.array_equal(fast.alarm, ref.alarm) and ref.alarm.any()

@@ -542,6 +542,14 @@ class ThresholdsRuntime(Runtime):
         return monitor_run_batch(system, gains, traj, **options)
 
 
+def _sumsq(v: Sequence[float]) -> float:
+    """Sum of squares left to right (numpy's reduction of fewer than 8 terms)."""
+    acc = 0.0
+    for a in v:
+        acc += a * a
+    return acc
+
+
 def _norm_unit(system: System) -> str:
     """Unit of a norm of the outputs: their common unit (plant file ``units``), else "-"."""
     units = set(system.output_units)
@@ -586,6 +594,8 @@ class QBRuntime(Runtime):
         self.region_names = () if self.region is None else self.region.names
         self.isolating = tuple(system.states[i] for i in self.detector.fault_idx)
         det = self.detector
+        self._nominal = list(zip(det.fault_idx.tolist(), det.nominal.tolist()))
+        self._floats = len(self._nominal) < 8 and system.ny < 8
         # thresholds per mode (read-only: every output of that mode shares them)
         self._thr = [det.rho * det.bounds(q) for q in range(len(system.modes))]
         for t in self._thr:
@@ -615,9 +625,13 @@ class QBRuntime(Runtime):
         uu = np.array(sample_floats("u", u, self.system.nu, k))
         yy = np.array(sample_floats("y", y, self.system.ny, k))
         q, xh = self.observer.step(k, uu, yy)
-        det = self.detector
         r = self.observer.residual(q, xh, yy)
-        sig = det.signals(xh, r)
+        # QBDetector.signals on Python floats: |x^_F - x_nom|, its norm, |r|, ||r|| (each
+        # sum of squares left to right, as numpy reduces fewer than 8 terms)
+        xl, rl = xh.tolist(), r.tolist()
+        d = [xl[i] - c for i, c in self._nominal]
+        sig = np.array([*map(abs, d), math.sqrt(_sumsq(d)), *map(abs, rl),
+                        math.sqrt(_sumsq(rl))]) if self._floats else self.detector.signals(xh, r)
         thr = self._thr[q]
         out = None if self.region is None else self.region.excess(q, xh, uu)
         return RuntimeOutput(k, sig, thr, sig > thr, out, int(q), {"x_hat": xh})
