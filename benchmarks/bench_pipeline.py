@@ -24,10 +24,11 @@ alarm_k received (raw: message k). A run at a rate **counts** only when, over th
 
 Each rate is run ``--repeat`` times (default 3); the figures printed are the medians of the
 repeats and the rate counts when the median run counts (at least 2 of 3). A layout stops at
-its first rate that does not count. ``cpu us`` is the CPU time (user + system) all node
-processes spent per sample during the rate (from /proc): what a sample costs, whatever the
-load. The floor is the ``raw`` layout (rclpy alone, same driver, same receiver). The
-1-minute load average is printed with each figure (the machine may be shared).
+its first rate that does not count (``--keep-going``: it measures every rate). ``cpu us``
+is the CPU time (user + system) all node processes spent per sample during the rate (from
+/proc): what a sample costs, whatever the load. The floor is the ``raw`` layout (rclpy
+alone, same driver, same receiver). The 1-minute load average is printed with each figure
+(the machine may be shared).
 
 ``--driver-qos default`` makes the driver publish with ROS's default QoS (reliable,
 volatile, keep last 10: what a robot's driver usually does) instead of fd_monitor's data
@@ -232,7 +233,7 @@ def median_row(runs: list[dict]) -> dict:
 
 def bench(layout: str, rates: list[float], seconds: float, e: dict[str, str],
           repeat: int = 3, p99_ms: float = 5.0, max_ms: float = 20.0,
-          driver_qos: str = "fd") -> list[dict]:
+          driver_qos: str = "fd", keep_going: bool = False) -> list[dict]:
     """Every rate of one layout, ``repeat`` runs each, until a rate does not count."""
     what, nodes = LAYOUTS[layout]
     raw = layout == "raw"
@@ -293,7 +294,7 @@ def bench(layout: str, rates: list[float], seconds: float, e: dict[str, str],
                 break
             out.append(median_row(runs))
             print(_fmt(out[-1]), flush=True)
-            if not out[-1]["counts"]:
+            if not out[-1]["counts"] and not keep_going:
                 break
     finally:
         try:
@@ -335,6 +336,8 @@ def main() -> int:
     ap.add_argument("--driver-qos", choices=("fd", "default"), default="fd",
                     help="the driver's publishers: fd_monitor's data QoS, or ROS's default "
                          "(reliable, volatile, depth 10)")
+    ap.add_argument("--keep-going", action="store_true",
+                    help="measure every rate even after one that does not count")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     e = env()
@@ -352,7 +355,7 @@ def main() -> int:
     try:
         for layout in args.layouts:
             rows += bench(layout, args.rates, args.seconds, e, args.repeat, args.p99_ms,
-                          args.max_ms, args.driver_qos)
+                          args.max_ms, args.driver_qos, args.keep_going)
     finally:
         rclpy.try_shutdown()
     best = {w: max([r["rate_hz"] for r in rows if r["what"] == w and r["counts"]],
