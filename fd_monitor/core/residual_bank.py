@@ -102,6 +102,23 @@ def _monomials(d: int, degree: int) -> list[tuple[int, ...]]:
     return out
 
 
+def _monomial_function(exponents: np.ndarray) -> Any:
+    """``f(d_1, ..., d_d) -> [prod_j d_j^e_ij for each row i]`` as one compiled expression
+    (powers computed once): a Python loop over the monomials costs several times more."""
+    d = exponents.shape[1]
+    args = [f"d{j}" for j in range(d)]
+    top = int(exponents.max()) if exponents.size else 0
+    pows = [f"{a}_{k} = {a}_{k - 1} * {a}" if k > 1 else f"{a}_1 = {a}"
+            for a in args for k in range(1, top + 1)]
+    terms = [" * ".join(f"{args[j]}_{e}" for j, e in enumerate(row) if e) or "1.0"
+             for row in exponents.tolist()]
+    src = (f"def f({', '.join(args)}):\n" + "".join(f"    {p}\n" for p in pows)
+           + f"    return [{', '.join(terms)}]\n")
+    scope: dict[str, Any] = {}
+    exec(src, scope)        # generated from integers only: no outside text
+    return scope["f"]
+
+
 def _inf_norm(M: np.ndarray) -> float:
     """Induced infinity norm (largest absolute row sum)."""
     return float(np.abs(M).sum(axis=-1).max()) if M.size else 0.0
@@ -267,12 +284,14 @@ class ResidualBank:
         # [x^; u; y] per generator: the state lives in the first n columns
         self._Z = np.zeros((n_gen, self._r))
         self.xhat = self._Z[:, :n]
+        self._Z3 = self._Z[:, :, None]
         self._R = np.zeros((n_gen, p))
         self._lti = [self._discretise(g, None) for g in self.generators] \
             if self.kind != "lpv" else []
         self.discretisation = [d[3] for d in self._lti]
         self.table_bound, self.table_degree, self.fallback = 0.0, 0, ""
         self._coef: np.ndarray | None = None
+        self._coefT: np.ndarray | None = None
         self._phi: np.ndarray | None = None
         if fast:
             if self.kind == "lpv":
@@ -366,14 +385,9 @@ class ResidualBank:
         self.table_degree = degree
         self._coef = np.stack(coef, axis=1).reshape(len(self._exponents), -1)
         self._centre = c.tolist()
-        self._powers = range(degree + 1)
-        # monomial i (i >= 1) = prod_j pw[j (degree + 1) + e_ij]; only the entries of the
-        # maps that depend on rho are evaluated, the others are the constant term
-        idx = self._exponents[1:] + (degree + 1) * np.arange(model.d)[None, :]
-        self._mono_cols = [np.ascontiguousarray(idx[:, j]) for j in range(model.d)]
-        self._base = self._coef[0].copy()
-        self._varying = np.flatnonzero(np.abs(self._coef[1:]).max(axis=0) > 0)
-        self._coef_var = np.ascontiguousarray(self._coef[1:, self._varying].T)
+        # every entry of every map: one product of the coefficients with the monomials
+        self._coefT = np.ascontiguousarray(self._coef.T)
+        self._mono_fn = _monomial_function(self._exponents)
         self.discretisation = [choice] * len(gens)
 
     def _table_mats(self, c: np.ndarray, choice: str
@@ -476,22 +490,10 @@ class ResidualBank:
     def map_at(self, rho: Sequence[float]) -> np.ndarray:
         """(n_gen, n + p, r) every generator's one-step map at ``rho`` (d,) in the box, from
         the polynomial (``[x^+; r] = map [x^; u; y]``)."""
-        assert self._coef is not None
-        # powers of each delta_j in Python (a few products), the monomials by one gather
-        pw: list[float] = []
-        for v, c in zip(rho, self._centre):
-            dv, acc = float(v) - c, 1.0
-            for _ in self._powers:
-                pw.append(acc)
-                acc *= dv
-        a = np.array(pw)
-        cols = self._mono_cols
-        mono = a[cols[0]]
-        for c_ in cols[1:]:
-            mono *= a[c_]
-        phi = self._base.copy()
-        phi[self._varying] += self._coef_var @ mono
-        return phi.reshape(len(self.generators), self._n + self._p, self._r)
+        assert self._coefT is not None
+        mono = np.array(self._mono_fn(*[float(v) - c for v, c in zip(rho, self._centre)]))
+        return (self._coefT @ mono).reshape(len(self.generators), self._n + self._p,
+                                            self._r)
 
     def advance(self, uy: list[float], rho: list[float] | None) -> np.ndarray:
         """The fast step on validated numbers: ``uy`` = u_k then y_k as floats (finite),
@@ -504,7 +506,7 @@ class ResidualBank:
         n = self._n
         Z = self._Z
         Z[:, n:] = uy
-        out = np.matmul(phi, Z[:, :, None])[:, :, 0]
+        out = np.matmul(phi, self._Z3)[:, :, 0]
         Z[:, :n] = out[:, :n]
         R = self._R = out[:, n:]
         return np.sqrt((R * R).sum(axis=1))
