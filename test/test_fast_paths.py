@@ -12,9 +12,10 @@
   Stated tolerance: ``|r_fast - r_ref| <= RTOL * (threshold or max |r|)`` with
   RTOL = 1e-9; the alarms agree wherever the reference's residual is farther than that
   from its threshold.
-* ``qb``: the signals of one run on Python floats equal QBDetector.signals, and the guards
-  of one run on Python floats (:meth:`SampledPlant.next_mode1`) equal the
-  batch comparisons (:meth:`SampledPlant.next_mode`) bit for bit.
+* ``qb``: the runtime's single stream on Python floats (QBObserver.step1) against its numpy
+  path within 1e-12, same modes and alarms; the guards of one run on Python floats
+  (:meth:`SampledPlant.next_mode1`) equal the batch comparisons
+  (:meth:`SampledPlant.next_mode`) bit for bit.
 """
 
 from __future__ import annotations
@@ -144,9 +145,12 @@ def test_guards_of_one_run_equal_the_batch_comparisons(plant):
 
 
 @pytest.mark.parametrize("name", ["pwa_cascade_b1_step", "pwa_cascade_sampled_b1_step"])
-def test_qb_signals_on_floats_equal_the_detector_bit_for_bit(name):
-    """QBRuntime.step's signals on Python floats (sums of squares left to right) equal
-    QBDetector.signals (numpy) on a library bag of each shipped qb gain file."""
+def test_qb_floats_equal_the_numpy_path(name):
+    """QBRuntime.step on Python floats (QBObserver.step1, the signals summed left to right)
+    against its numpy path (QBObserver.step, QBDetector.signals) on a library bag of each
+    shipped qb gain file: the same modes and alarms, signals within 1e-12 of their size
+    (the matrix-vector products round differently in the last bit: the tolerance
+    test_runtime.py states for the vectorised QB batch)."""
     spec = LIB[name]
     system, gf = _loaded(Path(load_gains(spec.gains, verify=False).path).stem)
     b = read_bag(spec.folder, [PLANT_U.absolute, PLANT_Y.absolute])
@@ -158,5 +162,6 @@ def test_qb_signals_on_floats_equal_the_detector_bit_for_bit(name):
     rt.reset()
     rt._floats = False
     ref = rt.run(k, u, y)
-    assert np.array_equal(fast.residual, ref.residual)
+    assert np.array_equal(fast.mode, ref.mode)
+    assert np.abs(fast.residual - ref.residual).max() <= 1e-12 * np.abs(ref.residual).max()
     assert np.array_equal(fast.alarm, ref.alarm) and ref.alarm.any()

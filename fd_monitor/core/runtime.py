@@ -622,18 +622,21 @@ class QBRuntime(Runtime):
         nxt = None if last is None else last + 1
         if type(k) is not int or k < 0 or (nxt is not None and k != nxt):
             k = validate_sample(self.system, k, u, y, nxt)[0]
-        uu = np.array(sample_floats("u", u, self.system.nu, k))
-        yy = np.array(sample_floats("y", y, self.system.ny, k))
-        q, xh = self.observer.step(k, uu, yy)
-        r = self.observer.residual(q, xh, yy)
-        # QBDetector.signals on Python floats: |x^_F - x_nom|, its norm, |r|, ||r|| (each
-        # sum of squares left to right, as numpy reduces fewer than 8 terms)
-        xl, rl = xh.tolist(), r.tolist()
-        d = [xl[i] - c for i, c in self._nominal]
-        sig = np.array([*map(abs, d), math.sqrt(_sumsq(d)), *map(abs, rl),
-                        math.sqrt(_sumsq(rl))]) if self._floats else self.detector.signals(xh, r)
+        ul = sample_floats("u", u, self.system.nu, k)
+        yl = sample_floats("y", y, self.system.ny, k)
+        if self._floats:
+            q, xh, rl = self.observer.step1(k, ul, yl)
+            # QBDetector.signals on Python floats: |x^_F - x_nom|, its norm, |r|, ||r||
+            # (each sum of squares left to right, as numpy reduces fewer than 8 terms)
+            xl = xh.tolist()
+            d = [xl[i] - c for i, c in self._nominal]
+            sig = np.array([*map(abs, d), math.sqrt(_sumsq(d)), *map(abs, rl),
+                            math.sqrt(_sumsq(rl))])
+        else:
+            q, xh = self.observer.step(k, np.array(ul), np.array(yl))
+            sig = self.detector.signals(xh, self.observer.residual(q, xh, np.array(yl)))
         thr = self._thr[q]
-        out = None if self.region is None else self.region.excess(q, xh, uu)
+        out = None if self.region is None else self.region.excess(q, xh, np.array(ul))
         return RuntimeOutput(k, sig, thr, sig > thr, out, int(q), {"x_hat": xh})
 
     def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
