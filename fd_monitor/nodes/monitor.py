@@ -268,6 +268,10 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
                           for pub, t, lay in zip(self.pubs, self.outputs, self._layouts(out))]
         stamps = (k, k + 1)
         for pub, ser, src, nxt in self._plan:
+            # nobody subscribed: DDS would drop the message; skip building it (a count
+            # costs ~1 us, a message 5-10 us to assemble, pack and hand to DDS)
+            if not pub.get_subscription_count():
+                continue
             # values as Python numbers (bools and ints pack exactly as float64)
             data: list[Any] = []
             for i, name, scalar in src:
