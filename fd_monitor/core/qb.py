@@ -31,7 +31,7 @@ invariant and attractive, and (6), (8), (11) hold as in continuous time.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
