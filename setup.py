@@ -47,6 +47,7 @@ setup(
         ("lib/" + package_name, sorted(f"launchers/{n}" for n in EXECUTABLES)),
         *data_tree("config", f"share/{package_name}/config"),
         *data_tree("bags", f"share/{package_name}/bags"),
+        *data_tree("launch", f"share/{package_name}/launch"),
     ],
     install_requires=[
         "setuptools",
@@ -71,7 +72,7 @@ setup(
         ],
         "dev": ["pytest", "hypothesis", "ruff", "mypy", "types-PyYAML", "setuptools>=70", "wheel",
                 "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-bash",
-                "sphinx", "myst-parser", "pytest-xdist"],
+                "sphinx", "myst-parser", "pytest-xdist", "osrf-pycommon"],
     },
     zip_safe=True,
     maintainer="fd_monitor developers",

@@ -17,8 +17,8 @@ Prints samples per second of
 Single-stream figures are the best of ``--repeat`` passes (the machine is shared: the best
 pass is the one least disturbed), wall clock and, for ``Monitor.step``, CPU time of this
 process (what the code costs when it has a core to itself); the 1-minute load average is
-printed with each. Target of
-the issue: 40,000 samples/s or more for ``Monitor.step``. No assertion: figures only.
+printed with each. Target (issue 25): 80,000 samples/s or more for ``Monitor.step``
+(doc/reference/benchmarks-runtimes.md). No assertion: figures only.
 """
 
 from __future__ import annotations

@@ -268,6 +268,13 @@ class Collector:
         return [s for a in self.diagnostics for s in a.status if name_part in s.name]
 
 
+def status_text(status: Any) -> str:
+    """A DiagnosticStatus's message with the texts a long one is moved to: ``detail`` (the
+    full message) and ``reasons`` (every reason of the period)."""
+    return " ".join([status.message, *(kv.value for kv in status.values
+                                       if kv.key in ("detail", "reasons"))])
+
+
 FD_TOPICS = [t.absolute for t in CHAIN_OUTPUTS]
 
 

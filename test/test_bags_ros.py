@@ -89,7 +89,8 @@ def test_replay_and_record_errors_are_one_line(tmp_path, sim_bag):
     for args, match in [
         (["replay", str(tmp_path / "missing")], "no such bag"),
         (["replay", str(sim_bag), "--topics", "/fd/alarm"], "no topic /fd/alarm"),
-        (["replay", str(sim_bag), "--rate", "-1"], "--rate -1.0: expected >= 0"),
+        (["replay", str(sim_bag), "--rate", "-1"],
+         "argument --rate: expected a finite number >= 0"),
         (["record", "/x", "-o", str(tmp_path / "r")], "unknown type of /x"),
         (["record", "/plant/y", "-o", str(sim_bag)], "already exists"),
         (["record", "/plant/y", "-o", str(tmp_path / "r2"), "--until", "/plant/u=3"],

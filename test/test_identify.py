@@ -265,16 +265,21 @@ def test_no_excitation_names_the_input(tmp_path, capsys):
 
 
 def test_nan_names_topic_channel_and_sample(tmp_path, capsys):
+    # analyze's input policy (issue 26 item 1): a NaN sample is refused and counted, the fit
+    # goes on without it (no one-step pair across it), and --strict refuses the bag
     u, y, _ = _simulate(7)
     y[57, 1] = np.nan
     bag = _bag(tmp_path / "nan", u, y)
-    err = _one_line(capsys, ["identify", str(bag), "-o", str(tmp_path / "p.yaml")])
-    assert "/plant/y channel y2 sample 57: NaN" in err
+    err = _one_line(capsys, ["identify", str(bag), "-o", str(tmp_path / "p.yaml"), "--strict"])
+    assert "1 of 3000 samples not used (non_finite 1)" in err and "--strict" in err
+    assert not (tmp_path / "p.yaml").exists()
     u[12, 0] = np.inf
     y[57, 1] = 0.1
     bag = _bag(tmp_path / "inf", u, y)
-    err = _one_line(capsys, ["identify", str(bag), "-o", str(tmp_path / "p.yaml")])
-    assert "/plant/u channel u1 sample 12: Inf" in err
+    assert cli_main(["identify", str(bag), "-o", str(tmp_path / "p.yaml"), "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert "1 of 3000 samples not used (non_finite 1)" in err
+    assert json.loads(out)["integrity"][str(bag)]["refused_samples"] == {"non_finite": 1}
 
 
 def test_mismatched_channels_between_bags(tmp_path, capsys, linear_bags):
@@ -300,8 +305,9 @@ def test_bad_guards_and_options(linear_bags, tmp_path, capsys):
     assert "is not a channel" in _one_line(capsys, ["identify", b, "-o", o, "--guard", "h9 > 1"])
     assert "expected 'CHANNEL OP VALUE'" in _one_line(
         capsys, ["identify", b, "-o", o, "--guard", "y1 = 1"])
-    assert "--margin 0.5: expected a number >= 1" in _one_line(
-        capsys, ["identify", b, "-o", o, "--margin", "0.5"])
+    assert cli_main(["identify", b, "-o", o, "--margin", "0.5"]) == 2   # argparse's line
+    assert capsys.readouterr().err == ("fd_monitor identify: error: argument --margin: "
+                                       "expected a finite number >= 1, got '0.5'\n")
     Path(o).write_text("x")
     assert "exists (would overwrite; use --force)" in _one_line(capsys, ["identify", b, "-o", o])
 

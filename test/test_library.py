@@ -148,6 +148,10 @@ def test_spec_errors_name_file_and_key(tmp_path):
         load_library(p)
     with pytest.raises(LibraryError, match="not found"):
         load_library(tmp_path / "nope.yaml")
+    p.write_text("bags:\n  - {name: a, scenario: x, seed: 1, duration: 1.0, gains: g}\n")
+    with pytest.raises(LibraryError, match=r"bags\[0\]\.gains: expected a gain file \(g: "
+                                           r"unknown gain file"):
+        load_library(p)
 
 
 def test_check_expected_reports_each_kind_of_failure():

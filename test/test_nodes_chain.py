@@ -75,8 +75,9 @@ def test_bad_messages_are_reported_and_change_nothing():
         assert any(o.alarm.any() for o in want)
 
         def reported(node, text, level=WARN):
-            return any(s.level == level and text in s.message
-                       for s in col.statuses(f"{node}: input"))
+            return any(s.level == level and (text in s.message or any(
+                text in kv.value for kv in s.values if kv.key == "reasons"))
+                for s in col.statuses(f"{node}: input"))
 
         checks = [("observer", "/plant/y: value h2 is nan"),
                   ("observer", "/plant/y: wrong length: 2 values, expected 3"),

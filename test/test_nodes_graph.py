@@ -200,7 +200,10 @@ def test_lifecycle_reset_and_restarted_stream():
         np.testing.assert_array_equal(second, first)
         assert obs.join.new_runs == 1
         assert rig.spin(lambda: any("new run: the stream restarted at stamp 0" in s.message
-                                    for s in rig.col.statuses("/observer: input")))
+                                    + str([kv.value for kv in s.values])
+                                    for s in rig.col.statuses("/observer: input"))), \
+            [(s.message, [(kv.key, kv.value) for kv in s.values])
+             for s in rig.col.statuses("/observer: input")][-3:]
         # ~/reset: the next sample starts a run at once.
         cli = rig.drv.create_client(Trigger, "/observer/reset")
         assert cli.wait_for_service(5.0)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ros_util import Collector, ros_context, spin_until
+from ros_util import Collector, ros_context, spin_until, status_text
 
 pytestmark = pytest.mark.ros
 
@@ -124,8 +124,8 @@ def test_monitor_reports_a_mode_the_design_lacks_and_a_bad_side_signal():
     stamps = got["/fd/residual"][2]
     assert 400 not in stamps and stamps[-1] == 599 and len(stamps) == 599
     inp = [s for s in statuses if s.name.endswith("monitor: input")]
-    assert any("/plant/mode stamp 400: value mode is nan" in s.message for s in inp), \
-        sorted({s.message for s in inp})
+    assert any("/plant/mode stamp 400: value mode is nan" in status_text(s) for s in inp), \
+        sorted({status_text(s) for s in inp})
 
 
 def test_monitor_reads_the_parameters_the_node_would_see(tmp_path):

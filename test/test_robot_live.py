@@ -50,7 +50,10 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
         pub.publish(_joint_state("motor", float("nan")))
 
         def warned(text):
-            return any(text in s.message for s in col.statuses("monitor: input"))
+            # the message, or the list of a period's reasons when they do not fit in it
+            return any(text in s.message or any(text in kv.value for kv in s.values
+                                                if kv.key == "reasons")
+                       for s in col.statuses("monitor: input"))
 
         assert spin_until(ex, lambda: warned("no joint 'motor' (joints: wrist)")
                           and warned("value is nan"), 20.0, [monitor]), monitor.output()
@@ -121,7 +124,9 @@ def test_best_effort_driver_and_a_topic_of_another_type():
             ex.add_node(nd)
 
         def graph(text):
-            return any(text in s.message for s in col.statuses("monitor: ros graph"))
+            # the message, or one of the problems listed in the values when they are many
+            return any(text in s.message or any(text in kv.value for kv in s.values)
+                       for s in col.statuses("monitor: ros graph"))
 
         assert spin_until(ex, lambda: graph("switching to best effort") and graph(
             "/joint_states: published as std_msgs/msg/String") and js.get_subscription_count()

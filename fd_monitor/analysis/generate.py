@@ -24,12 +24,13 @@ import numpy as np
 from fd_monitor.analysis.library import BagSpec, Corruption, Library, LibraryError
 from fd_monitor.core.simulator import measured_signals, simulate, truth_values
 from fd_monitor.model.scenario import load_scenario
+from fd_monitor.model.yaml_io import require_memory
 from fd_monitor.wire.adapters import write_adapted
 from fd_monitor.wire.bags import BagWriter, write_messages
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
-__all__ = ["bag_messages", "generate_bag", "generate_library", "simulate_bag",
-           "simulated_messages"]
+__all__ = ["BYTES_PER_BAG_SAMPLE", "bag_messages", "check_bag_size", "generate_bag",
+           "generate_library", "simulate_bag", "simulated_messages"]
 
 
 @dataclass
@@ -67,6 +68,20 @@ def simulated_messages(scenario: Any, seed: int | None, n_samples: int) -> list[
             for k in range(n_samples) for topic, (labels, vals) in topics.items()]
 
 
+#: Memory per simulated sample while a bag is built: its four messages as Python objects
+#: (values, labels) and their CDR bytes, measured ~2 kB on three_tank; with margin.
+BYTES_PER_BAG_SAMPLE = 4000.0
+
+
+def check_bag_size(system: Any, duration: float, what: str, error: type[Exception]) -> int:
+    """Samples of a simulated bag of ``duration`` s; refuse, before simulating, one whose
+    messages would not fit in memory (:func:`~fd_monitor.model.yaml_io.require_memory`)."""
+    n = duration / system.sample_time
+    require_memory(BYTES_PER_BAG_SAMPLE * n, f"{what} {duration:g} s at "
+                   f"{system.sample_time:g} s per sample ({n:.3g} samples)", error)
+    return round(n)
+
+
 def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
     """Simulate ``spec`` and return its messages in recording order, corruptions applied.
 
@@ -77,6 +92,7 @@ def bag_messages(spec: BagSpec) -> tuple[list[_Msg], Any]:
     """
 
     sc = load_scenario(spec.scenario)
+    check_bag_size(sc.system, spec.duration, f"bag {spec.name}: duration", LibraryError)
     K = max(1, round(spec.duration / sc.system.sample_time))
     msgs = simulated_messages(sc, spec.seed, K)
     for c in spec.corruptions:

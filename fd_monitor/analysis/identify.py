@@ -35,7 +35,7 @@ import itertools
 import math
 import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from fd_monitor.analysis.integrity import read_joined
 from fd_monitor.core.identify import (
     AffineModel,
     IdentificationError,
@@ -169,7 +170,8 @@ def _joined(u_arr: Any, y_arr: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
                  y_topic: str = PLANT_Y.absolute,
                  mode_topic: str | None = None, adapter: Any = None,
-                 sample_time: float | None = None) -> Dataset:
+                 sample_time: float | None = None, strict: bool = False,
+                 integrity: dict[str, Any] | None = None) -> Dataset:
     """Read a bag's inputs and outputs (and mode channel) into a :class:`Dataset`.
 
     Parameters
@@ -187,6 +189,10 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
         use are skipped with one warning naming the first).
     sample_time : float, optional
         s, for an adapter's sample numbering (default: the output stamps' median spacing).
+    strict : bool
+        Refuse a bag not used whole (:func:`fd_monitor.analysis.integrity.enforce_strict`).
+    integrity : dict, optional
+        Receives bag -> its integrity record (:func:`fd_monitor.analysis.integrity.integrity`).
 
     Raises
     ------
@@ -218,14 +224,14 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
         ds.check()
         return ds
     mtopic, mchan = [*mode_topic.split(":", 1), ""][:2] if mode_topic else ("", "")
-    topics = [u_topic, y_topic] + ([mtopic] if mtopic else [])
-    arrays = read_bag(path, topics)
-    k, u, y, t_ns = _joined(arrays[u_topic], arrays[y_topic])
-    if k.size == 0:
-        raise IdentificationError(f"{bag}: no sample stamp is on both {u_topic} and {y_topic}")
+    # analyze's input checks (integrity, stamps, duplicates, labels, limits, metadata)
+    k, u, y, t_ns, u_labels, y_labels, doc = read_joined(path, u_topic, y_topic,
+                                                         strict=strict)
+    if integrity is not None:
+        integrity[str(bag)] = doc
     mode = None
     if mtopic:
-        m = arrays[mtopic]
+        m = read_bag(path, [mtopic])[mtopic]
         col = m.labels.index(mchan) if mchan else 0
         if mchan and mchan not in m.labels:
             raise BagError(f"{bag}: {mtopic}: no channel {mchan!r} (channels: "
@@ -245,8 +251,8 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
         dk = np.diff(k)
         ts = float(np.median(np.diff(t_ns) / dk)) * 1e-9
         ts = ts if ts > 0 else None
-    ds = Dataset(str(bag), tuple(arrays[u_topic].labels), tuple(arrays[y_topic].labels), k, u,
-                 y, ts, mode, _bag_sha256(path), (u_topic, y_topic))
+    ds = Dataset(str(bag), u_labels, y_labels, k, u, y, ts, mode, _bag_sha256(path),
+                 (u_topic, y_topic))
     ds.check()
     return ds
 
@@ -894,15 +900,24 @@ def _validation(Ms: Sequence[AffineModel], R: _Rows, q: np.ndarray, v_bar: np.nd
 
 def identify_bags(bags: Sequence[str | Path], *, holdout: Sequence[str | Path] = (),
                   u_topic: str = PLANT_U.absolute, y_topic: str = PLANT_Y.absolute,
-                  mode_topic: str | None = None, adapter: Any = None,
-                  **options: Any) -> Identified:
-    """:func:`identify` on bags (read with :func:`load_dataset`); ``options`` as there."""
+                  mode_topic: str | None = None, adapter: Any = None, strict: bool = False,
+                  integrity: dict[str, Any] | None = None,
+                  progress: Callable[[str], Any] | None = None, **options: Any) -> Identified:
+    """:func:`identify` on bags (read with :func:`load_dataset`, ``strict`` and
+    ``integrity`` as there); ``options`` as there; ``progress`` is called with a line
+    before each bag is read and before the fit."""
     if not bags:
         raise IdentificationError("no bag to identify from")
     read = dict(u_topic=u_topic, y_topic=y_topic, mode_topic=mode_topic, adapter=adapter,
-                sample_time=options.get("sample_time"))
-    fit = [load_dataset(b, **read) for b in bags]
-    held = [load_dataset(b, **read) for b in holdout]
+                sample_time=options.get("sample_time"), strict=strict, integrity=integrity)
+    say = progress or (lambda _line: None)
+    every = [*bags, *holdout]
+    fit: list[Dataset] = []
+    held: list[Dataset] = []
+    for i, b in enumerate(every):
+        say(f"identify: reading {b} ({i + 1}/{len(every)})")
+        (fit if i < len(bags) else held).append(load_dataset(b, **read))
+    say(f"identify: fitting {len(fit)} record(s), {len(held)} held out")
     return identify(fit, held, sources=[str(b) for b in [*bags, *holdout]], **options)
 
 

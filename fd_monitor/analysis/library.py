@@ -53,6 +53,7 @@ error is one line naming the file, the key path and what was expected). The bags
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,9 +61,9 @@ from typing import Any, NoReturn
 
 from fd_monitor.analysis.offline import INPUT_ERROR_KINDS
 from fd_monitor.model.errors import FdMonitorError
-from fd_monitor.model.paths import config_dirs
+from fd_monitor.model.paths import config_dirs, find_config_file
 from fd_monitor.model.validate import Checker
-from fd_monitor.model.yaml_io import read_yaml
+from fd_monitor.model.yaml_io import check_regular_file, read_yaml
 from fd_monitor.wire.topics import PLANT_Y
 
 __all__ = ["CORRUPTION_KINDS", "FORMAT_VERSION", "BagSpec", "Corruption", "Library",
@@ -238,12 +239,15 @@ def load_library(path: str | Path | None = None) -> Library:
         One line naming the file and the key.
     """
     p = Path(path) if path is not None else default_library()
-    if not p.is_file():
-        raise LibraryError(f"{p}: library spec not found")
+    check_regular_file(p, LibraryError, "library spec")
     ck = _checker(p)
     data = read_yaml(p, LibraryError)
     if not isinstance(data, Mapping) or not isinstance(data.get("bags"), list):
         _fail(ck, "bags", "a list of bag entries")
+    extra = set(data) - {"format_version", "bags"}
+    if extra:
+        _fail(ck, str(sorted(map(str, extra))[0]), "one of ['bags', 'format_version'] (unknown "
+              "key)")
     if (isinstance(data.get("format_version"), bool)
             or data.get("format_version", FORMAT_VERSION) != FORMAT_VERSION):
         _fail(ck, "format_version", str(FORMAT_VERSION), data.get("format_version"))
@@ -269,25 +273,34 @@ def _bag_spec(ck: Checker, key: str, e: Any, p: Path, taken: set[str]) -> BagSpe
     if not name.replace("_", "").isalnum() or name in taken:
         _fail(ck, f"{key}.name", "a unique name of letters, digits and _", name)
     seed = e["seed"]
-    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**63:
         _fail(ck, f"{key}.seed", "an integer >= 0", seed)
     dur = e["duration"]
-    if isinstance(dur, bool) or not isinstance(dur, (int, float)) or not dur > 0:
-        _fail(ck, f"{key}.duration", "a duration > 0 in s", dur)
+    if isinstance(dur, bool) or not isinstance(dur, (int, float)) or not 0 < dur < math.inf:
+        _fail(ck, f"{key}.duration", "a finite duration > 0 in s", dur)
     tr = e.get("transient", 0.0)
-    if isinstance(tr, bool) or not isinstance(tr, (int, float)) or tr < 0:
+    if isinstance(tr, bool) or not isinstance(tr, (int, float)) or not 0 <= tr < math.inf:
         _fail(ck, f"{key}.transient", "a time >= 0 in s", tr)
     cors = e.get("corruptions") or []
     if not isinstance(cors, list):
         _fail(ck, f"{key}.corruptions", "a list", cors)
+    corruptions = tuple(_corruption(ck, f"{key}.corruptions[{j}]", c)
+                        for j, c in enumerate(cors))
+    for ref in ("gains", "scenario"):
+        if not isinstance(e[ref], str) or not e[ref]:
+            _fail(ck, f"{key}.{ref}", "a shipped name or a path", e[ref])
+    try:      # an unknown name refused now, not after simulating the bag
+        find_config_file(p.parent / e["gains"] if (p.parent / e["gains"]).is_file()
+                         else e["gains"], "gains", LibraryError, "gain file")
+    except LibraryError as exc:
+        _fail(ck, f"{key}.gains", f"a gain file ({exc})", e["gains"])
     scen = str(e["scenario"])
     rel = p.parent / scen
     return BagSpec(
         name=name, scenario=str(rel) if rel.is_file() else scen, seed=int(seed),
         duration=float(dur), gains=str(e["gains"]), transient=float(tr),
         live=bool(e.get("live", False)), description=str(e.get("description", "")),
-        corruptions=tuple(_corruption(ck, f"{key}.corruptions[{j}]", c)
-                          for j, c in enumerate(cors)),
+        corruptions=corruptions,
         folder=p.parent / name, notes=str(e.get("notes") or ""))
 
 
@@ -306,8 +319,7 @@ def load_expected(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     if p.is_dir():
         p = expected_path(p)
-    if not p.is_file():
-        raise LibraryError(f"{p}: expected results not found")
+    check_regular_file(p, LibraryError, "expected results file")
     ck = _checker(p)
     d = read_yaml(p, LibraryError)
     if not isinstance(d, Mapping):
@@ -322,16 +334,39 @@ def load_expected(path: str | Path) -> dict[str, Any]:
     alarms = d.get("alarms") or {}
     if not isinstance(alarms, Mapping):
         _fail(ck, "alarms", "channel -> {first_sample, tolerance}", alarms)
+    if "bag" in d and p.name == "expected.yaml" and str(d["bag"]) != p.resolve().parent.name:
+        _fail(ck, "bag", f"the name of its bag folder {p.resolve().parent.name!r} (the "
+              f"expectations of another bag?)", d["bag"])
     for c, a in alarms.items():
         if not isinstance(a, Mapping) or set(a) != {"first_sample", "tolerance"}:
             _fail(ck, f"alarms.{c}", "{first_sample, tolerance}", a)
+        for f in ("first_sample", "tolerance"):
+            if isinstance(a[f], bool) or not isinstance(a[f], int) or a[f] < 0:
+                _fail(ck, f"alarms.{c}.{f}", "an integer >= 0 (samples)", a[f])
     for key in ("no_alarm", "isolated", "modes", "restarts", "bridges"):
         if key in d and not isinstance(d[key], list):
             _fail(ck, key, "a list", d[key])
     be = d.get("bias_estimate") or {}
+    if not isinstance(be, Mapping):
+        _fail(ck, "bias_estimate", "channel -> {value, tolerance}", be)
     for c, a in be.items():
         if not isinstance(a, Mapping) or set(a) != {"value", "tolerance"}:
             _fail(ck, f"bias_estimate.{c}", "{value, tolerance}", a)
+        for f in ("value", "tolerance"):
+            v = a[f]
+            if (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                    or (f == "tolerance" and v < 0)):
+                _fail(ck, f"bias_estimate.{c}.{f}", "a finite number" + (" >= 0" if
+                                                                           f == "tolerance"
+                                                                           else ""), v)
+    for key in ("fault_onset_sample", "mode_min_dwell"):
+        v = d.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
+            _fail(ck, key, "an integer >= 0 (samples)", v)
+    tr = d.get("transient")
+    if tr is not None and (isinstance(tr, bool) or not isinstance(tr, (int, float))
+                           or not 0 <= tr < math.inf):
+        _fail(ck, "transient", "a finite time >= 0 in s", tr)
     ie = d.get("input_errors")
     if ie is not None:
         if not isinstance(ie, Mapping) or not set(ie) <= set(INPUT_ERROR_KINDS):

@@ -41,6 +41,7 @@ import bisect
 import contextlib
 import itertools
 import math
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,8 +61,15 @@ from fd_monitor.model.errors import (
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import gain_system
 from fd_monitor.wire.adapters import Adapter, feed, load_adapter, read_adapted
-from fd_monitor.wire.bags import arrays_from_raw, messages_from_raw, read_raw
+from fd_monitor.wire.bags import (
+    BagDamage,
+    BagDamageWarning,
+    arrays_from_raw,
+    messages_from_raw,
+    read_raw,
+)
 from fd_monitor.wire.conversions import decode, readable_stamp
+from fd_monitor.wire.input_checks import bounded_labels, integrity, metadata_problems
 from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.stream import (
     GAP_TIMEOUT,
@@ -179,6 +187,11 @@ class BagScan:
     bag: str
     present: dict[str, tuple[str, int]]
     records: list[tuple[str, str, int, bytes]]
+    #: What the read found wrong (:class:`~fd_monitor.wire.bags.BagDamage`, CRC-less chunks
+    #: included as ``kind="unchecked"``) and where ``metadata.yaml`` disagrees with the MCAP
+    #: (:func:`fd_monitor.analysis.integrity.metadata_problems`).
+    damage: list[Any] = field(default_factory=list)
+    metadata: list[str] = field(default_factory=list)
 
     def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         """``(topic, timestamp_ns, message)`` of ``topics`` in file order (as
@@ -213,26 +226,39 @@ class BagScan:
             return None
 
 
-def scan_bag(bag: str | Path) -> BagScan:
+def scan_bag(bag: str | Path, warn: bool = True) -> BagScan:
     """Read a bag once: every topic's type and count, and the ``/plant/...`` records.
+
+    The damage found and ``metadata.yaml``'s disagreements with the MCAP are kept in the
+    scan (:func:`fd_monitor.analysis.integrity.integrity`) and, with ``warn``, each said once
+    as a warning (stderr); chunks without CRC are not damage and not warned about.
 
     Raises
     ------
     BagError
         Missing bag, not a bag, unreadable data (the bag named).
     """
-
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     present: dict[str, tuple[str, int]] = {}
     records: list[tuple[str, str, int, bytes]] = []
+    damage: list[BagDamage] = []
     with _bag_errors(bag):
-        for rec in read_raw(bag):
+        for rec in read_raw(bag, damage=damage):
             topic, ty = rec[0], rec[1]
             present[topic] = (ty, present.get(topic, (ty, 0))[1] + 1)
             if topic.startswith(_PLANT):
                 records.append(rec)
-    return BagScan(str(bag), present, records)
+    damaged = any(d.kind == "damage" for d in damage)
+    scan = BagScan(str(bag), present, records, damage,
+                   metadata_problems(bag, present, damaged))
+    if warn:
+        for d in damage:
+            if d.kind == "damage":   # one location: said once even when read again
+                warnings.warn(str(d), BagDamageWarning, stacklevel=1)
+        for line in scan.metadata:
+            warnings.warn(f"{bag}: {line}", BagDamageWarning, stacklevel=1)
+    return scan
 
 
 def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
@@ -316,6 +342,11 @@ def read_streams(bag: str | Path, system: Any,
         if present[t][0] != FLOAT64_MULTI_ARRAY:
             raise BagError(f"{bag}: {t} is recorded as {present[t][0]}, expected "
                            f"{FLOAT64_MULTI_ARRAY}")
+        # a bag of another plant (or u and y swapped) would have every message refused
+        first = scan.first_labels(t)
+        if first and tuple(first) != tuple(labels[t]):
+            raise BagError(f"{bag}: {t} has channels {list(first)[:10]} but plant "
+                           f"{system.name} has {list(labels[t])}: a bag of another plant?")
     us: dict[int, np.ndarray] = {}
     ys: dict[int, np.ndarray] = {}
     sides: dict[str, dict[int, np.ndarray]] = {n: {} for n in side}
@@ -331,7 +362,8 @@ def read_streams(bag: str | Path, system: Any,
 
     required = [names[t] for t in topics]
     with _bag_errors(bag):
-        _join_messages(scan.messages(topics), labels, names, required, rep, keep,
+        _join_messages(bounded_labels(scan.messages(topics), bag), labels, names, required,
+                       rep, keep,
                        MAX_GAP)
     return us, ys, sides, rep
 
@@ -529,6 +561,8 @@ class BagRun:
     estimate_kind: str = "sensor_bias"
     traces: dict[str, np.ndarray] = field(default_factory=dict)
     isolating: tuple[str, ...] = ()
+    #: What of the bag was not used (:func:`fd_monitor.analysis.integrity.integrity`).
+    integrity: dict[str, Any] = field(default_factory=dict)
 
     @property
     def t(self) -> np.ndarray:
@@ -608,8 +642,6 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
                                               _runtime_step(rt, system.nu, outs, refused))
         if not us:
             raise BagError(f"{bag}: no valid (u, y) sample")
-        out = _fields(rt, rt.stack(outs, list(rep.restarts), list(rep.bridges)), truth,
-                      refused, rep)
     else:
         us, _ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
                                                         for n in rt.side_inputs}, scan,
@@ -618,10 +650,14 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
             raise BagError(f"{bag}: no valid (u, y) sample on {PLANT_U.absolute} and "
                            f"{PLANT_Y.absolute}"
                            + "".join(f" and {_side_topic(n).absolute}" for n in sides))
-        out = _fields(rt, rt.stack(outs, list(rep.restarts), list(rep.bridges)), truth,
-                      refused, rep)
+    if not outs:        # every sample refused by the runtime (implausible): nothing to show
+        why = ", ".join(f"{n} {k}" for k, n in rep.sample_counts()["skipped"].items())
+        raise BagError(f"{bag}: no usable sample: every one was refused ({why}; e.g. "
+                       f"{refused[0][1] if refused else 'see the input errors'})")
+    out = _fields(rt, rt.stack(outs, list(rep.restarts), list(rep.bridges)), truth, refused,
+                  rep)
     return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
-                  transient=float(transient), **out)
+                  transient=float(transient), integrity=integrity(scan, rep), **out)
 
 
 def _runtime_step(rt: Any, nu: int, outs: list[Any],

@@ -340,7 +340,8 @@ def bag_report(bag: str | Path, out_dir: str | Path, gains: str | Path | None = 
                        adapter)
     (out / "summary.md").write_text(md, encoding="utf-8")
     return {"summary": summary, "figures": {k: str(v) for k, v in figs.items()},
-            "summary_md": str(out / "summary.md"), "expected_failures": fails}
+            "summary_md": str(out / "summary.md"), "expected_failures": fails,
+            "integrity": run.integrity}
 
 
 def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],
@@ -370,6 +371,10 @@ def _bag_markdown(run: Any, s: Mapping[str, Any], figs: Mapping[str, Path],
     lines += ["", "- fault onsets (truth): " + (", ".join(
         f"{n} at {t:.2f} s" for n, t in onsets) or "none (fault free)"),
         f"- estimated mode sequence: {' -> '.join(s.get('modes', []))}"]
+    if run.integrity:           # the bag-reading contract (fd_monitor.analysis.integrity)
+        from fd_monitor.wire.input_checks import describe
+
+        lines.append(f"- input integrity: {describe(run.integrity)}")
     if s.get("input_errors"):
         lines.append("- input errors: " + "; ".join(
             f"{k}: {v}" for k, v in s["input_errors"].items()))

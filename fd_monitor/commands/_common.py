@@ -1,17 +1,73 @@
-"""Helpers shared by the subcommands: table and JSON output."""
+"""Helpers shared by the subcommands: table and JSON output, checked argparse numbers."""
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from fd_monitor.model.gains import save_gains, to_plain
 from fd_monitor.model.paths import default_gain_path
 
-__all__ = ["add_json_flag", "print_json", "print_table", "emit", "gain_path", "save_design"]
+__all__ = ["MAX_SEED", "add_json_flag", "count", "emit", "gain_path", "number", "print_json",
+           "print_table", "save_design"]
+
+#: Largest seed a command takes (numpy's generators take any integer; a seed is stored and
+#: compared as a 64-bit integer everywhere else).
+MAX_SEED = 2**63 - 1
+
+
+def _bound(v: float) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def number(low: float = -math.inf, high: float = math.inf, *, low_open: bool = False,
+           high_open: bool = False) -> Callable[[str], float]:
+    """An argparse ``type``: a finite float in the range (``low_open``: ``> low``, else
+    ``>= low``; likewise ``high``). NaN, inf and anything outside are refused by argparse
+    with one line (``argument --margin: expected a finite number > 0, got 'nan'``)."""
+    parts = []
+    if low > -math.inf:
+        parts.append(f"{'>' if low_open else '>='} {_bound(low)}")
+    if high < math.inf:
+        parts.append(f"{'<' if high_open else '<='} {_bound(high)}")
+    want = "a finite number" + (" " + " and ".join(parts) if parts else "")
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
+        ok = (math.isfinite(v) and (v > low if low_open else v >= low)
+              and (v < high if high_open else v <= high))
+        if not ok:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}")
+        return v
+
+    parse.__name__ = "number"     # argparse names the type in its messages
+    return parse
+
+
+def count(low: int = 0, high: int = MAX_SEED) -> Callable[[str], int]:
+    """An argparse ``type``: an integer in ``[low, high]`` (written as an integer: ``1e12``
+    and ``2.5`` are refused, so a typo never becomes a huge or truncated count)."""
+    want = f"an integer in [{low}, {high}]" if high < MAX_SEED else f"an integer >= {low}"
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}")
+        return v
+
+    parse.__name__ = "count"
+    return parse
 
 
 def add_json_flag(parser: Any) -> None:

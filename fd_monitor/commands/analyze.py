@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from fd_monitor.analysis.integrity import add_strict_flag, describe, enforce_strict
 from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime, scan_bag
 from fd_monitor.analysis.summary import analyze_run
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
@@ -47,7 +48,7 @@ __all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """BAG, --gains, --system, --no-agei, --json."""
+    """BAG, --gains, --system, --no-agei, --json, --strict."""
     parser.add_argument("bag", metavar="BAG", help="rosbag2 folder with /plant/u and /plant/y")
     parser.add_argument("--gains", required=True, metavar="GAINS",
                         help="gain file of any method (path or name in config/gains/)")
@@ -61,6 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-agei", action="store_true",
                         help="ablation: run without the AGEI module")
     add_json_flag(parser)
+    add_strict_flag(parser)
 
 
 def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: np.ndarray,
@@ -142,7 +144,7 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
         run = run_bag(bag, gains, system=system, agei=agei, scan=scan, adapter=adapter)
         return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
                 "method": gains.method, "agei": agei, "adapter": str(adapter),
-                **analyze_run(run)}
+                **analyze_run(run), "integrity": run.integrity}
     present = scan.present
     needed = [PLANT_Y.absolute] + ([PLANT_U.absolute] if system.nu else [])
     for t in needed:
@@ -159,7 +161,8 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
                            f"file for this bag?")
     run = run_bag(bag, gains, system=system, agei=agei, scan=scan)
     return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
-            "method": gains.method, "agei": agei, **analyze_run(run)}
+            "method": gains.method, "agei": agei, **analyze_run(run),
+            "integrity": run.integrity}
 
 
 def samples_line(doc: dict[str, Any]) -> str:
@@ -186,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
                       adapter=args.adapter)
     if args.json:
         print_json(doc)
+        enforce_strict(doc["integrity"], args.bag, args.strict)
         return 0
     det = doc["detection"]
     print(f"analyze {doc['bag']} with {doc['gains']} ({doc['method']}, plant {doc['plant']}, "
@@ -193,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
     first = "none" if det is None else f"sample {det['sample']} (t = {det['time']:.1f} s)"
     print(f"first detection: {first}")
     print(samples_line(doc))
+    print(f"integrity: {describe(doc['integrity'])}")
     if doc["time_base"].get("sample_time_note"):
         print(doc["time_base"]["sample_time_note"])
     print()
@@ -230,4 +235,5 @@ def run(args: argparse.Namespace) -> int:
         print_table([(n, f"{v:+.6f}", "yes" if n in doc["isolated"] else "no")
                      for n, v in doc["bias_estimate"].items()],
                     header=("sensor", "bias_estimate", "isolated"), title="sensor biases")
+    enforce_strict(doc["integrity"], args.bag, args.strict)
     return 0

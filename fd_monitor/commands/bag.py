@@ -1,7 +1,9 @@
 """``python -m fd_monitor bag check|recover``: a bag's integrity, and bags whose writer died.
 
 ``bag check BAG`` reads every message (every chunk's CRC checked) and prints the messages
-per topic and each damage found, by byte position; exit status 1 when there is damage.
+per topic, each damage found, by byte position, and where ``metadata.yaml`` disagrees with the
+MCAP; exit status 1 when there is any. Chunks with CRC 0 ("not computed", as ``rosbags``
+writes them) are not damage: one note says they cannot be checked (exit 0).
 
 ``bag recover BAG [-o OUT]`` rewrites every readable message of BAG into a new, complete bag
 OUT (default ``BAG_recovered``): for a bag whose recorder was killed (no summary, no
@@ -14,6 +16,7 @@ import argparse
 import warnings
 from pathlib import Path
 
+from fd_monitor.analysis.integrity import add_strict_flag
 from fd_monitor.commands._common import add_json_flag, emit
 from fd_monitor.model.errors import FdMonitorError
 
@@ -28,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            description="read every message and report damage")
     check.add_argument("bag", metavar="BAG", help="bag folder (or its .mcap file)")
     add_json_flag(check)
+    add_strict_flag(check)
     rec = sub.add_parser("recover", help="rewrite the readable messages into a complete bag",
                          description="rewrite the readable messages into a complete bag")
     rec.add_argument("bag", metavar="BAG", help="bag folder (or its .mcap file)")
@@ -38,19 +42,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check or recover; print messages per topic (and damage as warnings)."""
-    from fd_monitor.wire.bags import BagDamage, BagDamageWarning, bag_topics, recover_bag
+    from fd_monitor.wire.bags import (
+        BagDamage,
+        BagDamageWarning,
+        BagUncheckedWarning,
+        recover_bag,
+    )
 
     damage: list[BagDamage]
     if args.action == "check":
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", BagDamageWarning)
-            topics = bag_topics(args.bag)
-        lines = [str(w.message) for w in caught if issubclass(w.category, BagDamageWarning)]
-        counts = {t: n for t, (_, n) in topics.items()}
-        emit({"bag": str(args.bag), "messages": counts, "damage": lines} if args.json
+        from fd_monitor.analysis.integrity import bag_integrity, describe, enforce_strict
+
+        scan, doc = bag_integrity(args.bag, args.strict, warn=False, enforce=False)
+        lines = doc["damage"] + [f"{args.bag}: {m}" for m in doc["metadata"]]
+        counts = {t: n for t, (_, n) in scan.present.items()}
+        note = (f"{doc['unchecked_chunks']} chunk(s) carry no CRC (CRC 0: not computed by their "
+                f"writer): they cannot be checked for bit errors" if doc["unchecked_chunks"]
+                else None)
+        emit({"bag": str(args.bag), "messages": counts, "damage": lines,
+              "integrity": doc} if args.json
              else counts, args.json, title=f"{args.bag}: {len(lines)} damage(s)")
-        for line in lines if not args.json else []:
-            print(f"damage: {line}")
+        if not args.json:
+            for line in lines:
+                print(f"damage: {line}")
+            if note:
+                print(f"note: {note}")
+            if "samples_present" in doc:
+                print(f"samples: {describe(doc)}")
+        enforce_strict(doc, args.bag, args.strict)      # after the table, as analyze does
         return 1 if lines else 0
     src = Path(args.bag)
     out = Path(args.output) if args.output else src.with_name(
@@ -59,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
         raise FdMonitorError(f"{out}: already exists (a bag is never overwritten; give -o)")
     counts, damage = recover_bag(src, out)
     for d in damage:
-        warnings.warn(str(d), BagDamageWarning, stacklevel=1)
+        warnings.warn(str(d), BagDamageWarning if d.kind == "damage" else BagUncheckedWarning,
+                      stacklevel=1)
     emit({"bag": str(out), "messages": counts, "damage": [str(d) for d in damage]}
          if args.json else counts, args.json, title=f"recovered {out}")
     return 0

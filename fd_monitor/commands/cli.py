@@ -90,7 +90,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m fd_monitor`` and the ``fd_monitor`` console script."""
     args_list = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(args_list)
-    args = parser.parse_args(args_list)
+    try:
+        args = parser.parse_args(args_list)
+    except SystemExit as exc:         # usage error (one line printed) or --help
+        return int(exc.code or 0) if not isinstance(exc.code, str) else 2
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
@@ -101,6 +104,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"fd_monitor: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        # Ctrl-C in a long command (evaluate, identify, design): one line, no traceback
+        # (evaluate ends its progress bar's line first)
+        print(f"fd_monitor: interrupted (Ctrl-C): {args.command} stopped, nothing more "
+              f"written", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into `head` and closed: not an error
         sys.stderr.close()

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.commands._common import add_json_flag, count, number, print_json, print_table
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.domain import die_with_parent
 from fd_monitor.wire.topics import (
@@ -53,11 +53,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "temporary folder)")
     parser.add_argument("--scenario", default="three_tank_bias_h1",
                         help="scenario (default three_tank_bias_h1)")
-    parser.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
-    parser.add_argument("--rate-factor", type=float, default=0.0,
+    parser.add_argument("--seed", type=count(0), default=None,
+                        help="seed (default: the scenario's)")
+    parser.add_argument("--rate-factor", type=number(0), default=0.0,
                         help="plant_sim pace: sample rate x this; 0 = flat out, lossless "
                              "(default)")
-    parser.add_argument("--timeout", type=float, default=110.0,
+    parser.add_argument("--timeout", type=number(0, low_open=True), default=110.0,
                         help="s to wait for the run before giving up (default 110)")
     add_json_flag(parser)
 

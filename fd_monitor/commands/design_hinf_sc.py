@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from fd_monitor.commands._common import print_json, print_table, save_design
+from fd_monitor.commands._common import number, print_json, print_table, save_design
 from fd_monitor.design._lmi_common import load_design_section
 from fd_monitor.design.hinf_sc import design
 from fd_monitor.model.errors import DesignError
@@ -19,9 +19,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``design hinf_sc`` (SYSTEM, -o and --json are added by the dispatcher)."""
     parser.add_argument("--design-file", metavar="PATH", default=None,
                         help="design file (default: <plant file stem>.design.yaml beside it)")
-    parser.add_argument("--lambda", dest="lam", type=float, default=None, metavar="LAMBDA",
+    parser.add_argument("--lambda", dest="lam", type=number(high=0, high_open=True),
+                        default=None, metavar="LAMBDA",
                         help="use this eigenvalue (< 0) instead of choosing it on the grid")
-    parser.add_argument("--grid", nargs=3, type=float, default=None,
+    parser.add_argument("--grid", nargs=3, type=number(), default=None,
                         metavar=("START", "STOP", "NUM"),
                         help="lambda grid (default from the design file, else -10 -0.1 50)")
     parser.add_argument("--compare-pure", action="store_true",
@@ -47,6 +48,8 @@ def run(args: argparse.Namespace) -> int:
             raise DesignError(f"--lambda: expected a number < 0, got {args.lam}")
         section["lambda"] = args.lam
     if args.grid is not None:
+        if not args.grid[2].is_integer() or args.grid[2] < 1:
+            raise DesignError(f"--grid NUM {args.grid[2]:g}: expected an integer >= 1")
         section["lambda_grid"] = {"start": args.grid[0], "stop": args.grid[1],
                                   "num": int(args.grid[2])}
     if args.compare_pure:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.commands._common import emit, gain_path
+from fd_monitor.commands._common import emit, gain_path, number
 from fd_monitor.core.qb_certificate import guarantee
 from fd_monitor.core.qb_model import default_fault_states
 from fd_monitor.design.qb import XATOL, design_qb, write_gain_file
@@ -21,10 +21,10 @@ __all__ = ["add_arguments", "run"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """QB options (SYSTEM, -o and --json are added by the design dispatcher)."""
-    parser.add_argument("--beta", type=float, default=None,
+    parser.add_argument("--beta", type=number(0, low_open=True), default=None,
                         help="fix the S-procedure multiplier beta (default: search for the "
                              "beta that minimises rho_max)")
-    parser.add_argument("--margin", type=float, default=1e-6,
+    parser.add_argument("--margin", type=number(0), default=1e-6,
                         help="strictness margin of the LMIs (default 1e-6)")
     parser.add_argument("--sampled", action="store_true",
                         help="design for the sampled plant the runtime runs (exact ZOH at the "

@@ -15,16 +15,21 @@ measurements). Table II of the QB paper::
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from fd_monitor.analysis.evaluate import run_campaign
-from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.commands._common import add_json_flag, count, number, print_json, print_table
 from fd_monitor.core.methods import load_gains, runtime_class
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.scenario import check_horizon, load_scenario
 from fd_monitor.model.system import gain_system
 
-__all__ = ["add_arguments", "run"]
+__all__ = ["MAX_RUNS", "add_arguments", "run"]
+
+#: Most runs per scenario (``--runs``): a million runs of a 3,000-sample scenario are hours of
+#: work already; a larger number is a typo.
+MAX_RUNS = 1_000_000
 
 
 def _floats(text: str) -> list[float]:
@@ -54,11 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the gain file's plant file when it is not the scenarios' plant "
                              "(default: the plant the gain file records: its plant file, or a "
                              "shipped plant by name)")
-    parser.add_argument("-n", "--runs", type=int, default=100, help="runs per scenario (100)")
-    parser.add_argument("--seed0", type=int, default=0, help="seed of the first run (0)")
-    parser.add_argument("--chunk", type=int, default=250,
+    parser.add_argument("-n", "--runs", type=count(1, MAX_RUNS), default=100,
+                        help=f"runs per scenario (100; at most {MAX_RUNS:,})")
+    parser.add_argument("--seed0", type=count(0), default=0, help="seed of the first run (0)")
+    parser.add_argument("--chunk", type=count(1, 1_000_000), default=250,
                         help="runs simulated at once (memory vs speed; 250)")
-    parser.add_argument("--transient", type=float, default=0.0,
+    parser.add_argument("--transient", type=number(0), default=0.0,
                         help="ignore alarms before this time, s (0)")
     parser.add_argument("--rho", type=_floats, default=None, metavar="R1,R2,...",
                         help="threshold scales to sweep (methods with scalable thresholds)")
@@ -69,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--state-bound", choices=("component", "rho_max"), default=None,
                         help="QB only: bound of the fault-state channels: per-component "
                              "sqrt((P^-1)_jj) or rho_max (eq. 8, the paper's Table II)")
-    parser.add_argument("--q-fault", type=float, default=None,
+    parser.add_argument("--q-fault", type=number(0), default=None,
                         help="QB only: random-walk variance of the Kalman baseline's fault "
                              "states per sample")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -122,9 +128,14 @@ def run(args: argparse.Namespace) -> int:
             variants[est] = opts
     else:
         variants[gains.method] = common
-    rows = run_campaign(gains, scenarios, args.runs, seed0=args.seed0, chunk=args.chunk,
-                        rhos=args.rho, transient=args.transient, channels=args.channels,
-                        variants=variants, progress=not args.no_progress, system=system)
+    try:
+        rows = run_campaign(gains, scenarios, args.runs, seed0=args.seed0, chunk=args.chunk,
+                            rhos=args.rho, transient=args.transient, channels=args.channels,
+                            variants=variants, progress=not args.no_progress, system=system)
+    except KeyboardInterrupt:
+        if not args.no_progress:          # end the progress bar's line before the message
+            sys.stderr.write("\n")
+        raise
     if args.report is not None:
         from fd_monitor.analysis.report import campaign_report
 

@@ -19,7 +19,8 @@ from fd_monitor.analysis.identify import (
     plot_validation,
     write_plant,
 )
-from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.analysis.integrity import add_strict_flag
+from fd_monitor.commands._common import add_json_flag, number, print_json, print_table
 from fd_monitor.core.identify import IdentificationError
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
@@ -36,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--holdout", nargs="+", default=[], metavar="BAG",
                         help="held-out bags for validation and the bounds (default: the last "
                              "--split of each fit bag)")
-    parser.add_argument("--split", type=float, default=0.3,
+    parser.add_argument("--split", type=number(0, 1, low_open=True, high_open=True), default=0.3,
                         help="held-out fraction of each fit bag without --holdout (default 0.3)")
     parser.add_argument("--model", choices=MODELS, default="auto",
                         help="mode dynamics: linear (x+ = A x + B u), affine (+ offset), "
@@ -60,21 +61,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "doc/tutorial/own-robot.md); replaces --u-topic/--y-topic")
     parser.add_argument("--name", default=None,
                         help="plant name (default: the output file's stem)")
-    parser.add_argument("--sample-time", type=float, default=None,
+    parser.add_argument("--sample-time", type=number(0, low_open=True), default=None,
                         help="s (default: from the bags' timestamps)")
-    parser.add_argument("--margin", type=float, default=1.2,
+    parser.add_argument("--margin", type=number(1), default=1.2,
                         help="factor on every bound, >= 1 (default 1.2)")
-    parser.add_argument("--max-window", type=float, default=10.0,
+    parser.add_argument("--max-window", type=number(0, low_open=True), default=10.0,
                         help="longest moving-average window the uncertainty bound looks "
                              "through, s (default 10: a modelling error below the noise shows "
                              "only in averages)")
     parser.add_argument("--estimator", choices=ESTIMATORS, default="iv",
                         help="iv: lagged measurements as instruments (unbiased on noisy, "
                              "closed-loop data; default); ls: plain least squares")
-    parser.add_argument("--sparsity", type=float, default=0.01,
+    parser.add_argument("--sparsity", type=number(0, 1), default=0.01,
                         help="sparse: drop a term contributing less than this fraction of the "
                              "increment's spread (default 0.01)")
-    parser.add_argument("--max-radius", type=float, default=None,
+    parser.add_argument("--max-radius", type=number(0, low_open=True), default=None,
                         help="clip the eigenvalue magnitudes of each mode's A to this (e.g. "
                              "0.9999) and refit B and the offsets: a stable model for a plant "
                              "known to be stable (default: no clipping)")
@@ -84,6 +85,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="figure: held-out one-step prediction vs measurement and the "
                              "error within its stated bound")
     add_json_flag(parser)
+    add_strict_flag(parser)
+
+
+def _progress() -> Any:
+    """Progress lines on a terminal's stderr (none in a pipe: stderr then carries only
+    warnings and errors)."""
+    import sys
+
+    if not sys.stderr.isatty():
+        return None
+    return lambda line: print(line, file=sys.stderr, flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -99,19 +111,21 @@ def run(args: argparse.Namespace) -> int:
     if out.exists() and not args.force:
         raise IdentificationError(f"{out}: exists (would overwrite; use --force)")
     name = args.name or out.stem.replace("-", "_").replace(".", "_")
+    integrity: dict[str, Any] = {}         # bag -> what of it was not used
     res = identify_bags(args.bags, holdout=args.holdout, u_topic=args.u_topic,
                         y_topic=args.y_topic, mode_topic=args.mode_topic, adapter=adapter,
                         name=name, model=args.model, modes=args.modes, guards=args.guard,
                         margin=args.margin, split=args.split, max_window=args.max_window,
                         estimator=args.estimator, sparsity=args.sparsity,
                         sample_time=args.sample_time, exclude_inputs=args.exclude_input,
-                        max_radius=args.max_radius)
+                        max_radius=args.max_radius, strict=args.strict, integrity=integrity,
+                        progress=_progress())
     write_plant(res, out, force=args.force)
     if args.plot:
         plot_validation(res, args.plot)
     s = res.summary
     if args.json:
-        print_json({"plant_file": str(out), "plot": args.plot, **s})
+        print_json({"plant_file": str(out), "plot": args.plot, **s, "integrity": integrity})
         return 0
     print(f"identified {s['plant']} -> {out}: {s['model']} modes ({s['modes_structure']}), "
           f"estimator {s['estimator']}, Ts = {s['sample_time']:g} s")

@@ -17,7 +17,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from fd_monitor.commands._common import add_json_flag, emit
+from fd_monitor.commands._common import add_json_flag, count, emit, number
 from fd_monitor.model.errors import FdMonitorError
 
 __all__ = ["add_arguments", "run", "main"]
@@ -32,9 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bag folder to create (must not exist)")
     parser.add_argument("--until", action="append", default=[], metavar="TOPIC=N",
                         help="stop once TOPIC has N messages (repeatable: all must hold)")
-    parser.add_argument("--messages", type=int, default=None, metavar="N",
+    parser.add_argument("--messages", type=count(1), default=None, metavar="N",
                         help="stop after N messages in total")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
+    parser.add_argument("--duration", type=number(0, low_open=True), default=None, metavar="S",
                         help="stop after S seconds")
     parser.add_argument("--adapter", default=None, metavar="MAP",
                         help="also record the robot topics of this adapter file "

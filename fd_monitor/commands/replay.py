@@ -8,48 +8,55 @@ pace by acknowledgements). Ends once every message is published and acknowledged
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import sys
 from collections.abc import Sequence
 
-from fd_monitor.commands._common import add_json_flag, emit
-from fd_monitor.model.errors import FdMonitorError
+from fd_monitor.analysis.integrity import add_strict_flag
+from fd_monitor.commands._common import add_json_flag, count, emit, number
 
 __all__ = ["add_arguments", "run", "main"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """BAGDIR, --topics, --rate, --wait-subscribers, --remap, --json."""
+    """BAGDIR, --topics, --rate, --wait-subscribers, --remap, --json, --strict."""
     parser.add_argument("bag", metavar="BAGDIR", help="rosbag2 bag folder")
     parser.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
                         help="topics to replay (default: every Float64MultiArray topic)")
-    parser.add_argument("--rate", type=float, default=1.0,
+    parser.add_argument("--rate", type=number(0), default=1.0,
                         help="speed factor on the bag's timestamps; 0 = flat out, lossless "
                              "(default 1.0)")
-    parser.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+    parser.add_argument("--wait-subscribers", type=count(0, 10_000), default=0, metavar="N",
                         help="wait until every topic has N matched subscriptions")
-    parser.add_argument("--wait-timeout", type=float, default=30.0, metavar="S",
+    parser.add_argument("--wait-timeout", type=number(0), default=30.0, metavar="S",
                         help="s to wait for them, then fail (0 = forever; default 30)")
     parser.add_argument("--remap", action="append", default=[], metavar="FROM:=TO",
-                        help="publish bag topic FROM on TO (repeatable)")
+                        type=_remap, help="publish bag topic FROM on TO (repeatable)")
     add_json_flag(parser)
+    add_strict_flag(parser)
+
+
+_TOPIC = re.compile(r"^[~/]?[A-Za-z_{][A-Za-z0-9_/{}]*$")
+
+
+def _remap(text: str) -> tuple[str, str]:
+    """``FROM:=TO`` with two ROS topic names (argparse type)."""
+    src, sep, dst = text.partition(":=")
+    if not sep or not _TOPIC.match(src) or not _TOPIC.match(dst) or "//" in src + dst:
+        raise argparse.ArgumentTypeError(f"expected FROM:=TO with two topic names, got "
+                                         f"{text!r}")
+    return src, dst
 
 
 def run(args: argparse.Namespace) -> int:
     """Replay; print how many messages were published."""
     from fd_monitor.nodes.bag_nodes import ReplayNode
     from fd_monitor.nodes.common import run_node
-    from fd_monitor.wire.bags import bag_topics
+    remap = dict(args.remap)
+    from fd_monitor.analysis.integrity import bag_integrity
 
-    if args.rate < 0:
-        raise FdMonitorError(f"--rate {args.rate}: expected >= 0")
-    remap = {}
-    for r in args.remap:
-        src, sep, dst = r.partition(":=")
-        if not sep or not src or not dst:
-            raise FdMonitorError(f"--remap {r!r}: expected FROM:=TO")
-        remap[src] = dst
-    bag_topics(args.bag)  # a missing or broken bag fails here with one line
+    doc = bag_integrity(args.bag, args.strict, note="replayed as recorded")[1]
     nodes: list[ReplayNode] = []
 
     def make() -> ReplayNode:
@@ -82,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         return code
     node = nodes[0]
     summary = {"bag": args.bag, "published": node.published,
-               "topics": {t: n for t, n in node.expected.items()}}
+               "topics": {t: n for t, n in node.expected.items()}, "integrity": doc}
     if args.json:
         emit(summary, True)
     else:

@@ -19,13 +19,14 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from fd_monitor.commands._common import add_json_flag, emit
+from fd_monitor.analysis.integrity import add_strict_flag
+from fd_monitor.commands._common import add_json_flag, emit, number
 
 __all__ = ["add_arguments", "run", "main"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """BAG, --gains, --system, --adapter, -o, --force, --transient, --json."""
+    """BAG, --gains, --system, --adapter, -o, --force, --transient, --json, --strict."""
     parser.add_argument("bag", metavar="BAG", help="rosbag2 bag folder with /plant/u, /plant/y "
                                                   "(and /plant/truth for the true values), or "
                                                   "a robot's topics with --adapter")
@@ -42,14 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder for the PNG figures and summary.md (created)")
     parser.add_argument("--force", action="store_true",
                         help="write into a non-empty DIR (overwriting an earlier report)")
-    parser.add_argument("--transient", type=float, default=None, metavar="S",
+    parser.add_argument("--transient", type=number(0), default=None, metavar="S",
                         help="ignore alarms before this time, s (default: expected.yaml's, "
                              "else 0)")
     add_json_flag(parser)
+    add_strict_flag(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """Write the report; print where it is and the expectation check."""
+    from fd_monitor.analysis.integrity import describe, enforce_strict
     from fd_monitor.analysis.report import bag_report
     from fd_monitor.model.errors import FdMonitorError
     from fd_monitor.model.paths import check_output
@@ -65,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
            "figures": res["figures"],
            "alarms": s["alarms"], "isolated": s["isolated"],
            "bias_estimate": s["bias_estimate"],
-           "expected": None if fails is None else ("ok" if not fails else fails)}
+           "expected": None if fails is None else ("ok" if not fails else fails),
+           "integrity": res["integrity"]}
     if args.json:
         emit(doc, True)
     else:
@@ -75,8 +79,10 @@ def run(args: argparse.Namespace) -> int:
               or "none",
               "isolated": ", ".join(s["isolated"]) or "none",
               "expected.yaml": "-" if fails is None else ("all hold" if not fails
-                                                         else "; ".join(fails))},
+                                                         else "; ".join(fails)),
+              "integrity": describe(res["integrity"])},
              False, title=f"report of {args.bag}")
+    enforce_strict(res["integrity"], args.bag, args.strict)
     return 0
 
 

@@ -13,7 +13,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from fd_monitor.commands._common import add_json_flag, emit, print_json, print_table
+from fd_monitor.commands._common import add_json_flag, count, emit, number, print_json, print_table
 from fd_monitor.model.errors import ScenarioError
 
 __all__ = ["add_arguments", "run", "simulate_to_bag"]
@@ -35,9 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--expected", action="store_true",
                         help="with --library: also (re)write each bag's expected.yaml from "
                              "`analyze` of the new bag and its truth")
-    parser.add_argument("--seed", type=int, default=None,
+    parser.add_argument("--seed", type=count(0), default=None,
                         help="random seed (default: the scenario's)")
-    parser.add_argument("--duration", type=float, default=None,
+    parser.add_argument("--duration", type=number(0, low_open=True), default=None,
                         help="s of plant time (default: the scenario's)")
     parser.add_argument("--adapter", metavar="MAP", default=None,
                         help="write u and y as the robot's messages on the topics of this "
@@ -53,7 +53,7 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
     as the robot's messages on its topics (header stamps t_k) instead of ``/plant/u`` and
     ``/plant/y``; the truth and side signals stay.
     """
-    from fd_monitor.analysis.generate import simulate_bag
+    from fd_monitor.analysis.generate import check_bag_size, simulate_bag
     from fd_monitor.model.scenario import check_horizon, load_scenario
 
     sc = load_scenario(scenario_source)
@@ -63,6 +63,9 @@ def simulate_to_bag(scenario_source: str, output: str | Path, seed: int | None =
         raise ScenarioError(f"--duration {duration}: expected a finite number of s")
     if duration is not None:
         check_horizon(sc.system, duration, "--duration", ScenarioError)
+    check_bag_size(sc.system, sc.duration if duration is None else duration,
+                   "--duration" if duration is not None else f"{sc.source}: duration",
+                   ScenarioError)
     if duration is not None and duration < sc.system.sample_time:
         raise ScenarioError(f"--duration {duration}: expected at least one sample "
                             f"({sc.system.sample_time} s)")

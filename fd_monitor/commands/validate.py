@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.commands._common import add_json_flag, number, print_json, print_table
 from fd_monitor.model.errors import FdMonitorError, ScenarioError, SystemFileError
 from fd_monitor.model.scenario import Scenario, load_scenario
 from fd_monitor.model.system import System, load_system
@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--system", default=None, metavar="SYSTEM",
                         help="adapter files: check the mapping against this plant (its "
                              "inputs, outputs and sample time)")
-    parser.add_argument("--sample-time", type=float, default=None, metavar="S",
+    parser.add_argument("--sample-time", type=number(0, low_open=True), default=None, metavar="S",
                         help="adapter dry run: sample time, s (default: the plant's with "
                              "--system, else from the clock's stamps)")
     add_json_flag(parser)

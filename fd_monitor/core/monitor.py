@@ -54,8 +54,8 @@ from fd_monitor.core.thresholds import DiagnosisGains, as_gains
 from fd_monitor.model.errors import MessageError
 from fd_monitor.model.system import System
 
-__all__ = ["Monitor", "MonitorOutput", "BatchMonitor", "run_batch", "validate_sample",
-           "validate_vector"]
+__all__ = ["Monitor", "MonitorOutput", "BatchMonitor", "run_batch", "sample_floats",
+           "validate_sample", "validate_vector"]
 
 
 def validate_vector(name: str, v: Any, length: int, k: int | None = None) -> np.ndarray:
@@ -149,7 +149,8 @@ class MonitorOutput:
     @property
     def mode(self) -> int:
         """q^_k."""
-        return int(np.asarray(self.observer.mode))
+        m = self.observer.mode
+        return m if type(m) is int else int(np.asarray(m))
 
     @property
     def sigma_hat(self) -> np.ndarray:
@@ -250,8 +251,8 @@ class Monitor:
         # of the batch path for one run, bit for bit, without numpy calls per sample.
         if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
             k = validate_sample(self.system, k, u, y, self._k_next)[0]
-        uf = _floats(self.system, "u", u, self.system.nu, k)
-        yf = _floats(self.system, "y", y, self.system.ny, k)
+        uf = sample_floats("u", u, self.system.nu, k)
+        yf = sample_floats("y", y, self.system.ny, k)
         obs, x_hat, y_t = self.observer.step1(k, uf, yf, self._sigma, self._trigger)
         q = cast(int, obs.mode)                  # single stream: Python numbers
         det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
@@ -267,9 +268,10 @@ class Monitor:
         return MonitorOutput(k, obs, det, ag, est)
 
 
-def _floats(system: System, name: str, v: Any, length: int, k: int) -> list[float]:
+def sample_floats(name: str, v: Any, length: int, k: int) -> list[float]:
     """``v`` as ``length`` finite Python floats, or :class:`MessageError` as
-    :func:`validate_vector` words it."""
+    :func:`validate_vector` words it (the single-stream runtimes' entry check: a float64
+    array or a list of floats is taken without a numpy call per value)."""
     if type(v) is np.ndarray and v.dtype == np.float64 and v.shape == (length,):
         out = v.tolist()
     elif type(v) in (list, tuple) and len(v) == length and \

@@ -16,7 +16,7 @@ runs in one array pass per mode.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -244,6 +244,22 @@ class SampledPlant:
                 y = y + w[sel] @ m.E.T
             out[sel] = y
         return out
+
+    def next_mode1(self, q: int, x: Sequence[float], u: Sequence[float], kind: str) -> int:
+        """:meth:`next_mode` of one run on Python numbers (the same comparisons): mode q,
+        state (n,), input (nu,) -> the next mode."""
+        vec = x if kind == "autonomous" else u
+        for g in self.system.guards:
+            if g.kind != kind or g.source != q:
+                continue
+            for c in g.conditions:
+                v, op, val = vec[c.index], c.op, c.value
+                if not (v < val if op == "<" else v <= val if op == "<=" else
+                        v > val if op == ">" else v >= val if op == ">=" else v == val):
+                    break
+            else:
+                return int(g.target)
+        return q
 
     def next_mode(self, q: np.ndarray, x: np.ndarray, u: np.ndarray, kind: str) -> np.ndarray:
         """Apply the guards of ``kind`` once: (N,) modes, states (N, n), inputs (N, nu) -> (N,).

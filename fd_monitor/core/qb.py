@@ -30,12 +30,14 @@ invariant and attractive, and (6), (8), (11) hold as in continuous time.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from fd_monitor.core.batch import BatchResult
+from fd_monitor.core.filters import linear_map
 from fd_monitor.core.gap import gap_values
 from fd_monitor.core.kalman import kalman_gains
 from fd_monitor.core.plant import SampledPlant, zoh
@@ -137,7 +139,39 @@ class QBObserver:
         self.mode = system.initial_mode if mode0 is None else int(mode0)
         self.k: int | None = None
         self.plausibility = Plausibility(system)
-        self._held: tuple[np.ndarray, np.ndarray] | None = None
+        self._held: tuple[Any, Any] | None = None
+        self._f1: list[tuple[Any, Any, Any]] | None = None
+
+    def _floats(self) -> list[tuple[Any, Any, Any]]:
+        """Per mode ``x -> Phi x``, ``z -> Gam z`` and ``x -> C x`` on Python floats (built
+        at the first single-stream step)."""
+        if self._f1 is None:
+            def lm(M: np.ndarray) -> Any:
+                return linear_map([[(M[i, j], j) for j in range(M.shape[1])]
+                                   for i in range(M.shape[0])])
+            self._f1 = [(lm(self.Phi[q]), lm(self.Gam[q]), lm(self.model.C[q]))
+                        for q in range(self.Phi.shape[0])]
+        return self._f1
+
+    def step1(self, k: int, u: list[float], y: list[float]
+              ) -> tuple[int, np.ndarray, list[float]]:
+        """:meth:`step` of validated Python floats (one stream): (mode, x^ (n,), r (ny,) as
+        floats). The same recursion as :meth:`step` summed left to right in Python
+        (numpy's matrix-vector products may round differently in the last bit)."""
+        if self.k is not None and k != self.k + 1:
+            raise ValueError(f"QBObserver.step: sample {k} after {self.k}: samples must be "
+                             f"consecutive (reset the observer after a gap)")
+        self.plausibility.check(k, u, y)
+        mode, x = self.mode, self.x
+        fphi, fgam, fc = self._floats()[mode]
+        xl = x.tolist()
+        r = [a - b for a, b in zip(y, fc(xl))]
+        xn = [a + b for a, b in zip(fphi(xl), fgam(u + y + [1.0]))]
+        q = self._plant.next_mode1(mode, (), u, "controlled")
+        q = self._plant.next_mode1(q, xn, u, "autonomous")
+        self.x, self.mode = np.array(xn), q
+        self.k, self._held = k, (u, y)
+        return mode, x, r
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -167,8 +201,13 @@ class QBObserver:
         if self.k is not None and k != self.k + 1:
             raise ValueError(f"QBObserver.step: sample {k} after {self.k}: samples must be "
                              f"consecutive (reset the observer after a gap)")
-        uu = _as_array(u, (sys_.nu,), "u")
-        yy = _as_array(y, (sys_.ny,), "y")
+        if type(u) is np.ndarray and type(y) is np.ndarray and u.dtype == y.dtype == float \
+                and u.shape == (sys_.nu,) and y.shape == (sys_.ny,) \
+                and all(map(math.isfinite, u.tolist() + y.tolist())):
+            uu, yy = u, y                        # validated by the caller (the runtime)
+        else:
+            uu = _as_array(u, (sys_.nu,), "u")
+            yy = _as_array(y, (sys_.ny,), "y")
         # Range test only: the estimate converges from x0, it is no one-sample prediction.
         self.plausibility.check(k, uu, yy)
         mode, x = self.mode, self.x.copy()
@@ -181,10 +220,11 @@ class QBObserver:
         mode, x = self.mode, self.x
         z = np.concatenate([uu, yy, [1.0]])
         xn = self.Phi[mode] @ x + self.Gam[mode] @ z
-        q = np.array([mode])
-        q = self._plant.next_mode(q, x[None], uu[None], "controlled")
-        q = self._plant.next_mode(q, xn[None], uu[None], "autonomous")
-        self.x, self.mode = xn, int(q[0])
+        # the plant's guards on one run (SampledPlant.next_mode's comparisons, on floats)
+        ul = uu.tolist()
+        q = self._plant.next_mode1(mode, (), ul, "controlled")
+        q = self._plant.next_mode1(q, xn.tolist(), ul, "autonomous")
+        self.x, self.mode = xn, q
 
     def bridge(self, k: int, u: Any, y: Any) -> None:
         """The next sample is ``(k, u_k, y_k)``, those between are lost: predict through the

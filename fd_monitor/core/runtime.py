@@ -49,6 +49,7 @@ deferred while the runtimes are being changed by other work.
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -59,7 +60,7 @@ from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.gap import gap_values
 from fd_monitor.core.generalized_observer import GeneralizedObserver
-from fd_monitor.core.monitor import Monitor, validate_sample
+from fd_monitor.core.monitor import Monitor, sample_floats, validate_sample
 from fd_monitor.core.monitor import run_batch as monitor_run_batch
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
@@ -306,10 +307,11 @@ class Runtime:
 
     @classmethod
     def options(cls) -> tuple[str, ...]:
-        """Keyword options of the constructor
-        (:func:`~fd_monitor.core.methods.runtime_for`)."""
+        """Keyword options of the constructor (:func:`~fd_monitor.core.methods.runtime_for`;
+        ``fast``, the choice of the reference path that the fast one is tested against, is
+        the class's own)."""
         return tuple(p for p in inspect.signature(cls.__init__).parameters
-                     if p not in ("self", "system", "gains"))
+                     if p not in ("self", "system", "gains", "fast"))
 
     @classmethod
     def batch_options(cls) -> tuple[str, ...]:
@@ -541,6 +543,14 @@ class ThresholdsRuntime(Runtime):
         return monitor_run_batch(system, gains, traj, **options)
 
 
+def _sumsq(v: Sequence[float]) -> float:
+    """Sum of squares left to right (numpy's reduction of fewer than 8 terms)."""
+    acc = 0.0
+    for a in v:
+        acc += a * a
+    return acc
+
+
 def _norm_unit(system: System) -> str:
     """Unit of a norm of the outputs: their common unit (plant file ``units``), else "-"."""
     units = set(system.output_units)
@@ -584,6 +594,13 @@ class QBRuntime(Runtime):
         self.region = CertifiedRegion.from_results(system, gains.results)
         self.region_names = () if self.region is None else self.region.names
         self.isolating = tuple(system.states[i] for i in self.detector.fault_idx)
+        det = self.detector
+        self._nominal = list(zip(det.fault_idx.tolist(), det.nominal.tolist()))
+        self._floats = len(self._nominal) < 8 and system.ny < 8
+        # thresholds per mode (read-only: every output of that mode shares them)
+        self._thr = [det.rho * det.bounds(q) for q in range(len(system.modes))]
+        for t in self._thr:
+            t.flags.writeable = False
         self.reset()
 
     def reset(self) -> None:
@@ -603,15 +620,25 @@ class QBRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step` (no side signal)."""
         last = self.observer.k
-        validate_sample(self.system, k, u, y, None if last is None else last + 1)
-        q, xh = self.observer.step(k, u, y)
-        det = self.detector
-        r = self.observer.residual(q, xh, y)
-        sig = det.signals(xh, r)
-        thr = det.rho * det.bounds(q)
-        out = None if self.region is None else self.region.excess(
-            q, xh, np.asarray(u, dtype=float).reshape(-1))
-        return RuntimeOutput(int(k), sig, thr, sig > thr, out, int(q), {"x_hat": xh})
+        nxt = None if last is None else last + 1
+        if type(k) is not int or k < 0 or (nxt is not None and k != nxt):
+            k = validate_sample(self.system, k, u, y, nxt)[0]
+        ul = sample_floats("u", u, self.system.nu, k)
+        yl = sample_floats("y", y, self.system.ny, k)
+        if self._floats:
+            q, xh, rl = self.observer.step1(k, ul, yl)
+            # QBDetector.signals on Python floats: |x^_F - x_nom|, its norm, |r|, ||r||
+            # (each sum of squares left to right, as numpy reduces fewer than 8 terms)
+            xl = xh.tolist()
+            d = [xl[i] - c for i, c in self._nominal]
+            sig = np.array([*map(abs, d), math.sqrt(_sumsq(d)), *map(abs, rl),
+                            math.sqrt(_sumsq(rl))])
+        else:
+            q, xh = self.observer.step(k, np.array(ul), np.array(yl))
+            sig = self.detector.signals(xh, self.observer.residual(q, xh, np.array(yl)))
+        thr = self._thr[q]
+        out = None if self.region is None else self.region.excess(q, xh, np.array(ul))
+        return RuntimeOutput(k, sig, thr, sig > thr, out, int(q), {"x_hat": xh})
 
     def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The fault-model states of x^."""
@@ -673,14 +700,19 @@ class HinfScRuntime(Runtime):
     gains : GainFile
     discretisation : str
         ``auto``, ``exact`` or ``hold`` (:class:`ResidualBank`).
+    fast : bool
+        True (default): the bank's precomputed maps (LPV: the polynomial in rho, error
+        bound :attr:`ResidualBank.table_bound`); False: the reference, re-discretised at
+        every sample (:meth:`ResidualBank.step_reference`).
     """
 
     method = "hinf_sc"
     SIDE_SIGNALS = ("rho",)
 
-    def __init__(self, system: System, gains: Any, discretisation: str = "auto") -> None:
+    def __init__(self, system: System, gains: Any, discretisation: str = "auto",
+                 fast: bool = True) -> None:
         super().__init__(system, gains)
-        self.bank = ResidualBank(system, gains, discretisation=discretisation)
+        self.bank = ResidualBank(system, gains, discretisation=discretisation, fast=fast)
         model = self.bank.model
         self.channels = tuple(self.bank.faults)
         self.isolating = self.channels          # generator i alarms: fault i isolated
@@ -693,6 +725,11 @@ class HinfScRuntime(Runtime):
         self.settle = _settle_samples(system, gains)
         self._Cpinv = np.linalg.pinv(model.C)
         self._plaus = Plausibility(system)
+        self._rho_lo, self._rho_hi = model.rho_min.tolist(), model.rho_max.tolist()
+        # thresholds in force, armed or not (read-only: every output shares them)
+        self._thr = self.bank.thresholds.copy()
+        self._thr_off = np.full(len(self.channels), np.inf)
+        self._thr.flags.writeable = self._thr_off.flags.writeable = False
         self.reset()
 
     @property
@@ -704,7 +741,7 @@ class HinfScRuntime(Runtime):
         """Observers re-initialised from the next measurement; thresholds re-armed."""
         self._k0: int | None = None
         self._k_next: int | None = None
-        self._held: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        self._held: tuple[Any, Any, np.ndarray | None] | None = None
 
     def bridge(self, k: int, u: Any, y: Any,
                side: Mapping[str, Any] | None = None) -> None:
@@ -731,7 +768,7 @@ class HinfScRuntime(Runtime):
             self._k0 = k
         self._k_next = k
 
-    def _rho(self, k: int, y: np.ndarray, side: Mapping[str, Any] | None) -> np.ndarray:
+    def _rho(self, k: int, y: Any, side: Mapping[str, Any] | None) -> np.ndarray:
         model = self.bank.model
         if side is not None and side.get("rho") is not None:
             return _vector("rho", side["rho"], model.d, k)
@@ -745,6 +782,37 @@ class HinfScRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step`; side ``rho`` (d,) for an LPV bank without a scheduling
         map (given, it overrides the map)."""
+        bank = self.bank
+        if not bank.fast:
+            return self._step_reference(k, u, y, side)
+        # the bank's fast path on Python floats: the checks of the reference, worded alike
+        if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
+            k = validate_sample(self.system, k, u, y, self._k_next)[0]
+        uf = sample_floats("u", u, self.system.nu, k)
+        yf = sample_floats("y", y, self.system.ny, k)
+        self._plaus.check(k, uf, yf)
+        outside = rho = None
+        rl: list[float] | None = None
+        if self.lpv:
+            raw = self._rho(k, yf, side).tolist()
+            rl = [min(max(v, a), b) for v, a, b in zip(raw, self._rho_lo, self._rho_hi)]
+            rho = np.array(rl)
+            outside = np.array([a - b for a, b in zip(raw, rl)])
+        if self._k0 is None:
+            bank.reset(self._Cpinv @ np.array(yf))
+            self._k0 = k
+        norms = bank.advance(uf + yf, rl)
+        self._k_next = k + 1
+        self._held = (uf, yf, rho)
+        thr = self._thr if k - self._k0 >= self.settle else self._thr_off
+        est: dict[str, Any] = {"x_hat": bank.xhat.copy()}
+        if rho is not None:
+            est["rho"] = rho
+        return RuntimeOutput(k, norms, thr, norms > thr, outside, 0, est, bank)
+
+    def _step_reference(self, k: int, u: Any, y: Any,
+                        side: Mapping[str, Any] | None = None) -> RuntimeOutput:
+        """:meth:`step` on numpy arrays (a bank without the fast path)."""
         k, uu, yy = validate_sample(self.system, k, u, y, self._k_next)
         self._plaus.check(k, uu, yy)
         outside = rho = None
@@ -860,7 +928,10 @@ class HminusSwitchedRuntime(Runtime):
     def _measured_mode(self, k: int, uu: np.ndarray,
                        side: Mapping[str, Any] | None) -> float | None:
         if side is not None and side.get("mode") is not None:
-            v = _vector("mode", side["mode"], 1, k)
+            m = side["mode"]
+            if isinstance(m, (int, float, np.integer, np.floating)) and math.isfinite(m):
+                return float(m)                     # a plain number: no array needed
+            v = _vector("mode", m, 1, k)
             return float(v[0])
         if self.mode_source == "input":
             return float(uu[self.system.inputs.index("mode")])
@@ -886,12 +957,17 @@ class HminusSwitchedRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step`; side ``mode`` (mode index) when the plant has no
         switching rule."""
-        k, uu, yy = validate_sample(self.system, k, u, y, self._k_next)
-        self._plaus.check(k, uu, yy)
+        if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
+            k = validate_sample(self.system, k, u, y, self._k_next)[0]
+        uf = sample_floats("u", u, self.system.nu, k)
+        yf = sample_floats("y", y, self.system.ny, k)
+        self._plaus.check(k, uf, yf)
+        uu, yy = np.array(uf), np.array(yf)
         m = self._measured_mode(k, uu, side)
         excess = 0.0
         if m is not None:
-            near = float(np.clip(np.rint(m), 0, self.n_modes - 1))
+            # round half to even, as np.rint
+            near = float(min(max(round(m), 0), self.n_modes - 1))
             excess = m - near
             if excess == 0.0:
                 self._mode = int(near)

@@ -29,7 +29,7 @@ import numpy as np
 from fd_monitor.model.errors import DesignError
 from fd_monitor.model.system import System
 from fd_monitor.model.validate import Checker, Got
-from fd_monitor.model.yaml_io import parse_yaml_text
+from fd_monitor.model.yaml_io import check_regular_file, parse_yaml_text
 
 __all__ = ["design_checker", "load_design_section", "solve", "left_pinv", "complement_projector",
            "is_observable", "is_detectable", "region_blocks", "SOLVER"]
@@ -66,8 +66,9 @@ def load_design_section(system: System, section: str, path: str | Path | None = 
     p = Path(path) if path is not None else design_file_for(system)
     if not p.is_file():
         if path is not None:
-            raise DesignError(f"{p}: design file not found")
+            check_regular_file(p, DesignError, "design file")
         return {}, str(p), ""
+    check_regular_file(p, DesignError, "design file")
     raw = p.read_bytes()
     data = parse_yaml_text(raw, str(p), DesignError)
     if not isinstance(data, Mapping):

@@ -24,8 +24,10 @@ from fd_monitor.model.validate import Checker
 
 from ._lmi_common import design_checker, is_observable, region_blocks
 
-__all__ = ["BankSpec", "FaultDir", "check_assumptions", "parse_spec"]
+__all__ = ["MAX_GRID_POINTS", "BankSpec", "FaultDir", "check_assumptions", "parse_spec"]
 
+#: Most points of a ``lambda_grid`` (each is one LMI solve; the shipped designs use 50).
+MAX_GRID_POINTS = 1000
 _SECTION_KEYS = {"kind", "faults", "directions", "weights", "lambda_grid", "lambda", "noise",
                  "region", "compare_pure", "parameters", "A_rho", "B_rho", "model",
                  "scheduling", "thresholds", "description", "lyapunov", "rate"}
@@ -318,10 +320,16 @@ def _lambdas(ctx: Checker, section: Mapping[str, Any]) -> tuple[np.ndarray, floa
     ``lambda`` (< 0) when given."""
     g = section.get("lambda_grid", {"start": -10.0, "stop": -0.1, "num": 50})
     if isinstance(g, list):
+        if len(g) > MAX_GRID_POINTS:
+            ctx.fail("lambda_grid", f"at most {MAX_GRID_POINTS} values (MAX_GRID_POINTS: one "
+                     f"LMI solve each)", f"{len(g)} values")
         grid = ctx.vector("lambda_grid", g, None)
     else:
         g = ctx.mapping("lambda_grid", g, {"start", "stop", "num"})
         num = ctx.integer("lambda_grid.num", g.get("num", 50), 1)
+        if num > MAX_GRID_POINTS:
+            ctx.fail("lambda_grid.num", f"an integer in [1, {MAX_GRID_POINTS}] "
+                     f"(MAX_GRID_POINTS: one LMI solve per point)", num)
         grid = np.linspace(ctx.number("lambda_grid.start", g.get("start", -10.0)),
                            ctx.number("lambda_grid.stop", g.get("stop", -0.1)), num)
     if grid.size == 0 or np.any(grid >= 0):

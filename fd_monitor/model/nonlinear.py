@@ -227,9 +227,11 @@ def _three_tank_sqrt(y: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
     """rho = [1/sqrt|h1 - h3|, 1/sqrt|h3 - h2|, 1/sqrt h2] of thesis eq. 7.19 (levels in m)."""
     floor = float(params.get("min_difference", 1e-3))
     h1, h2, h3 = float(y[0]), float(y[1]), float(y[2])
-    return np.array([1.0 / np.sqrt(max(abs(h1 - h3), floor)),
-                     1.0 / np.sqrt(max(abs(h3 - h2), floor)),
-                     1.0 / np.sqrt(max(h2, floor))])
+    # math.sqrt: the same correctly rounded IEEE square root as np.sqrt, without a numpy
+    # call per value (an LPV bank schedules at every sample)
+    return np.array([1.0 / math.sqrt(max(abs(h1 - h3), floor)),
+                     1.0 / math.sqrt(max(abs(h3 - h2), floor)),
+                     1.0 / math.sqrt(max(h2, floor))])
 
 
 #: Named maps ``(y, params) -> rho`` that schedule an LPV bank from its measurements.

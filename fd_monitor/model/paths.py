@@ -60,6 +60,10 @@ def find_config_file(source: str | Path, kind: str, error: type[Exception],
     p = Path(source)
     if p.is_file():
         return p
+    if p.exists():          # a folder, a FIFO...: its own message, not "not found"
+        from fd_monitor.model.yaml_io import check_regular_file
+
+        check_regular_file(p, error)
     looks_like_path = p.suffix in (".yaml", ".yml") or len(p.parts) > 1
     if not looks_like_path:
         for d in config_dirs():

@@ -82,6 +82,7 @@ import numpy as np
 from fd_monitor.model.errors import ScenarioError, SystemFileError
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.paths import find_config_file
+from fd_monitor.model.plant_schema import MAX_MAGNITUDE
 from fd_monitor.model.system import System, load_system, parse_system
 from fd_monitor.model.validate import Checker
 from fd_monitor.model.yaml_io import read_yaml, require_memory
@@ -472,8 +473,24 @@ def _inputs(ck: Checker, data: Mapping[str, Any], system: System
         if isinstance(spec, Mapping) and "pi" in spec:
             inputs.append(_pi_controller(ck, f"{key}.pi", spec["pi"], system))
         else:
-            inputs.append(_profile(ck, key, spec))
+            prof = _profile(ck, key, spec)
+            _within(ck, key, prof, system.input_limits[system.inputs.index(name_u)],
+                    f"the limits of input {name_u}")
+            inputs.append(prof)
     return tuple(inputs)
+
+
+def _within(ck: Checker, key: str, prof: Profile, limits: Any, what: str) -> None:
+    """Refuse a profile whose values leave ``limits`` ([low, high], the plant file's physical
+    range of the channel; +-MAX_MAGNITUDE where it declares none)."""
+    lo, hi = (float(v) for v in limits)
+    p = prof.data
+    values: Any = ((p[2] - abs(p[0]), p[2] + abs(p[0])) if prof.kind == "sine" else
+                   {"constant": p[:1], "steps": p[1::2], "ramp": p[2:4]}.get(prof.kind, ()))
+    for v in values:
+        if not lo <= v <= hi:
+            ck.fail(key, f"values inside {what} [{lo:g}, {hi:g}] (a value outside is no "
+                    f"input the plant can take)", v)
 
 
 def _pi_controller(ck: Checker, key: str, pi: Any, system: System) -> PIController:
@@ -534,8 +551,18 @@ def _fault_event(ck: Checker, key: str, f: Any, system: System, duration: float
     if round(t_f / system.sample_time) >= round(duration / system.sample_time):
         ck.fail(f"{key}.time", f"a time inside the run [0, {duration:g}) s (a fault "
                 f"after the end would never be applied)", f["time"])
-    return FaultEvent(ch, str(prof), t_f, ck.number(f"{key}.magnitude", f["magnitude"]), rate,
-                      relative)
+    mag = ck.number(f"{key}.magnitude", f["magnitude"])
+    fc = system.faults[ch]
+    span = {"sensor_bias": system.output_limits, "actuator": system.input_limits}.get(fc.kind)
+    # physical range: a sensor bias or an absolute actuator fault within the channel's span,
+    # a relative one within +-10 x the input, anything else within MAX_MAGNITUDE
+    bound = (10.0 if relative else
+             float(span[fc.index, 1] - span[fc.index, 0]) if span is not None
+             and fc.index >= 0 else MAX_MAGNITUDE)
+    if not abs(mag) <= min(bound, MAX_MAGNITUDE):
+        ck.fail(f"{key}.magnitude", f"a magnitude of at most {min(bound, MAX_MAGNITUDE):g} "
+                f"(the physical range of {fc.kind} channel {fc.name})", f["magnitude"])
+    return FaultEvent(ch, str(prof), t_f, mag, rate, relative)
 
 
 def _with_fault_channels(ck: Checker, system: System, raw: Any) -> System:

@@ -17,8 +17,19 @@ import yaml
 
 from fd_monitor.model.errors import SystemFileError
 
-__all__ = ["MAX_YAML_ALIASES", "MAX_YAML_DEPTH", "MAX_YAML_NODES", "parse_yaml_text",
-           "read_yaml", "require_memory"]
+__all__ = ["MAX_FILE_BYTES", "MAX_YAML_ALIASES", "MAX_YAML_DEPTH", "MAX_YAML_NODES",
+           "PLAIN_TAGS", "check_regular_file", "parse_yaml_text", "read_yaml",
+           "require_memory"]
+
+#: Largest YAML file read, bytes (the largest shipped file is ~20 kB; a 500-state plant, the
+#: largest any designer takes, ~3 MB). Checked from the file's size before it is read: a
+#: 100 MB file would take gigabytes as YAML nodes.
+MAX_FILE_BYTES = 16 * 1024 * 1024
+#: The only explicit YAML tags accepted: the core schema's plain scalars, sequences and
+#: mappings. ``!!binary``, ``!!timestamp``, ``!!set``, ``!!python/...`` and local ``!tags``
+#: are refused (no file of the project needs them; each reads as something else).
+PLAIN_TAGS = frozenset(f"tag:yaml.org,2002:{t}" for t in
+                       ("str", "int", "float", "bool", "null", "seq", "map"))
 
 #: Limits of the strict YAML reader (:func:`read_yaml`): nesting depth, alias uses, and
 #: nodes after alias expansion (a 500x500 plant is 250,000 nodes per matrix). Beyond them a
@@ -55,6 +66,12 @@ class _StrictLoader(_BaseLoader):
         return super().construct_mapping(node, deep)
 
 
+# A date reads as the text it is (YAML 1.1's implicit timestamps would make a datetime of
+# `2024-01-01`, which no schema of the project takes and every message would misname).
+_StrictLoader.yaml_implicit_resolvers = {
+    ch: [(tag, rx) for tag, rx in rs if tag != "tag:yaml.org,2002:timestamp"]
+    for ch, rs in _BaseLoader.yaml_implicit_resolvers.items()}
+
 # YAML 1.2 floats (1e-300, 1.0e12, 5E3): YAML 1.1, which PyYAML implements, reads them as
 # strings, and "expected a number, got '1e-300'" puzzles everyone. Integers keep their own
 # resolver (it comes first); this one needs a dot or an exponent.
@@ -74,6 +91,7 @@ def _check_structure(text: str, origin: str, error: type[Exception]) -> None:
     for ev in yaml.parse(text, Loader=_BaseLoader):
         line = ev.start_mark.line + 1 if ev.start_mark is not None else 0
         if isinstance(ev, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            _check_tag(ev, origin, line, error)
             depth += 1
             if depth > MAX_YAML_DEPTH:
                 raise error(f"{origin}: line {line}: YAML nested deeper than "
@@ -86,6 +104,7 @@ def _check_structure(text: str, origin: str, error: type[Exception]) -> None:
                 sizes[anchor] = count
             stack[-1][0] += count
         elif isinstance(ev, yaml.ScalarEvent):
+            _check_tag(ev, origin, line, error)
             if ev.anchor is not None:
                 sizes[ev.anchor] = 1
             stack[-1][0] += 1
@@ -101,6 +120,39 @@ def _check_structure(text: str, origin: str, error: type[Exception]) -> None:
                             f"{MAX_YAML_NODES} nodes (an alias bomb? refused)")
 
 
+def _check_tag(ev: Any, origin: str, line: int, error: type[Exception]) -> None:
+    """Refuse an explicit tag outside :data:`PLAIN_TAGS`."""
+    tag = ev.tag
+    if tag is None or tag == "!":      # untagged, or quoted ("!": non-specific)
+        return
+    if tag not in PLAIN_TAGS:
+        short = tag.replace("tag:yaml.org,2002:", "!!")
+        raise error(f"{origin}: line {line}: YAML tag {short[:60]} (refused: only plain "
+                    f"scalars, sequences and mappings)")
+
+
+def check_regular_file(path: Path, error: type[Exception], what: str = "file") -> None:
+    """Refuse, before opening it, a path that is missing, a folder, a FIFO or another special
+    file (opening a FIFO would block), or larger than :data:`MAX_FILE_BYTES`."""
+    import stat
+
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"{path}: is a folder, not a {what}")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else "a special file"
+        raise error(f"{path}: is {kind}, not a regular {what}")
+    if st.st_size > MAX_FILE_BYTES:
+        raise error(f"{path}: {st.st_size / 1e6:.3g} MB, over the limit of "
+                    f"{MAX_FILE_BYTES / 1e6:.3g} MB for a YAML file (MAX_FILE_BYTES; refused "
+                    f"before reading)")
+
+
 def read_yaml(path: Path, error: type[Exception] = SystemFileError) -> Any:
     """Read a YAML file strictly; raise ``error`` with a one-line message on any failure.
 
@@ -109,8 +161,9 @@ def read_yaml(path: Path, error: type[Exception] = SystemFileError) -> Any:
     :data:`MAX_YAML_DEPTH`, more than :data:`MAX_YAML_ALIASES` aliases or an alias expansion
     beyond :data:`MAX_YAML_NODES` nodes are refused.
     """
+    check_regular_file(Path(path), error)
     try:
-        raw = path.read_bytes()
+        raw = Path(path).read_bytes()
     except FileNotFoundError:
         raise error(f"{path}: file not found") from None
     except OSError as exc:
@@ -129,6 +182,11 @@ def parse_yaml_text(raw: bytes | str, origin: str, error: type[Exception] = Syst
                         f"{exc.start})") from None
     else:
         text = raw
+    if len(text) > MAX_FILE_BYTES:
+        raise error(f"{origin}: {len(text) / 1e6:.3g} MB of text, over the limit of "
+                    f"{MAX_FILE_BYTES / 1e6:.3g} MB for a YAML file (MAX_FILE_BYTES)")
+    # the meaning never depends on a byte-order mark or the line endings
+    text = text.removeprefix("\ufeff").replace("\r\n", "\n")
     try:
         _check_structure(text, origin, error)
         return yaml.load(text, Loader=_StrictLoader)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import time
 from collections.abc import Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -54,7 +55,8 @@ class AdapterInput:
     Parameters
     ----------
     node : FdNode
-        Configured: ``system``, ``on_input``, ``bad_input``, ``_graph_note``, ``_entities``.
+        Configured: ``system``, ``on_input``, ``bad_input``, ``_graph_note``, ``_switched``,
+        ``_entities``.
     source : str
         The adapter file.
     hold_wait : float
@@ -71,10 +73,12 @@ class AdapterInput:
             cls = message_class(ty)
             # with the DDS MessageInfo: a header-less message's time is when its publisher
             # sent it (source timestamp), not when this executor got round to it
+            name = node.resolve_topic_name(topic)
             node._entities.append(DataInput(
                 node, cls, topic, lambda msg, info=None, topic=topic: self._on_msg(topic, msg,
                                                                                    info),
-                node._graph_note, with_info=True))
+                partial(node._graph_note, cause=f"qos {name}"), with_info=True,
+                switched=partial(node._switched, name)))
         node._entities.append(node.create_timer(hold_wait / 2, self._release))
         node._entities.append(node.create_timer(GRAPH_CHECK, self._check_types))
         self._type_notes: set[str] = set()

@@ -20,11 +20,13 @@ from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
 from fd_monitor.nodes.common import OK, WARN, Diagnostics, NodeUsage, run_node
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.fault import FaultReport
+from fd_monitor.nodes.fd_node import COMMON_PARAMS, FAULT_PARAMS, FdNode, Input
 from fd_monitor.wire.topics import (
     ALARM,
     BIAS_ESTIMATE,
     DIAGNOSTICS,
+    FAULT,
     GUARD_EVENT,
     PLANT_U,
     PLANT_Y,
@@ -33,7 +35,7 @@ from fd_monitor.wire.topics import (
 
 __all__ = ["BiasEstimatorNode", "BiasReport", "USAGE", "main"]
 
-PARAMS: tuple = ()
+PARAMS: tuple = FAULT_PARAMS
 
 USAGE = NodeUsage(
     "bias_estimator", "bias_estimator: adaptive sensor-bias estimator (thresholds gain files "
@@ -44,7 +46,9 @@ USAGE = NodeUsage(
                 (GUARD_EVENT, "AGEI mode_uncertain at k (stamped k + 1)")),
     publishes=((BIAS_ESTIMATE, "sigma^_{k+1}, iso:<out>, active, k_detect "
                 "(stamp k + 1)"),
-               (DIAGNOSTICS, "input and estimate status")))
+               (FAULT, "the latched fault verdict per output: fault, isolated, estimate, "
+                "since (on change; transient local)"),
+               (DIAGNOSTICS, "input, estimate and fault status")))
 
 
 class BiasHost(Protocol):
@@ -91,7 +95,7 @@ class BiasReport:
             **self.gain_values()})
 
 
-class BiasEstimatorNode(BiasReport, FdNode):
+class BiasEstimatorNode(FaultReport, BiasReport, FdNode):
     """Bias estimator node.
 
     Parameters
@@ -134,6 +138,7 @@ class BiasEstimatorNode(BiasReport, FdNode):
         self._bias = BIAS_ESTIMATE.layout(s)
         # A fault found stays visible (with its estimate) when the input stops.
         self.diag.add("estimate", self.params.stale_timeout, keep_on_stale=True)
+        self.start_verdict(s.outputs, as_gains(s, self.gain_file).isolation_threshold)
         inputs = [
             Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
             Input.of("y", PLANT_Y, s, plain_ok=True),
@@ -150,6 +155,7 @@ class BiasEstimatorNode(BiasReport, FdNode):
         """Back to inactive, sigma^ = 0 (Monitor.reset)."""
         self.estimator.reset()
         self._last_active, self._last_isolated = False, []
+        self.reset_verdict()
 
     def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """sigma^, K_d and isolation kept over a bridged gap, the state predicted through it
@@ -165,6 +171,7 @@ class BiasEstimatorNode(BiasReport, FdNode):
         lay = self._bias
         self.publish_array(self.pub, lay.labels, k + 1, lay.encode(out.payload()))
         self.report_bias(k, out)
+        self.step_verdict(k, inputs["alarm"][i_alarm] > 0.5, out.sigma_hat, out.isolated)
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -57,7 +57,7 @@ from rclpy.serialization import serialize_message
 
 from fd_monitor.model.errors import FdMonitorError, MessageError, WrongLengthError
 from fd_monitor.model.paths import config_dirs
-from fd_monitor.nodes.ros_args import init_ros, shown_params_file
+from fd_monitor.nodes.ros_args import init_ros, shown_params_file, take_node_name
 from fd_monitor.wire.conversions import MAX_STAMP, to_msg
 from fd_monitor.wire.topics import DIAGNOSTICS, Topic
 
@@ -66,6 +66,10 @@ __all__ = [
     "AckPacer",
     "DataInput",
     "Diagnostics",
+    "MAX_MESSAGE",
+    "WAITING",
+    "default_hardware_id",
+    "short_message",
     "NodeUsage",
     "Param",
     "SerializedArray",
@@ -207,13 +211,17 @@ class DataInput:
     with_info : bool
         ``callback(msg, info)`` with the DDS MessageInfo (``source_timestamp``, ns), under
         either executor (:func:`with_message_info`); else ``callback(msg)``.
+    switched : callable, optional
+        Called (no argument) once the switch to best effort is done: the incompatibility
+        is handled.
     """
 
     def __init__(self, node: Node, msg_type: Any, topic: str, callback: Callable[..., None],
                  report: Callable[[str], None], raw: bool = False,
-                 with_info: bool = False) -> None:
+                 with_info: bool = False, switched: Callable[[], None] | None = None) -> None:
         self.node, self.msg_type, self.topic = node, msg_type, topic
         self.callback, self.report, self.raw = callback, report, raw
+        self.switched = switched
         self.with_info = with_info
         self.name = node.resolve_topic_name(topic)
         want = data_sub_qos()
@@ -240,6 +248,9 @@ class DataInput:
         self.sub = self._create(data_sub_qos(reliable=False))
         self.node.destroy_subscription(old)
         self.reliable = False
+        self._switch_timer = None
+        if self.switched is not None:
+            self.switched()
 
     def _create(self, qos: QoSProfile, **kwargs: Any) -> Any:
         if not self.with_info:
@@ -286,6 +297,9 @@ class Param:
         Read at start only (changing it later would have no effect).
     low, high : float, optional
         Inclusive range of a numeric parameter.
+    choices : tuple of str
+        The values a string parameter may take (empty: any), checked at declaration,
+        before the node configures.
     """
 
     name: str
@@ -294,6 +308,7 @@ class Param:
     read_only: bool = True
     low: float | None = None
     high: float | None = None
+    choices: tuple[str, ...] = ()
 
     def descriptor(self) -> ParameterDescriptor:
         """The ParameterDescriptor declared with the parameter."""
@@ -315,13 +330,26 @@ class Param:
 def declare_parameters(node: Node, params: Iterable[Param]) -> SimpleNamespace:
     """Declare every parameter with its descriptor; return their values as attributes.
 
+    A parameter the node's parameter files (or ``-p``) set that it does not declare is
+    warned about once, all named in one line (a typo would otherwise be ignored).
+
     Raises
     ------
     FdMonitorError
-        One line naming the node and the parameter when an override has the wrong type or
-        is out of range (e.g. ``rate_factor:=1`` for a double: write ``1.0``).
+        One line naming the node and the parameter when an override has the wrong type, is
+        out of range (e.g. ``rate_factor:=1`` for a double: write ``1.0``) or not one of
+        its ``choices``.
     """
     out = SimpleNamespace()
+    params = tuple(params)
+    declared = {p.name for p in params}
+    unknown = sorted(n for n in getattr(node, "_parameter_overrides", {})
+                     if n not in declared and not node.has_parameter(n)
+                     and n not in _ROS_PARAMETERS and not n.startswith("qos_overrides."))
+    if unknown:
+        node.get_logger().warning(
+            f"parameter file sets {', '.join(unknown)}, which node {node.get_name()} does not "
+            f"declare: ignored (a typo? `--help` lists its parameters)")
     for p in params:
         try:
             node.declare_parameter(p.name, p.default, p.descriptor())
@@ -329,8 +357,16 @@ def declare_parameters(node: Node, params: Iterable[Param]) -> SimpleNamespace:
             raise FdMonitorError(f"node {node.get_name()}: parameter {p.name}: {exc} "
                                  f"(expected {type(p.default).__name__}, default "
                                  f"{p.default!r})") from None
-        setattr(out, p.name, node.get_parameter(p.name).value)
+        value = node.get_parameter(p.name).value
+        if p.choices and value not in p.choices:
+            raise FdMonitorError(f"node {node.get_name()}: parameter {p.name}: {value!r}: "
+                                 f"expected one of {', '.join(p.choices)}")
+        setattr(out, p.name, value)
     return out
+
+
+#: Parameters rclpy itself declares on every node (not a typo when a file sets them).
+_ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 
 
 # -- diagnostics -----------------------------------------------------------------------------
@@ -346,6 +382,41 @@ class _Channel:
     stale: bool = False
     #: its level changed since the last publication
     unpublished: bool = False
+    #: the channel whose staleness this one shares (a channel without input of its own)
+    follows: str | None = None
+    #: (level, message) before it went STALE with the channel it follows
+    before_stale: tuple[bytes, str] | None = None
+
+
+#: Longest ``message`` published; a longer one is published as its first clause, the full
+#: text going into the ``detail`` value (``ros2 topic echo`` cuts strings at 128 characters,
+#: and a status line in rqt_robot_monitor or an aggregator's summary is one line).
+MAX_MESSAGE = 120
+
+#: The message of every channel before its first input (an idle node is healthy: OK).
+WAITING = "waiting for input"
+
+
+def short_message(message: str) -> tuple[str, str | None]:
+    """``(message, detail)``: ``message`` itself when short enough, else its first clause
+    (up to ``"; "``), or its first :data:`MAX_MESSAGE` characters, marked as continued, and
+    the full text as ``detail``."""
+    if len(message) <= MAX_MESSAGE:
+        return message, None
+    head = message.split("; ", 1)[0]
+    if len(head) > MAX_MESSAGE - 16:
+        head = head[:MAX_MESSAGE - 16].rstrip()
+    return head + " (see detail)", message
+
+
+def default_hardware_id(node: Node, plant: str, given: str = "") -> str:
+    """``hardware_id`` of a node's statuses: ``given``, else ``<namespace>/<plant>``
+    (``robot1/three_tank``; the plant alone in the root namespace), so two robots running the
+    same plant are told apart by an aggregator."""
+    if given:
+        return given
+    ns = node.get_namespace().strip("/")
+    return f"{ns}/{plant}" if ns else plant
 
 
 #: s: level changes are published at once, but at most this often (bursts are merged).
@@ -358,10 +429,17 @@ class Diagnostics:
     Each channel has a level, a message and key/value strings. The array is published every
     ``period`` s exactly (a timer of that period) and when a channel's level changes (at
     most every :data:`BURST_INTERVAL` s: a burst of changes goes out as one array). A
-    channel with a stale timeout turns STALE when :meth:`update`/:meth:`touch` has not been
-    called for that long (checked on a timer against ``clock``). A ``keep_on_stale`` channel
-    (a fault found) keeps its level, message and values when its input stops; its message
-    says the input stopped and ``stale`` = true is added.
+    channel starts OK, :data:`WAITING` (an idle node is healthy; an aggregator's group with
+    some STALE and some other statuses reads ERROR). A channel with a stale timeout turns
+    STALE when input flowed and then :meth:`update`/:meth:`touch` has not been called for
+    that long (checked on a timer against ``clock``); a channel that ``follows`` another
+    (no input of its own: ``ros graph``) turns STALE with it and gets its status back when
+    that one is fresh again, so a stopped node is STALE as a whole. A ``keep_on_stale``
+    channel (a fault found) keeps its level, message and values when its input stops; its
+    message says the input stopped and ``stale`` = true is added. :meth:`set_inactive`
+    (lifecycle deactivate) shows every channel ``inactive`` (no staleness while inactive).
+    A message longer than :data:`MAX_MESSAGE` goes out as its first clause, the full text in
+    the ``detail`` value (:func:`short_message`).
 
     Status names are ``<node's full name>: <channel>`` (``/robot1/detector: residual h1``).
 
@@ -369,7 +447,7 @@ class Diagnostics:
     ----------
     node : rclpy.node.Node
     hardware_id : str
-        Usually the plant's name.
+        :func:`default_hardware_id` (``<namespace>/<plant>``) or the node's parameter.
     period : float
         s between periodic publications.
     clock : callable, optional
@@ -418,11 +496,37 @@ class Diagnostics:
         self._node.destroy_publisher(self._pub)
 
     def add(self, channel: str, stale_timeout: float | None = None,
-            message: str = "no input yet", keep_on_stale: bool = False) -> None:
-        """Add a channel; with ``stale_timeout`` it starts STALE until its first input."""
-        level = STALE if stale_timeout is not None else OK
-        self._channels[channel] = _Channel(level, message, {}, None, stale_timeout,
-                                           keep_on_stale)
+            message: str = WAITING, keep_on_stale: bool = False,
+            follows: str | None = None) -> None:
+        """Add a channel, OK with ``message`` until its first update; with ``stale_timeout``
+        it turns STALE when its input stops after it flowed; ``follows``: it turns STALE with
+        that channel."""
+        self._channels[channel] = _Channel(OK, message, {}, None, stale_timeout,
+                                           keep_on_stale, follows=follows)
+
+    def set_inactive(self, message: str) -> None:
+        """Every channel OK with ``message`` (lifecycle: inactive), except a kept fault
+        (``keep_on_stale`` and not OK: its level stays, ``message`` appended); no staleness
+        until :meth:`set_waiting`."""
+        for ch in self._channels.values():
+            ch.last_input, ch.stale, ch.before_stale = None, False, None
+            if ch.keep_on_stale and ch.level != OK:
+                ch.message = f"{ch.message.split(' (')[0]} ({message})"
+            else:
+                ch.level, ch.message = OK, message
+            ch.unpublished = True
+        self._changed()
+
+    def set_waiting(self, message: str = WAITING,
+                    messages: dict[str, str] | None = None) -> None:
+        """Every channel that is not a kept fault back to OK ``message`` (``messages``: per
+        channel; activated: no input yet, no staleness before the first)."""
+        for name, ch in self._channels.items():
+            ch.last_input, ch.stale, ch.before_stale = None, False, None
+            if not (ch.keep_on_stale and ch.level != OK):
+                ch.level, ch.message = OK, (messages or {}).get(name, message)
+            ch.unpublished = True
+        self._changed()
 
     def update(self, channel: str, level: bytes, message: str,
                values: dict[str, Any] | None = None) -> None:
@@ -433,6 +537,13 @@ class Diagnostics:
         still reaches /diagnostics.
         """
         ch = self._channels[channel]
+        if ch.before_stale is not None:
+            # a following channel while its leader is stale: shown when the leader is fresh
+            ch.before_stale = (level, message)
+            ch.message = f"{message} (input stopped)"
+            if values is not None:
+                ch.values = dict(values)
+            return
         changed = ch.level != level
         if changed and ch.unpublished:
             self.publish()
@@ -463,6 +574,8 @@ class Diagnostics:
     def _on_check(self) -> None:
         now = self._clock()
         for ch in self._channels.values():
+            if ch.follows is not None:
+                self._follow(ch)
             if ch.stale_timeout is None or ch.level == STALE or ch.stale:
                 continue
             if ch.last_input is not None and now - ch.last_input > ch.stale_timeout:
@@ -476,6 +589,20 @@ class Diagnostics:
         if self._dirty and now - self._last_publish >= BURST_INTERVAL:
             self.publish()
 
+    def _follow(self, ch: _Channel) -> None:
+        """A following channel: STALE with its leader, its own status back after."""
+        lead = self._channels[ch.follows or ""]
+        lead_stale = lead.level == STALE or lead.stale
+        if lead_stale and ch.before_stale is None:
+            ch.before_stale = (ch.level, ch.message)
+            ch.level, ch.message = STALE, f"{ch.message} (input stopped)"
+            self._dirty = True
+        elif not lead_stale and ch.before_stale is not None:
+            if ch.level == STALE:
+                ch.level, ch.message = ch.before_stale
+            ch.before_stale = None
+            self._dirty = True
+
     def publish(self) -> None:
         """Publish every channel's status now."""
         arr = DiagnosticArray()
@@ -485,9 +612,11 @@ class Diagnostics:
             st = DiagnosticStatus()
             st.level = ch.level
             st.name = f"{prefix}: {name}"
-            st.message = ch.message
+            st.message, detail = short_message(ch.message)
             st.hardware_id = self._hardware_id
             values = {**ch.values, "stale": True} if ch.stale else ch.values
+            if detail is not None:
+                values = {**values, "detail": detail}
             st.values = [KeyValue(key=str(k), value=_text(v)) for k, v in values.items()]
             arr.status.append(st)
         self._pub.publish(arr)
@@ -639,8 +768,11 @@ def usage_text(prog: str, usages: Sequence[NodeUsage], config: str | None = None
               f"-p NAME:=VALUE",
               "Doubles are typed: write 1.0, not 1. Topics are relative: -r __ns:=/robot1 moves "
               "them all (/diagnostics stays); -r plant/y:=x/y remaps one.",
-              "Lifecycle nodes (autostart true by default); ~/reset (std_srvs/Trigger) starts "
-              "a new run.",
+              "Lifecycle nodes (autostart true by default; a lifecycle manager's first "
+              "configure takes over); ~/reset (std_srvs/Trigger) starts a new run of the "
+              "whole chain.",
+              "-r __node:=NAME names the nodes of a several-node executable NAME, "
+              "NAME_observer, ...",
               "A relative --params-file that is not found from the current directory is "
               "looked up in the installed config/ folder."]
     for u in usages:
@@ -671,9 +803,9 @@ def _events_executor() -> Any:
     return EventsExecutor()
 
 
-def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] | None = None,
+def run_node(factory: Callable[..., Node | Sequence[Node]], args: Sequence[str] | None = None,
              prog: str = "fd_monitor", usage: Sequence[NodeUsage] = (),
-             pacing: bool = False) -> int:
+             pacing: bool = False, named: bool = False) -> int:
     """Init rclpy, build the node(s), spin until done or shut down; return an exit status.
 
     When the nodes all allow it (``events_executor`` true: the diagnosis nodes, whose
@@ -687,7 +819,12 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
 
     A node may expose ``done`` (an ``rclpy.task.Future``) to end the spin, and
     ``exit_code``. ``pacing``: a source that paces by acknowledgements (its DDS profile:
-    :func:`use_dds_profile`). Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
+    :func:`use_dds_profile`). ``named``: an executable of several nodes; a node-name remap
+    (``-r __node:=NAME``) is taken out of the ROS arguments
+    (:func:`~fd_monitor.nodes.ros_args.take_node_name`) and passed as
+    ``factory(node_name=NAME)``, which names its nodes from it. At the end every lifecycle
+    node goes through its shutdown transition (``finish()``: one log line) before it is
+    destroyed. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
     parameter) print one line ``<prog>: error: ...`` and return 2. SIGINT/SIGTERM end
     cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
     ``rclpy.try_shutdown()``, as the ROS 2 demos do.
@@ -696,6 +833,9 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
         sys.stdout.write(usage_text(prog, usage))
         return 0
     use_dds_profile(pacing)
+    name = None
+    if named:
+        args, name = take_node_name(sys.argv if args is None else args)
     try:
         init_ros(args)
     except FdMonitorError as exc:
@@ -703,7 +843,7 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
         return 2
     nodes: list[Node] = []
     try:
-        made = factory()
+        made = factory(node_name=name) if name else factory()
         nodes = list(made) if isinstance(made, Sequence) else [made]
         # What start-up made (modules, plant, gain file, nodes) lives as long as the process:
         # frozen, a full garbage collection later does not rescan it (a ~25 ms pause of the
@@ -734,5 +874,16 @@ def run_node(factory: Callable[[], Node | Sequence[Node]], args: Sequence[str] |
         raise
     finally:
         for n in nodes:
+            finish = getattr(n, "finish", None)
+            if finish is not None:
+                finish()
+        finals = [getattr(n, "final_log", None) for n in nodes]
+        for n in nodes:
             n.destroy_node()
+        for final in finals:
+            if final is not None:
+                # after a signal the context is gone: the node's own logger would still try
+                # its dead rosout publisher (rcl prints an error per line); a logger of another
+                # name writes to the console and the log file only
+                rclpy.logging.get_logger(f"{final[0]}.lifecycle").info(final[1])
         rclpy.try_shutdown()

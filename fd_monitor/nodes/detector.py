@@ -59,7 +59,8 @@ PARAMS = (
     WARN_SHARE,
     Param("layout", "standalone", "standalone: the detector executable also runs observer, "
           "agei and bias_estimator in its process (fed plant/u and plant/y it detects on its "
-          "own); chain: the detector alone, fed fd/state_estimate by an observer process"),
+          "own); chain: the detector alone, fed fd/state_estimate by an observer process",
+          choices=("standalone", "chain")),
 )
 
 LAYOUTS = ("standalone", "chain")
@@ -256,14 +257,24 @@ class DetectorNode(ResidualReport, FdNode):
         return {"residual": sig, "threshold": thr, "alarm": sig > thr}
 
 
+def companion_name(base: str, default: str, name: str) -> str:
+    """The name of node ``name`` beside the main node of a several-node executable: its own
+    name when the main one keeps its ``default`` name, else ``<base>_<name>`` (``-r
+    __node:=det1``: ``det1_observer``, ``det1_agei``, ...)."""
+    return name if base == default else f"{base}_{name}"
+
+
 def make_nodes(**kwargs: Any) -> list:
     """The detector node, and with ``layout: standalone`` the rest of the chain beside it.
 
     The other nodes get the detector's ``system`` and ``gains`` (one plant, one gain file);
-    a qb gain file runs observer + detector only. ``kwargs`` go to every node.
+    a qb gain file runs observer + detector only. ``kwargs`` go to every node; a
+    ``node_name`` names the detector, the others get names derived from it
+    (:func:`companion_name`).
     """
     from rclpy.parameter import Parameter
 
+    base = str(kwargs.get("node_name", "detector"))
     det = DetectorNode(**kwargs)
     if det.params.layout != "standalone":
         return [det]
@@ -277,10 +288,13 @@ def make_nodes(**kwargs: Any) -> list:
     classes = ([agei.AgeiNode, bias_estimator.BiasEstimatorNode]
                if not det.configured or det.gain_file.method == "thresholds" else [])
     classes.append(observer.ObserverNode)
+    extra.pop("node_name", None)
+    names = {agei.AgeiNode: "agei", bias_estimator.BiasEstimatorNode: "bias_estimator",
+             observer.ObserverNode: "observer"}
     nodes = [det]
     try:
         for cls in classes:
-            nodes.append(cls(**extra))
+            nodes.append(cls(node_name=companion_name(base, "detector", names[cls]), **extra))
     except Exception:
         for n in nodes:
             n.destroy_node()
@@ -290,7 +304,7 @@ def make_nodes(**kwargs: Any) -> list:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the detector (standalone: with observer, agei, bias_estimator in-process)."""
-    return run_node(make_nodes, args, prog="detector",
+    return run_node(make_nodes, args, prog="detector", named=True,
                     usage=[USAGE, *(m.USAGE for m in (observer, agei, bias_estimator))])
 
 

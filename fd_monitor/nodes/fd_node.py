@@ -5,9 +5,17 @@ Each chain node (observer, detector, agei, bias_estimator) is a lifecycle node
 (:class:`rclpy.lifecycle.LifecycleNode`). ``configure`` loads and verifies the plant and the
 gain file, creates publishers and subscriptions and calls the subclass's :meth:`setup`;
 ``activate`` starts processing (messages received while inactive are counted and dropped);
-``deactivate`` stops it; ``cleanup`` destroys what configure made. With ``autostart`` (default
-true) a node configures and activates itself when constructed. ``~/reset``
-(``std_srvs/Trigger``) forgets the stream: the next complete sample starts a new run.
+``deactivate`` stops it (every /diagnostics status reads ``inactive``); ``cleanup`` destroys
+what configure made; ``shutdown`` (also at the end of the process: :meth:`FdNode.finish`)
+stops everything. Each transition is one log line. With ``autostart`` (default true) a node
+configures and activates itself when constructed, and hands over to a lifecycle manager: the
+first ``configure`` asked on ``~/change_state`` (nav2's lifecycle_manager, launch_ros'
+``LifecycleNode``) takes the autostarted node back through deactivate and cleanup, then
+configures it as asked (see :meth:`FdNode._on_change_state_request`). ``~/reset``
+(``std_srvs/Trigger``) starts a new run of the whole chain: the chain's entry (the node that
+reads ``plant/y``: observer or monitor) forgets the stream, so its next complete sample starts
+a new run, flagged ``restart`` to every node downstream; any other node asks the entry on
+``fd/reset``.
 
 Each node declares its inputs (relative topic, expected labels, required or feedback with its
 initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray`` -> core step
@@ -44,11 +52,13 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from lifecycle_msgs.msg import State, Transition
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
-from std_msgs.msg import Float64MultiArray
+from rclpy.subscription import Subscription
+from std_msgs.msg import Empty, Float64MultiArray
 
 from fd_monitor.core.methods import load_gains
 from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
@@ -57,7 +67,9 @@ from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes.adapter_input import AdapterInput
 from fd_monitor.nodes.common import (
     DEFAULT_DEPTH,
+    MAX_MESSAGE,
     OK,
+    WAITING,
     WARN,
     DataInput,
     Diagnostics,
@@ -65,6 +77,7 @@ from fd_monitor.nodes.common import (
     SerializedArray,
     data_pub_qos,
     declare_parameters,
+    default_hardware_id,
     incompatible_text,
     pub_events,
 )
@@ -78,10 +91,10 @@ from fd_monitor.wire.stream import (
     InputStream,
     TopicOrder,
 )
-from fd_monitor.wire.topics import Layout, Topic
+from fd_monitor.wire.topics import RESET, Layout, Topic
 
-__all__ = ["COMMON_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode", "Input",
-           "load_plant_and_gains"]
+__all__ = ["COMMON_PARAMS", "FAULT_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode",
+           "Input", "load_plant_and_gains"]
 
 #: The join's hole timeout, of every node that joins plant/u and plant/y.
 GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have been complete "
@@ -101,8 +114,11 @@ COMMON_PARAMS = (
     Param("gains", "three_tank_thresholds", "gain file (path or name in config/gains/); "
           "loaded and its certificate re-verified at configure; settable at runtime (a bad "
           "one is refused, the old one keeps running)", read_only=False),
-    Param("autostart", True, "configure and activate at start (false: wait for lifecycle "
-          "transitions)"),
+    Param("autostart", True, "configure and activate at start; a lifecycle manager's first "
+          "configure then takes over (deactivate, cleanup, configure as asked); false: wait "
+          "for lifecycle transitions"),
+    Param("hardware_id", "", "hardware_id of the /diagnostics statuses; empty: "
+          "<namespace>/<plant> (the plant alone in the root namespace)"),
     Param("stale_timeout", 2.0, "s without input before the input channel turns STALE",
           read_only=False, low=0.01, high=1.0e6),
     Param("diagnostics_period", 1.0, "s between /diagnostics publications",
@@ -120,9 +136,24 @@ COMMON_PARAMS = (
           high=10000000),
 )
 
+#: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes
+#: that publish ``fd/fault`` (monitor, bias_estimator).
+FAULT_PARAMS = (
+    Param("fault_confirm", 3, "fault verdict: alarms of a channel within fault_window that "
+          "set its fault", low=1, high=100000),
+    Param("fault_window", 1.0, "fault verdict: s of plant time over which alarms are counted",
+          low=0.0, high=1.0e6),
+    Param("fault_clear_after", 5.0, "fault verdict: s of plant time without evidence (alarm, "
+          "isolation, significant estimate) after which a fault clears (or ~/reset)",
+          low=0.0, high=1.0e6),
+)
+
 #: s a plain sample waits for a later held input (``plant/u``) before it is paired with the
 #: latest one published before it.
 HOLD_WAIT = 0.1
+
+#: The ``ros graph`` status without a standing problem.
+_GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
 
 #: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
 _WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run"))
@@ -242,6 +273,10 @@ class FdNode(LifecycleNode):
         self.configured = False
         self._error: FdMonitorError | None = None
         self._autostarting = False
+        #: configured by autostart, and no lifecycle request came yet (a manager's first
+        #: configure takes over)
+        self._autostarted = False
+        self._shut_down = False
         self._entities: list[Any] = []
         #: labels -> serialized layout of publish_array
         self._serialized: dict[tuple[str, ...], SerializedArray] = {}
@@ -251,8 +286,13 @@ class FdNode(LifecycleNode):
 
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        srv = getattr(self, "_service_change_state", None)
+        if srv is not None:
+            # rclpy's own handler, behind the hand-over to a lifecycle manager
+            srv.callback = partial(self._on_change_state_request, srv.callback)
         if self.params.autostart:
             self.start()
+            self._autostarted = True
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -270,6 +310,32 @@ class FdNode(LifecycleNode):
             raise FdMonitorError(f"node {self.get_name()}: configure failed")
         self.trigger_activate()
 
+    def _on_change_state_request(self, handler: Callable[[Any, Any], Any], request: Any,
+                                 response: Any) -> Any:
+        """``~/change_state``: hand an autostarted node over to a lifecycle manager.
+
+        nav2's lifecycle_manager and launch_ros' ``LifecycleNode(autostart=True)`` start a
+        node with ``configure`` then ``activate`` (and check the state reached). A node that
+        configured itself (``autostart``) would refuse that ``configure`` ("Unknown
+        transition requested"), so the first ``configure`` requested of it takes it back
+        through deactivate and cleanup (its run is forgotten) and then configures as asked;
+        from then on the manager's requests go to rclpy's state machine unchanged.
+        """
+        t = request.transition
+        if self._autostarted:
+            self._autostarted = False
+            asked = t.label == "configure" or (not t.label
+                                               and t.id == Transition.TRANSITION_CONFIGURE)
+            state = self._state_machine.current_state[0]
+            if asked and state in (State.PRIMARY_STATE_ACTIVE, State.PRIMARY_STATE_INACTIVE):
+                self.get_logger().info("lifecycle manager: configure asked of this "
+                                       "autostarted node: handing over (deactivate, cleanup, "
+                                       "then configure as asked)")
+                if state == State.PRIMARY_STATE_ACTIVE:
+                    self.trigger_deactivate()
+                self.trigger_cleanup()
+        return handler(request, response)
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Load and verify plant and gain file, create publishers and subscriptions."""
         try:
@@ -286,16 +352,19 @@ class FdNode(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Start processing."""
         self.active = True
-        self.get_logger().info(f"active: waiting for {', '.join(self._waits_for())}")
-        self.diag.update("input", self.diag.level("input"), "active: waiting for "
-                         + ", ".join(self._waits_for()))
+        waits = ", ".join(self._waits_for())
+        self.get_logger().info(f"active: waiting for {waits}")
+        self.diag.set_waiting(WAITING, {"input": f"active: waiting for {waits}"})
+        self._graph_status()                   # a standing graph problem is still one
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop processing (messages are dropped and counted until activated again)."""
+        """Stop processing (messages are dropped and counted until activated again); every
+        status reads ``inactive``."""
         self.active = False
         self.get_logger().info(f"inactive: processed {self.processed} samples; input is "
                                f"dropped until activated")
+        self.diag.set_inactive("inactive: input dropped until activated")
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -306,10 +375,50 @@ class FdNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop processing and destroy what configure made."""
+        """Stop processing and destroy what configure made (one log line)."""
+        self._log_shutdown(state.label)
         self.active = False
         self._destroy_entities()
+        self.configured = False
         return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """A transition raised: log it, destroy what configure made (back to unconfigured)."""
+        self.get_logger().error(f"error in a lifecycle transition (from {state.label}): "
+                                f"unconfigured")
+        self.active = False
+        self._destroy_entities()
+        self.configured = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def _shutdown_text(self, label: str) -> str:
+        done = f"; processed {self.processed} samples" if self.configured else ""
+        return f"shut down (from {label}){done}"
+
+    def _log_shutdown(self, label: str) -> None:
+        if not self._shut_down:
+            self._shut_down = True
+            self.get_logger().info(self._shutdown_text(label))
+
+    def finish(self) -> None:
+        """The shutdown transition at the end of the process (before ``destroy_node``).
+
+        When the context is gone already (SIGINT, SIGTERM) no transition can be announced and
+        the node's rosout publisher is dead: the log line is left in ``final_log`` (logger
+        name, text) for :func:`~fd_monitor.nodes.common.run_node` to write once the node is
+        destroyed (console and log file only).
+        """
+        state_id, label = self._state_machine.current_state
+        if state_id == State.PRIMARY_STATE_FINALIZED or self._shut_down:
+            return
+        if self.context.ok():
+            try:
+                self.trigger_shutdown()
+                return
+            except Exception:  # shut down meanwhile: as below
+                pass
+        self._shut_down, self.active = True, False
+        self.final_log = (self.get_logger().name, self._shutdown_text(label))
 
     def _destroy_entities(self) -> None:
         for e in reversed(self._entities):
@@ -317,6 +426,8 @@ class FdNode(LifecycleNode):
                 e.destroy()
             elif hasattr(e, "cancel"):
                 self.destroy_timer(e)
+            elif isinstance(e, Subscription):
+                self.destroy_subscription(e)
             else:
                 self.destroy_publisher(e)
         self._entities = []
@@ -335,12 +446,14 @@ class FdNode(LifecycleNode):
                                  f"thresholds {system.name}`)")
         self._qos = (self._qos_arg if self._qos_arg is not None
                      else data_pub_qos(self.params.qos_depth))
-        self.diag = Diagnostics(self, system.name, self.params.diagnostics_period)
+        self.diag = Diagnostics(self, default_hardware_id(self, system.name,
+                                                          self.params.hardware_id),
+                                self.params.diagnostics_period)
         self._entities.append(self.diag)
-        self.diag.add("input", self.params.stale_timeout, "no input yet")
-        self.diag.add("ros graph")
-        self.diag.update("ros graph", OK, "no QoS incompatibility, no other publisher on "
-                         "our outputs")
+        self.diag.add("input", self.params.stale_timeout)
+        # no input of its own: STALE with the input (an aggregator reads a stopped node as
+        # STALE, not as the ERROR of a group with some STALE statuses)
+        self.diag.add("ros graph", follows="input", message=_GRAPH_OK)
         self.bad_messages = 0
         self.processed = 0
         self.holes = 0
@@ -351,7 +464,10 @@ class FdNode(LifecycleNode):
         self.bridging = False
         # Reasons of the bad messages since the last /diagnostics publication, each once.
         self._reasons: list[str] = []
-        self._graph_notes: list[str] = []
+        #: standing ROS-graph problems, by cause (cleared when the cause goes away)
+        self._graph_notes: dict[str, str] = {}
+        #: inputs switched to best effort (handled: reported in the values, not a WARN)
+        self._best_effort: list[str] = []
         self._last_bad = -float("inf")
         self._last_log = -float("inf")
         self._suppressed = 0
@@ -388,9 +504,31 @@ class FdNode(LifecycleNode):
     # -- services and parameters --------------------------------------------------------------
 
     def _on_reset(self, request: Any, response: Any) -> Any:
+        """``~/reset``: the entry starts a new run; another node asks the entry
+        (``fd/reset``), whose next sample restarts every node downstream."""
         if not self.configured:
             response.success, response.message = False, "not configured"
             return response
+        if self._reset_pub is not None:
+            topic = self._reset_pub.topic_name
+            entries = self._reset_pub.get_subscription_count()
+            if not entries:
+                response.success = False
+                response.message = (f"no chain entry (observer or monitor) subscribes to "
+                                    f"{topic}: nothing reset")
+                return response
+            self._reset_pub.publish(Empty())
+            self.get_logger().info(f"reset (service): asked the chain's entry on {topic}")
+            response.success = True
+            response.message = (f"reset: asked the chain's entry on {topic}; its next sample "
+                                f"starts a new run of the whole chain")
+            return response
+        self._reset_run("service")
+        response.success, response.message = True, "reset: the next sample starts a new run"
+        return response
+
+    def _reset_run(self, why: str) -> None:
+        """Forget the stream: the next complete sample starts a new run (``restart``)."""
         self.join.reset()
         if self.adapter_input is not None:
             self.adapter_input.reset()
@@ -398,9 +536,11 @@ class FdNode(LifecycleNode):
         for hist in self._held.values():
             hist.clear()
         self.reset()
-        self.get_logger().info("reset (service): the next complete sample starts a new run")
-        response.success, response.message = True, "reset: the next sample starts a new run"
-        return response
+        self.get_logger().info(f"reset ({why}): the next complete sample starts a new run")
+
+    def _on_reset_request(self, msg: Any) -> None:
+        if self.configured:
+            self._reset_run(f"asked on {self.resolve_topic_name(RESET.name)}")
 
     def _on_set_parameters(self, params: Sequence[Any]) -> SetParametersResult:
         for p in params:
@@ -433,9 +573,10 @@ class FdNode(LifecycleNode):
         except FdMonitorError as exc:
             reason = f"gains {source}: refused ({exc}); still running {old.path}"
             self.get_logger().error(reason)
-            self._graph_note(reason)
+            self._graph_note(reason, "gains")
             return reason
         self.gain_file = new
+        self._graph_clear("gains")
         self.join.reset()
         self.reset()
         self.get_logger().info(f"gain file swapped: {new.path} ({new.id}, certificate "
@@ -467,8 +608,10 @@ class FdNode(LifecycleNode):
                   with_info: bool = False, raw: bool = False) -> DataInput:
         """A data-path subscription of Float64MultiArray (relative topic name); with
         ``with_info`` the callback gets ``(msg, info)``; ``raw``: serialized messages."""
-        sub = DataInput(self, Float64MultiArray, topic, callback, self._graph_note,
-                        raw=raw, with_info=with_info)
+        name = self.resolve_topic_name(topic)
+        sub = DataInput(self, Float64MultiArray, topic, callback,
+                        partial(self._graph_note, cause=f"qos {name}"), raw=raw,
+                        with_info=with_info, switched=partial(self._switched, name))
         self._entities.append(sub)
         return sub
 
@@ -481,6 +624,15 @@ class FdNode(LifecycleNode):
         """
         self.inputs = tuple(inputs)
         seq = [i.name for i in inputs if i.sequence]
+        # One reset for the chain: the entry (no sequence input) listens on fd/reset, the
+        # other nodes' ~/reset asks it there.
+        self._reset_pub: Any = None
+        if seq:
+            self._reset_pub = self.create_publisher(Empty, RESET.name, 10)
+            self._entities.append(self._reset_pub)
+        else:
+            self._entities.append(self.create_subscription(Empty, RESET.name,
+                                                           self._on_reset_request, 10))
         max_gap = int(getattr(self.params, "max_gap", 0))
         self.join = StampJoin([i.name for i in inputs if i.initial is None],
                               {i.name: i.initial for i in inputs if i.initial is not None},
@@ -623,8 +775,14 @@ class FdNode(LifecycleNode):
             self._suppressed += 1
         if reason not in self._reasons and len(self._reasons) < 10:
             self._reasons.append(reason)
-        self.diag.update("input", WARN, "; ".join(self._reasons),
-                         {"bad_messages": self.bad_messages, "holes": self.holes,
+        # every reason of this period when they fit in a status line, else the latest (all
+        # of them in the values)
+        message = "; ".join(self._reasons)
+        if len(message) > MAX_MESSAGE and len(self._reasons) > 1:
+            message = f"{reason} (and {len(self._reasons) - 1} more: see reasons)"
+        self.diag.update("input", WARN, message,
+                         {"reasons": "; ".join(self._reasons),
+                          "bad_messages": self.bad_messages, "holes": self.holes,
                           "bridged": self.join.bridges, "restarted": self.join.restarts,
                           "new_runs": self.join.new_runs, "processed": self.processed,
                           "last_warning": reason, **self._time_base()})
@@ -644,25 +802,57 @@ class FdNode(LifecycleNode):
                 out[f"gap {reason} {ch}"] = n
         return out
 
-    def _graph_note(self, line: str) -> None:
-        """Log a ROS-graph problem (QoS, another publisher) and report it (WARN)."""
+    def _graph_note(self, line: str, cause: str | None = None) -> None:
+        """Log a ROS-graph problem (QoS, another publisher, a refused gain file) and report
+        it (WARN) until its ``cause`` (default: the line) is cleared."""
         self.get_logger().warning(line)
-        if line not in self._graph_notes:
-            self._graph_notes = [*self._graph_notes[-4:], line]
-        self.diag.update("ros graph", WARN, "; ".join(self._graph_notes))
+        self._graph_notes[cause or line] = line
+        self._graph_status()
+
+    def _graph_clear(self, cause: str) -> None:
+        """The problem of ``cause`` is gone (a valid gain file set, a switch done, the other
+        publisher left): the ``ros graph`` status goes back to OK when none is left."""
+        if self._graph_notes.pop(cause, None) is not None:
+            self._graph_status()
+
+    def _graph_status(self) -> None:
+        notes = list(self._graph_notes.values())
+        values: dict[str, Any] = ({"best_effort_inputs": ", ".join(self._best_effort)}
+                                  if self._best_effort else {})
+        if notes:
+            # all of them when they fit in a status line, else the latest (all in values)
+            message = "; ".join(notes)
+            if len(message) > MAX_MESSAGE and len(notes) > 1:
+                message = f"{notes[-1]} (and {len(notes) - 1} more: see problem 1, ...)"
+            values.update({f"problem {i + 1}": n for i, n in enumerate(notes)})
+            self.diag.update("ros graph", WARN, message, values)
+        else:
+            self.diag.update("ros graph", OK, _GRAPH_OK + (
+                " (some inputs switched to best effort)" if self._best_effort else ""), values)
+
+    def _switched(self, topic: str) -> None:
+        """A subscription met a best-effort publisher by switching: handled, not a WARN."""
+        self.get_logger().info(f"{topic}: subscription now best effort (meets every "
+                               f"publisher)")
+        self._best_effort.append(topic)
+        self._graph_clear(f"qos {topic}")
 
     def _check_outputs(self) -> None:
-        """Warn when another node publishes on one of our output topics (a second monitor)."""
+        """Warn while another node publishes on one of our output topics (a second
+        monitor); the warning clears when it left."""
         me = (self.get_namespace(), self.get_name())
         for pub in self._pubs:
             others = [f"{i.node_namespace.rstrip('/')}/{i.node_name}"
                       for i in self.get_publishers_info_by_topic(pub.topic_name)
                       if (i.node_namespace, i.node_name) != me]
+            cause = f"also {pub.topic_name}"
             if others:
                 line = (f"{pub.topic_name}: also published by {', '.join(sorted(others))} "
                         f"(a second monitor on the same topics? its outputs mix with ours)")
-                if line not in self._graph_notes:
-                    self._graph_note(line)
+                if self._graph_notes.get(cause) != line:
+                    self._graph_note(line, cause)
+            else:
+                self._graph_clear(cause)
 
     def on_input(self, name: str, stamp: int, values: np.ndarray,
                  restart: bool = False) -> None:

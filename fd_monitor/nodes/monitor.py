@@ -44,6 +44,7 @@ from rclpy.qos import QoSProfile
 
 from fd_monitor.core.methods import METHODS, RUNTIMES, load_gains, runtime_class, runtime_for
 from fd_monitor.core.runtime import ThresholdsRuntime
+from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, GainFileError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System, load_system
@@ -52,9 +53,11 @@ from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
 from fd_monitor.nodes.common import OK, NodeUsage, Param, SerializedArray, run_node
-from fd_monitor.nodes.detector import DetectorNode, ResidualReport
+from fd_monitor.nodes.detector import DetectorNode, ResidualReport, companion_name
+from fd_monitor.nodes.fault import FaultReport
 from fd_monitor.nodes.fd_node import (
     COMMON_PARAMS,
+    FAULT_PARAMS,
     GAP_TIMEOUT,
     MAX_GAP_PARAM,
     WARN_SHARE,
@@ -67,6 +70,7 @@ from fd_monitor.wire.topics import (
     BIAS_ESTIMATE,
     CHAIN_OUTPUTS,
     DIAGNOSTICS,
+    FAULT,
     GUARD_EVENT,
     PLANT_MODE,
     PLANT_RHO,
@@ -101,6 +105,7 @@ PARAMS = (
     Param("enabled", True, "thresholds: AGEI on; false: the ablation without AGEI (never "
           "triggers, no override)"),
     ADAPTER_PARAM,
+    *FAULT_PARAMS,
 )
 
 USAGE = NodeUsage(
@@ -125,11 +130,13 @@ USAGE = NodeUsage(
                 "(stamp k + 1)"),
                (BIAS_ESTIMATE, "thresholds: sigma^_{k+1}, iso:<out>, active, k_detect "
                 "(stamp k + 1)"),
-               (DIAGNOSTICS, "input, ros graph, estimate, residual <channel>; thresholds: "
-                "tracker, bias estimate")))
+               (FAULT, "the latched fault verdict per channel: fault, isolated, estimate, "
+                "since (on change; transient local)"),
+               (DIAGNOSTICS, "input, ros graph, estimate, residual <channel>, fault; "
+                "thresholds: tracker, bias estimate")))
 
 
-class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
+class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNode):
     """The fused node: one join, one registry runtime step per sample, the method's outputs
     (see the module docstring).
 
@@ -178,6 +185,9 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
             self.diag.add(self.bias_channel, stale, keep_on_stale=True)
         self._channels_all = ["estimate", *self.channels,
                               *(["tracker", self.bias_channel] if rt.CHAIN else [])]
+        # the verdict: from alarms, and for the chain from the bias estimate and isolation
+        self.start_verdict(rt.channels, as_gains(s, self.gain_file).isolation_threshold
+                           if rt.CHAIN else None)
         self._last_key: Any = None
         self._next_report = 0.0
         self.start_inputs([
@@ -218,8 +228,9 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
 
     def reset(self) -> None:
         """Fresh runtime state (a new run: first sample, after a hole, ``~/reset``), as the
-        offline run restarts it."""
+        offline run restarts it; no fault."""
         self.runtime.reset()
+        self.reset_verdict()
 
     def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """Carry the runtime over a bridged gap (its memory kept), as the offline run
@@ -260,6 +271,10 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
                           for pub, t, lay in zip(self.pubs, self.outputs, self._layouts(out))]
         stamps = (k, k + 1)
         for pub, ser, src, nxt in self._plan:
+            # nobody subscribed: DDS would drop the message; skip building it (a count
+            # costs ~1 us, a message 5-10 us to assemble, pack and hand to DDS)
+            if not pub.get_subscription_count():
+                continue
             # values as Python numbers (bools and ints pack exactly as float64)
             data: list[Any] = []
             for i, name, scalar in src:
@@ -270,6 +285,11 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
                     data.extend(v.tolist())
             pub.publish(ser.encode(stamps[nxt], data))
         self._diagnose(k, out)
+        if out.core is not None and self.runtime.CHAIN:
+            est = out.core.estimator
+            self.step_verdict(k, out.alarm, est.sigma_hat, est.isolated)
+        else:
+            self.step_verdict(k, out.alarm)
 
     def _diagnose(self, k: int, out: Any) -> None:
         """A full report when a status can change (alarms, mode, AGEI phase, estimator,
@@ -302,21 +322,29 @@ class MonitorNode(EstimateReport, ResidualReport, BiasReport, FdNode):
 
 
 def make_chain(**kwargs: Any) -> list:
-    """The four chain nodes on one executor (``kwargs`` go to every node, e.g. ``context``).
+    """The four chain nodes on one executor (``kwargs`` go to every node, e.g. ``context``;
+    a ``node_name`` other than ``monitor`` names them ``<name>_observer``, ...).
 
     The observer, the chain's entry, is created last: by the time it subscribes to
     ``plant/y`` (what a source waits for) the other nodes already subscribe to ``plant/*``
     and to the observer's outputs, so none of them misses the first samples.
     """
-    det, ag, est = DetectorNode(**kwargs), AgeiNode(**kwargs), BiasEstimatorNode(**kwargs)
-    return [ObserverNode(**kwargs), det, ag, est]
+    base = str(kwargs.pop("node_name", "monitor"))
+
+    def named(name: str) -> dict[str, Any]:
+        return {**kwargs, "node_name": companion_name(base, "monitor", name)}
+    det = DetectorNode(**named("detector"))
+    ag, est = AgeiNode(**named("agei")), BiasEstimatorNode(**named("bias_estimator"))
+    return [ObserverNode(**named("observer")), det, ag, est]
 
 
 def make_nodes(**kwargs: Any) -> list:
     """The fused monitor node, or with ``layout: chain`` and a gain file whose method has the
     chain (``thresholds``) the four chain nodes (:func:`make_chain`). ``kwargs`` go to every
     node (e.g. ``context``)."""
-    values = peek_parameters("monitor", ("system", "gains", "layout"), **kwargs)
+    values = peek_parameters(str(kwargs.get("node_name", "monitor")),
+                             ("system", "gains", "layout"),
+                             **{k: v for k, v in kwargs.items() if k != "node_name"})
     method = None
     try:
         system = load_system(str(values["system"]))
@@ -348,7 +376,7 @@ def peek_parameters(node_name: str, names: Sequence[str], **kwargs: Any) -> dict
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the fused monitor node (or, with ``layout:=chain``, the four chain nodes)."""
-    return run_node(make_nodes, args, prog="monitor",
+    return run_node(make_nodes, args, prog="monitor", named=True,
                     usage=[USAGE, *(m.USAGE for m in (observer, detector, agei,
                                                       bias_estimator))])
 

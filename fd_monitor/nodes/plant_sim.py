@@ -53,6 +53,7 @@ from fd_monitor.nodes.common import (
     Param,
     data_pub_qos,
     declare_parameters,
+    default_hardware_id,
     pub_events,
     run_node,
     wait_for_subscribers,
@@ -180,7 +181,7 @@ class PlantSimNode(Node):
         self._t0: float | None = None
         self._wait_start = time.monotonic()
         self._matched_at: float | None = None
-        self.diag = Diagnostics(self, sys_.name, p.diagnostics_period)
+        self.diag = Diagnostics(self, default_hardware_id(self, sys_.name), p.diagnostics_period)
         self.diag.add("simulation")
         self.diag.update("simulation", OK, "waiting for subscribers",
                          {"scenario": sc.name, "samples": self.n_samples})

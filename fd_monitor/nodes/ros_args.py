@@ -27,9 +27,13 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import config_dirs
-from fd_monitor.model.yaml_io import read_yaml
+from fd_monitor.model.yaml_io import check_regular_file, read_yaml
 
-__all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file"]
+__all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file",
+           "take_node_name"]
+
+#: The remap rules that rename a node (``__name`` is the older spelling rcl still reads).
+_NODE_REMAPS = ("__node:=", "__name:=")
 
 
 def find_params_file(name: str) -> Path:
@@ -46,6 +50,8 @@ def find_params_file(name: str) -> Path:
     if found is None and not p.is_absolute():
         rel = Path(*p.parts[1:]) if len(p.parts) > 1 and p.parts[0] == "config" else p
         found = next((d / rel for d in dirs if (d / rel).is_file()), None)
+    if found is None and p.exists():       # a folder, a FIFO: say so, not "not found"
+        check_regular_file(p, FdMonitorError, "parameter file")
     if found is None:
         where = "" if p.is_absolute() else (
             f" (looked in {Path.cwd()}" + "".join(f", {d}" for d in dirs) + ")")
@@ -55,7 +61,27 @@ def find_params_file(name: str) -> Path:
         raise FdMonitorError(f"{found}: not a ROS 2 parameter file: expected a mapping "
                              f"'<node name>: {{ros__parameters: {{...}}}}' at the top, got "
                              f"{type(data).__name__}")
+    _check_params_tree(found, data, "")
     return found
+
+
+def _check_params_tree(path: Path, tree: dict, where: str) -> None:
+    """Every key of a parameter file is a node or namespace name whose mapping leads to
+    ``ros__parameters`` (a mapping): what rcl accepts, refused here in one line before rcl
+    prints its own multi-line parse error."""
+    for key, value in tree.items():
+        at = f"{where}{key}"
+        if key == "ros__parameters":
+            if not isinstance(value, dict):
+                raise FdMonitorError(f"{path}: {at}: expected a mapping of parameters, got "
+                                     f"{type(value).__name__}")
+            continue
+        if not isinstance(value, dict) or not value:
+            raise FdMonitorError(
+                f"{path}: {at}: not inside ros__parameters (expected '<node name>: "
+                f"{{ros__parameters: {{name: value, ...}}}}'; got {type(value).__name__} "
+                f"{str(value)[:40]!r})")
+        _check_params_tree(path, value, f"{at}.")
 
 
 def resolve_params_files(args: Sequence[str]) -> list[str]:
@@ -76,6 +102,38 @@ def resolve_params_files(args: Sequence[str]) -> list[str]:
             i += 1
         i += 1
     return out
+
+
+def take_node_name(args: Sequence[str]) -> tuple[list[str], str | None]:
+    """``args`` without the node-name remap rules (``--ros-args -r __node:=NAME``, what
+    launch_ros' ``Node(name=...)`` passes), and the last NAME given (None: none).
+
+    rcl applies such a rule to every node of the process, so an executable running several
+    nodes (the standalone ``detector``, ``monitor`` with ``layout:=chain``) takes it out
+    and names its nodes from it instead (``det1``, ``det1_observer``, ...): four nodes
+    called ``det1`` would make rcl warn "Publisher already registered" and collide in the
+    graph. A rule for one node only (``observer:__node:=x``) is left to rcl.
+    """
+    out: list[str] = []
+    name: str | None = None
+    in_ros = False
+    i = 0
+    argv = list(args)
+    while i < len(argv):
+        a = argv[i]
+        if a == "--ros-args":
+            in_ros = True
+        elif a == "--":
+            in_ros = False
+        elif (in_ros and a in ("-r", "--remap") and i + 1 < len(argv)
+              and argv[i + 1].startswith(_NODE_REMAPS)):
+            name = argv[i + 1].split(":=", 1)[1]
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    # "--ros-args" left empty is still valid for rcl
+    return out, name
 
 
 def init_ros(args: Sequence[str] | None = None) -> None:

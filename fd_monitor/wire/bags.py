@@ -61,6 +61,7 @@ from mcap.records import (
 )
 
 from fd_monitor.model.errors import BagError, FdMonitorWarning, MessageError, WrongLengthError
+from fd_monitor.model.yaml_io import read_yaml
 from fd_monitor.wire.conversions import (
     MAX_STAMP,
     ArrivalStamper,
@@ -77,6 +78,7 @@ __all__ = [
     "FLUSH_SECONDS",
     "BagDamage",
     "BagDamageWarning",
+    "BagUncheckedWarning",
     "BagWriter",
     "TopicArrays",
     "array_msg",
@@ -486,6 +488,10 @@ class BagDamage:
     file: str
     offset: int
     what: str
+    #: ``damage`` (messages lost or changed), or ``unchecked`` (chunks with CRC 0, which the
+    #: MCAP specification defines as "not computed": nothing is known to be wrong, bit
+    #: errors in them just cannot be detected).
+    kind: str = "damage"
 
     def __str__(self) -> str:
         return f"{self.file}: byte {self.offset}: {self.what}"
@@ -493,6 +499,11 @@ class BagDamage:
 
 class BagDamageWarning(FdMonitorWarning):
     """A bag is damaged or incomplete; what could be read was read (see :class:`BagDamage`)."""
+
+
+class BagUncheckedWarning(FdMonitorWarning):
+    """A bag's chunks carry no CRC (CRC 0, "not computed" in the MCAP specification): not
+    damage, but bit errors in them cannot be detected."""
 
 
 def mcap_file(path: str | Path) -> Path:
@@ -508,12 +519,16 @@ def mcap_file(path: str | Path) -> Path:
     meta = p / "metadata.yaml"
     if meta.is_file():
         try:
-            info = yaml.safe_load(meta.read_text(encoding="utf-8"))
+            info = read_yaml(meta, BagError)       # the strict reader: size, tags, UTF-8
             files = info["rosbag2_bagfile_information"]["relative_file_paths"]
             if len(files) != 1 or not str(files[0]).endswith(".mcap"):
                 raise ValueError(f"expected one .mcap file, got {files}")
-        except (yaml.YAMLError, UnicodeDecodeError, OSError, KeyError, TypeError,
-                ValueError) as exc:
+            if Path(str(files[0])).name != str(files[0]):
+                # rosbag2 lists the bag's own files, by name: a path elsewhere would read
+                # another bag's data under this bag's name
+                raise ValueError(f"relative_file_paths names {str(files[0])!r}, not a file "
+                                 f"of this bag folder")
+        except (BagError, OSError, KeyError, TypeError, ValueError) as exc:
             raise BagError(f"{p}: not a readable rosbag2 bag: metadata.yaml: "
                            f"{str(exc).splitlines()[0]}") from None
         f = p / str(files[0])
@@ -711,14 +726,29 @@ class _Scan:
         if not ended:
             self.report(min(pos, n), "no end of data: the writer did not close the bag "
                                      "(crashed or killed); everything before was read")
+        elif not self._ends_with_footer(buf):
+            self.report(n, "the file does not end with an MCAP footer and magic: bytes "
+                           "appended after the bag, or its end damaged (every message before "
+                           "the end of data was read)")
         elif self.statistics is not None and not self.damage:
             if self.statistics.message_count != self.messages:
                 self.report(n, f"the summary lists {self.statistics.message_count} messages "
                                f"but {self.messages} were read")
         if self.unchecked_chunks:
-            self.report(8, f"{self.unchecked_chunks} chunks carry no CRC: bit errors in them "
-                           f"cannot be detected (rewrite with `python -m fd_monitor bag "
-                           f"recover`)")
+            # CRC 0 is "not computed" (MCAP spec; rosbags writes it): a note, not damage
+            self.damage.append(BagDamage(
+                str(self.file), 8, f"{self.unchecked_chunks} chunk(s) carry no CRC (CRC 0: not "
+                                   f"computed by their writer): bit errors in them cannot be "
+                                   f"detected (`python -m fd_monitor bag recover` rewrites "
+                                   f"the bag with CRCs)", "unchecked"))
+
+    @staticmethod
+    def _ends_with_footer(buf: Any) -> bool:
+        """The file ends with a footer record and the MCAP magic (nothing appended)."""
+        n = len(buf)
+        foot = n - 8 - 29
+        return (foot >= 8 and bytes(buf[n - 8:]) == MCAP_MAGIC and buf[foot] == Opcode.FOOTER
+                and struct.unpack_from("<Q", buf, foot + 1)[0] == 20)
 
     def _data_end(self, buf: Any, pos: int, end: int) -> None:
         try:
@@ -832,7 +862,8 @@ def _scan(path: str | Path, damage: list[BagDamage] | None
             for d in found:
                 # one location, so Python's default filter says each damage once even when
                 # a command reads the bag several times
-                warnings.warn(str(d), BagDamageWarning, stacklevel=1)
+                warnings.warn(str(d), BagDamageWarning if d.kind == "damage"
+                              else BagUncheckedWarning, stacklevel=1)
 
 
 def read_raw(path: str | Path, topics: Sequence[str] | None = None, *,

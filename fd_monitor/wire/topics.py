@@ -25,6 +25,11 @@ fd/alarm                   alarm (outputs, 0/1)
 fd/guard_event             trigger, phase, row, mode_uncertain
 fd/threshold_override      override (outputs, NaN = none)
 fd/bias_estimate           sigma_hat (outputs), isolated (``iso:<out>``), active, k_detect
+fd/fault                   fault (``fault:<ch>``), isolated (``iso:<ch>``), estimate
+                           (``est:<ch>``), since (``since:<ch>``, -1 = none): the latched
+                           verdict (published on change, transient local)
+fd/reset                   (std_msgs/Empty) a chain node's ``~/reset`` asks the chain's
+                           entry to start a new run
 /diagnostics               (diagnostic_msgs/DiagnosticArray)
 =========================  ======================================================
 
@@ -51,6 +56,8 @@ __all__ = [
     "RUNTIME_OUTPUTS",
     "DIAGNOSTICS",
     "DIAGNOSTIC_ARRAY",
+    "EMPTY",
+    "FAULT",
     "FLOAT64_MULTI_ARRAY",
     "Field",
     "GUARD_EVENT",
@@ -60,12 +67,14 @@ __all__ = [
     "PLANT_TRUTH",
     "PLANT_U",
     "PLANT_Y",
+    "RESET",
     "RESIDUAL",
     "STATE_ESTIMATE",
     "THRESHOLD",
     "THRESHOLD_OVERRIDE",
     "TOPICS",
     "Topic",
+    "fault_layout",
     "runtime_estimate",
     "side_topic",
 ]
@@ -74,6 +83,8 @@ __all__ = [
 FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
 #: Message type of ``/diagnostics``.
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+#: Message type of ``fd/reset``.
+EMPTY = "std_msgs/msg/Empty"
 
 
 @dataclass(frozen=True)
@@ -274,6 +285,13 @@ THRESHOLD_OVERRIDE = Topic("fd/threshold_override", fields=(Field("override", _o
 BIAS_ESTIMATE = Topic("fd/bias_estimate", fields=(
     Field("sigma_hat", _outputs), Field("isolated", _prefixed("iso:")), Field("active"),
     Field("k_detect")), next_sample=True)
+#: The latched fault verdict per channel (:mod:`fd_monitor.core.verdict`), published when it
+#: changes (reliable, transient local: a late subscriber gets the verdict in force).
+FAULT = Topic("fd/fault", fields=(
+    Field("fault", _prefixed("fault:")), Field("isolated", _prefixed("iso:")),
+    Field("estimate", _prefixed("est:")), Field("since", _prefixed("since:"))))
+#: A new run of the whole chain, asked by any chain node's ``~/reset`` of the chain's entry.
+RESET = Topic("fd/reset", EMPTY)
 DIAGNOSTICS = Topic("/diagnostics", DIAGNOSTIC_ARRAY)
 
 #: What the sensor-bias chain publishes (the fused monitor: all seven, in this order).
@@ -281,7 +299,8 @@ CHAIN_OUTPUTS = (STATE_ESTIMATE, RESIDUAL, THRESHOLD, ALARM, GUARD_EVENT,
                  THRESHOLD_OVERRIDE, BIAS_ESTIMATE)
 
 #: Every topic of fd_monitor.
-TOPICS = (PLANT_U, PLANT_Y, PLANT_RHO, PLANT_MODE, PLANT_TRUTH, *CHAIN_OUTPUTS, DIAGNOSTICS)
+TOPICS = (PLANT_U, PLANT_Y, PLANT_RHO, PLANT_MODE, PLANT_TRUTH, *CHAIN_OUTPUTS, FAULT, RESET,
+          DIAGNOSTICS)
 #: The sensor-bias chain's data topics: what ``record`` and the demo record by default
 #: (with ``/diagnostics``).
 CHAIN_DATA = (PLANT_U, PLANT_Y, PLANT_TRUTH, *CHAIN_OUTPUTS)
@@ -309,3 +328,11 @@ def side_topic(name: str) -> Topic:
     """The topic of a runtime's side signal (``rho``, ``mode``:
     :attr:`fd_monitor.core.runtime.Runtime.side_inputs`)."""
     return _SIDE[name]
+
+
+def fault_layout(channels: Sequence[str]) -> Layout:
+    """``fd/fault`` of a node diagnosing ``channels`` (the plant's outputs for the thresholds
+    chain, a registry runtime's channels otherwise): four values per channel."""
+    return FAULT.with_labels({f.name: tuple(f"{p}{c}" for c in channels)
+                              for f, p in zip(FAULT.fields, ("fault:", "iso:", "est:",
+                                                             "since:"))})

@@ -1,0 +1,265 @@
+"""N robots' monitors at 100 Hz on this machine: latency, CPU and memory per robot.
+
+For each N (default 1, 8, 16, 32): N ``monitor`` processes (the fused node, three_tank
+thresholds gain file, namespaces ``/robot0`` ... ``/robot<N-1>``); one driver process
+publishes every robot's ``plant/u`` and ``plant/y`` at ``--rate`` Hz (default 100; the demo
+scenario, stamped) for ``--seconds`` s; this process subscribes to every robot's
+``fd/alarm`` (the only output subscribed: the monitor builds no message nobody subscribes
+to) and records each sample's arrival.
+
+Printed per N (the 1-minute load average with each line):
+
+* latency y_k published -> alarm_k received over all robots and samples: p50, p99, max (ms);
+  ``missing``: outputs that never arrived;
+* ``cpu/sample``: CPU time (user + system, /proc) of the N monitor processes during the run,
+  per robot and sample, us, and as ``% core`` per robot (cpu seconds / run seconds / N);
+  the issue's goal is <= 300 us per sample (3 % of a core at 100 Hz);
+* RSS per process, MB (mean and max; goal <= 50 MB);
+* the floor: a bare rclpy process with the same two subscriptions at the same rate, measured
+  the same way (``--floor``; what any Python ROS node receiving u and y costs here).
+
+Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
+[--seconds 10] [--floor]``. Isolated ROS_DOMAIN_ID, loopback discovery.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+#: ``python -c DRIVER <robots> <rate> <seconds>``: waits for every robot's subscriber, prints
+#: ``ready``, then on ``go`` sends and prints one JSON line of send times per sample.
+DRIVER = r"""
+import json, sys, time
+import rclpy
+from std_msgs.msg import Float64MultiArray
+from fd_monitor.nodes.common import data_pub_qos, use_dds_profile
+from fd_monitor.wire.conversions import to_msg
+from fd_monitor.wire.topics import PLANT_U, PLANT_Y
+from fd_monitor.core.simulator import simulate
+from fd_monitor.model.scenario import load_scenario
+use_dds_profile(); rclpy.init()
+N, rate, secs = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+node = rclpy.create_node("robots_driver")
+sc = load_scenario("three_tank_bias_h1")
+K = int(rate * secs)
+tr = simulate(sc, None, K + 20)
+u, y = tr.u[0].tolist(), tr.y[0].tolist()
+pubs = [(node.create_publisher(Float64MultiArray, f"/robot{i}{PLANT_U.absolute}", data_pub_qos()),
+         node.create_publisher(Float64MultiArray, f"/robot{i}{PLANT_Y.absolute}", data_pub_qos()))
+        for i in range(N)]
+while any(p.get_subscription_count() < 1 for pair in pubs for p in pair):
+    time.sleep(0.05)
+print("ready", flush=True)
+sys.stdin.readline()
+# 10 warm-up samples (every link through), then K measured ones
+sent = []
+t0 = time.perf_counter()
+for k in range(K + 10):
+    due = t0 + k / rate
+    d = due - time.perf_counter()
+    if d > 0:
+        time.sleep(d)
+    row = []
+    for pu, py in pubs:
+        pu.publish(to_msg(sc.system.inputs, k, u[k]))
+        row.append(time.perf_counter())
+        py.publish(to_msg(sc.system.outputs, k, y[k]))
+    sent.append(row)
+print(json.dumps({"sent": sent}), flush=True)
+"""
+
+#: A bare rclpy node with the monitor's two subscriptions (the floor), on the same executor.
+BARE = r"""
+import rclpy
+from std_msgs.msg import Float64MultiArray
+from fd_monitor.nodes.common import _events_executor, data_sub_qos, use_dds_profile
+from fd_monitor.wire.topics import PLANT_U, PLANT_Y
+use_dds_profile(); rclpy.init()
+n = rclpy.create_node("bare", namespace="/robot0")
+n.create_subscription(Float64MultiArray, PLANT_U.name, lambda m: None, data_sub_qos())
+n.create_subscription(Float64MultiArray, PLANT_Y.name, lambda m: None, data_sub_qos())
+ex = _events_executor(); ex.add_node(n)
+try:
+    while rclpy.ok():
+        ex.spin_once(timeout_sec=0.1)
+except BaseException:
+    pass
+"""
+
+
+def env() -> dict[str, str]:
+    """An isolated ROS environment (random domain, loopback discovery)."""
+    from fd_monitor.nodes.common import use_dds_profile
+
+    use_dds_profile()
+    e = dict(os.environ)
+    e.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 200)))
+    e["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    e.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    e.setdefault("ROS_LOG_DIR", "/tmp/fd_monitor_bench_logs")
+    e["PYTHONPATH"] = str(REPO) + os.pathsep + e.get("PYTHONPATH", "")
+    os.environ.update({k: e[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
+                                         "RMW_IMPLEMENTATION", "ROS_LOG_DIR")})
+    return e
+
+
+def load() -> float:
+    return os.getloadavg()[0]
+
+
+def cpu_seconds(pids: list[int]) -> float:
+    """User + system CPU seconds used so far by the processes (/proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for pid in pids:
+        try:
+            f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(f[11]) + int(f[12])) / tick
+    return total
+
+
+def rss_mb(pid: int) -> float:
+    """Resident set size of a process, MB (/proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
+              floor: bool = False) -> dict:
+    """One N: start, drive, measure, stop."""
+    import rclpy
+    from std_msgs.msg import Float64MultiArray
+
+    from fd_monitor.nodes.common import _events_executor, data_sub_qos
+    from fd_monitor.wire.topics import ALARM
+
+    if floor:
+        procs = [subprocess.Popen([sys.executable, "-c", BARE], env=e,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    else:
+        procs = [subprocess.Popen([sys.executable, "-m", "fd_monitor", "run", "monitor",
+                                   "--ros-args", "-r", f"__ns:=/robot{i}"], env=e,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                 for i in range(n_robots)]
+    node = rclpy.create_node(f"robots_rx_{n_robots}")
+    arrivals: list[dict[int, float]] = [{} for _ in range(n_robots)]
+    if not floor:
+        for i in range(n_robots):
+            node.create_subscription(
+                Float64MultiArray, f"/robot{i}{ALARM.absolute}",
+                lambda m, a=arrivals[i]: a.__setitem__(int(m.data[0]), time.perf_counter()),
+                data_sub_qos())
+    ex = _events_executor()
+    ex.add_node(node)
+    drv = subprocess.Popen([sys.executable, "-c", DRIVER, str(n_robots), str(rate),
+                            str(seconds)], env=e, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                           text=True)
+    assert drv.stdin is not None and drv.stdout is not None
+    row: dict = {"robots": n_robots, "floor": floor}
+    try:
+        if drv.stdout.readline().strip() != "ready":
+            raise RuntimeError("driver did not start")
+        if not floor:
+            deadline = time.monotonic() + 120
+            while any(node.count_publishers(f"/robot{i}{ALARM.absolute}") < 1
+                      for i in range(n_robots)) and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.05)
+        time.sleep(2.0)                      # start-up CPU settles
+        pids = [p.pid for p in procs]
+        cpu0, t0 = cpu_seconds(pids), time.perf_counter()
+        drv.stdin.write("go\n")
+        drv.stdin.flush()
+        import select
+        line = ""
+        while not line:
+            if select.select([drv.stdout], [], [], 0)[0]:
+                line = drv.stdout.readline()
+            else:
+                ex.spin_once(timeout_sec=0.01)
+        end = time.perf_counter() + 2.0
+        while time.perf_counter() < end:
+            ex.spin_once(timeout_sec=0.01)
+        cpu = cpu_seconds(pids) - cpu0
+        wall = time.perf_counter() - t0 - 2.0
+        sent = json.loads(line)["sent"][10:]
+        K = len(sent)
+        rows = [(i, k) for i in range(n_robots) for k in range(10, 10 + K)]
+        lat = np.array([arrivals[i][k] - sent[k - 10][i] for i, k in rows
+                        if k in arrivals[i]]) * 1e3
+        row.update(samples=K, load=round(load(), 2),
+                   missing=0 if floor else len(rows) - lat.size,
+                   cpu_us_per_sample=cpu / (n_robots if not floor else 1) / K * 1e6,
+                   core_pct=100 * cpu / wall / (n_robots if not floor else 1),
+                   rss_mb=[round(rss_mb(p), 1) for p in pids])
+        if lat.size:
+            row.update(p50_ms=float(np.median(lat)), p99_ms=float(np.percentile(lat, 99)),
+                       max_ms=float(lat.max()))
+    finally:
+        for p in [drv, *procs]:
+            p.terminate()
+        for p in [drv, *procs]:
+            try:
+                p.wait(15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        ex.shutdown()
+        node.destroy_node()
+    return row
+
+
+def _fmt(r: dict) -> str:
+    def f(v, spec=".2f"):
+        return "-" if v is None else format(v, spec)
+
+    rss = r.get("rss_mb") or [float("nan")]
+    what = "floor: bare rclpy, 2 subs" if r["floor"] else f"{r['robots']} monitors"
+    return (f"{what:26} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
+            f"{f(r.get('p50_ms')):>7} {f(r.get('p99_ms')):>7} {f(r.get('max_ms')):>7} "
+            f"{f(r.get('cpu_us_per_sample'), '.0f'):>9} {f(r.get('core_pct'), '.1f'):>6} "
+            f"{np.mean(rss):6.1f} {max(rss):6.1f}  load {r.get('load', load()):.2f}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robots", type=int, nargs="+", default=[1, 8, 16, 32])
+    ap.add_argument("--rate", type=float, default=100.0)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--floor", action="store_true", help="also measure a bare rclpy node")
+    args = ap.parse_args()
+    e = env()
+    import rclpy
+
+    rclpy.init()
+    print(f"load average {load():.2f} (1 min, {os.cpu_count()} cores); {args.rate:g} Hz, "
+          f"{args.seconds:g} s per N; per robot: cpu us per sample, % of a core, RSS MB")
+    print(f"{'what':26} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
+          f"{'max ms':>7} {'cpu us/s.':>9} {'%core':>6} {'RSS':>6} {'max':>6}")
+    try:
+        if args.floor:
+            print(_fmt(run_fleet(1, args.rate, args.seconds, e, floor=True)), flush=True)
+        for n in args.robots:
+            print(_fmt(run_fleet(n, args.rate, args.seconds, e)), flush=True)
+    finally:
+        rclpy.try_shutdown()
+    print(f"load average {load():.2f} after")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
