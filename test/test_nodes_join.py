@@ -202,10 +202,10 @@ def test_lost_feedback_goes_on_without_it_then_the_restarted_source_rejoins():
     j = entry(gap_timeout=1.0)
     feed(j, 0)
     release(j)
-    feed(j, 1, now=1.0)
-    feed(j, 2, now=1.0)
-    assert release(j, 1.5) == []                        # fb_1 may still come
-    out = list(j.ready(2.0))
+    feed(j, 1, now=0.5)
+    feed(j, 2, now=0.5)
+    assert release(j, 0.9) == []                        # fb_1 may still come
+    out = list(j.ready(1.0))          # due gap_timeout s after sample 0 was released
     assert [(s.k, s.restart, s.feedback_lost, s.inputs["fb"]) for s in out] == [
         (1, False, True, FB0), (2, False, False, FB0)]
     assert j.lost_feedback == {"fb"} and j.feedback_losses == 1 and j.restarts == 0
@@ -232,12 +232,15 @@ def test_lost_feedback_with_a_later_one_here_is_one_sample_only():
 
 
 def test_downstream_lost_feedback_goes_on_after_restart_after():
+    """Downstream, the feedback for a sample is due restart_after s after the previous one
+    was released, however late the sample's own est came (the entry node may have waited
+    for a dead peer already)."""
     j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0)
     j.put("est", 0, "e0", 0.0, restart=True)
     release(j)
-    j.put("est", 1, "e1", 1.0)
-    assert release(j, 1.5) == []
-    assert [(s.k, s.restart, s.feedback_lost) for s in j.ready(2.0)] == [(1, False, True)]
+    j.put("est", 1, "e1", 0.5)
+    assert release(j, 0.9) == []
+    assert [(s.k, s.restart, s.feedback_lost) for s in j.ready(1.0)] == [(1, False, True)]
     j.put("est", 2, "e2", 2.0)
     assert release(j, 2.0) == [(2, False, None, FB0)]   # not waited for until fb comes
     j.put("fb", 2, "fb2 late", 2.1)
@@ -410,8 +413,8 @@ def test_entry_bridge_waits_for_the_feedback_of_the_last_sample():
     assert bridged(j, 0.3) == [(2, False, True, 1, (1, 1), "fb1")]
     j.reject(3)
     feed(j, 4, now=1.0)
-    assert bridged(j, 1.5) == []
-    out = list(j.ready(2.0))
+    assert bridged(j, 1.2) == []                       # 2 was released at 0.3
+    out = list(j.ready(1.3))
     assert [(s.k, s.restart, s.bridge, s.feedback_lost, s.inputs["fb"]) for s in out] == [
         (4, False, True, True, FB0)]
 

@@ -597,10 +597,13 @@ class StampJoin:
         return {n: slot[n] for n in self.feedback}
 
     def _feedback_overdue(self, k: int, now: float, timeout: float | None) -> bool:
-        """Sample k's required inputs have been here ``timeout`` s since the previous sample
-        was released (its feedback could not exist before), its feedback has not."""
-        t = self._complete_since.get(k)
-        return timeout is not None and t is not None and now - max(t, self._progress) >= timeout
+        """Sample k's required inputs are here and ``timeout`` s have passed since the
+        previous sample was released (its feedback could not exist before; it is due then,
+        however late k itself came: a downstream node whose est_k came late because the
+        entry node waited for a dead peer does not wait as long again), its feedback has
+        not come."""
+        return (timeout is not None and k in self._complete_since
+                and now - self._progress >= timeout)
 
     # -- queries -------------------------------------------------------------------------------
 
