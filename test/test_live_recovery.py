@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 import pytest
-from ros_util import Proc, ros_context, spin_until
+from ros_util import Collector, Proc, ros_context, spin_until
 from test_nodes_graph import Rig, params
 
 pytestmark = pytest.mark.ros
@@ -110,8 +110,7 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
                 p.wait(10.0)
             k_kill, t_kill = sent[0], time.monotonic()
             new = [Proc(["run", n]) for n in peers]
-            # the survivors go on without the dead peers' feedback: the observer after
-            # gap_timeout, the detector restart_after later (1 s each)
+            # the survivors go on without the dead peers' feedback
             assert pace(lambda: max(stamps(col, "/fd/alarm"), default=0) > k_kill + 5, 10.0)
             t_on = time.monotonic() - t_kill
             assert obs.join.lost_feedback == {"sigma", "guard"}
@@ -139,9 +138,10 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
             rig.close()
         print(f"kill at sample {k_kill}: outputs on {t_on:.2f} s later; restarted peers "
               f"rejoined {t_rejoin:.2f} s after their first feedback; bias at {kb}")
-        # the observer's gap_timeout, then the detector's restart_after (its override
-        # from agei), 1 s each; + 1 s for a loaded machine
-        assert t_on <= 1.0 + 1.0 + 1.0
+        # gap_timeout (1 s) per dead feedback source of the observer (the two peers may die
+        # one sample apart); the detector's wait for agei's override counts from its own
+        # last output, so it adds nothing; + 1.5 s for a loaded machine
+        assert t_on <= 2 * 1.0 + 1.5
         assert t_rejoin <= 1.0 + 1.0
         alarms = col.decoded("/fd/alarm")
         assert not any(d.values.any() for d in alarms if d.stamp < kb), \
@@ -184,7 +184,7 @@ def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
                 ok = rig.spin(lambda k=k: max(stamps(rig.col, "/fd/state_estimate"),
                                               default=-1) >= k, 1.0 + 2.0)
                 delays.append(time.monotonic() - t)
-                assert ok, (k, obs.join.k_next, obs.join.shed, max(delays), obs.join.waiting_for(), [(n.get_name(), n.join.k_next, len(n.join.pending), n.join.waiting_for()) for n in nodes], obs.join.lost_feedback)
+                assert ok, (k, obs.join.k_next, obs.join.shed, max(delays))
                 if k >= burst + 20 and time.monotonic() - t_sent > 3.0:
                     break
             assert obs.join.shed > 0 and obs.join.shed_episodes >= 1
@@ -208,6 +208,8 @@ def test_label_attack_is_refused_with_bounded_memory_and_good_input_goes_on():
     /diagnostics; VmRSS of each process: the second 50 add less than 16 MB, all 100 less
     than 128 MB (the receive buffers of 1 MB messages); good input after it gives residuals
     again."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
     from fd_monitor.nodes.common import data_pub_qos
@@ -222,17 +224,11 @@ def test_label_attack_is_refused_with_bounded_memory_and_good_input_goes_on():
     n_bad = 100
     try:
         with ros_context() as ctx:
-            from rclpy.node import Node
-
-            from ros_util import Collector
-
             col = Collector(ctx, [f"{ns}/fd/residual" for ns in spaces], diagnostics=True)
             drv = Node("label_driver", context=ctx)
             pubs = {(ns, t): drv.create_publisher(Float64MultiArray, f"{ns}/plant/{t}",
                                                   data_pub_qos())
                     for ns in spaces for t in ("u", "y")}
-            from rclpy.executors import SingleThreadedExecutor
-
             ex = SingleThreadedExecutor(context=ctx)
             ex.add_node(col.node)
             ex.add_node(drv)
@@ -267,7 +263,7 @@ def test_label_attack_is_refused_with_bounded_memory_and_good_input_goes_on():
             pad = "x" * (1 << 20)
             for i in range(n_bad):
                 if i == n_bad // 2:
-                    assert spin_until(ex, lambda: all(refused(ns) >= i for ns in spaces),
+                    assert spin_until(ex, lambda i=i: all(refused(ns) >= i for ns in spaces),
                                       60.0, procs), [refused(ns) for ns in spaces]
                     half = [rss_mb(p.p.pid) for p in procs]
                 m = to_msg(Y_LABELS, k_bad, y[k_bad])

@@ -276,8 +276,26 @@ def test_entry_behind_by_more_than_max_lag_sheds_to_the_newest_sample():
         (52, True, (51, 51), 1, FB0)]
 
 
-def test_max_lag_is_at_least_gap_timeout_and_offline_never_sheds():
+def test_downstream_behind_by_more_than_max_lag_restarts_at_the_newest_sample():
+    """A downstream node behind its entry node (est_k waiting, complete, for more than
+    max_lag s) skips to the newest complete est and restarts there."""
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0, max_lag=1.0)
+    j.put("est", 0, "e0", 0.0, restart=True)
+    assert release(j) == [(0, True, None, FB0)]
+    for k in range(1, 30):
+        j.put("est", k, f"e{k}", 0.01 * k)
+    j.put("fb", 1, "fb1", 0.5)
+    assert release(j, 0.5) == [(1, False, None, "fb1")]
+    out = list(j.ready(1.1))                            # est_2 complete at 0.02
+    assert [(s.k, s.restart, s.hole, s.shed) for s in out] == [(29, True, (2, 28), 27)]
+    j.put("est", 30, "e30", 1.2)
+    j.put("fb", 30, "fb30", 1.2)
+    assert release(j, 1.2) == [(30, False, None, "fb30")]
+
+
+def test_max_lag_is_at_least_the_feedback_timeout_and_offline_never_sheds():
     assert StampJoin(["u"], {"fb": 0}, gap_timeout=1.0, max_lag=0.1).max_lag == 1.0
+    assert StampJoin(["est"], sequence="est", restart_after=2.0, max_lag=1.0).max_lag == 2.0
     assert StampJoin(["u"], gap_timeout=1.0).max_lag is None
 
 

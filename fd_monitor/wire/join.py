@@ -48,12 +48,14 @@ up with). The restarted peer processes the samples published after it subscribed
 feedback message, even one for a sample already processed, makes the node wait for that
 feedback again from its next sample on: the peer then follows the run in lock step.
 
-A node that cannot keep up sheds load (entry role, ``max_lag``): when the next sample has
-been complete for more than ``max_lag`` s (it waits behind a backlog), the join skips to the
-newest complete sample, as across a hole: stamps ``k_next .. newest - 1`` are lost
-(:attr:`Sample.shed`, counted in :attr:`StampJoin.shed`), the newest is bridged (at most
-``max_gap`` skipped) or restarts the run. Live, a sample is therefore processed at most
-``max_lag`` s (plus one check period) after it was complete, whatever came before it.
+A node that cannot keep up sheds load (``max_lag``): when the next sample has been complete
+for more than ``max_lag`` s (it waits behind a backlog), the join skips to the newest complete
+sample, as across a hole: stamps ``k_next .. newest - 1`` are lost (:attr:`Sample.shed`,
+counted in :attr:`StampJoin.shed`); the entry role bridges the newest (at most ``max_gap``
+skipped) or restarts the run there, a downstream node restarts there (the entry node's
+stream goes on: its flags are followed again from the next sample). Live, a sample is
+therefore processed at most ``max_lag`` s (plus one check period) after it was complete,
+whatever came before it.
 
 A stamp cannot blind the join. A stamp below the next one (a source that restarted its
 stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
@@ -176,10 +178,10 @@ class StampJoin:
         Entry role: lost samples in a row that are bridged (:attr:`Sample.bridge`); more
         restart. 0: every hole restarts. The downstream role follows the entry's flags.
     max_lag : float, optional
-        Entry role: s the next sample may wait after it was complete before the join skips
-        to the newest complete one (load shed); at least ``gap_timeout`` (a smaller value is
-        raised to it, so a dead feedback source is declared lost before load is shed). None:
-        never shed (offline reading).
+        s the next sample may wait after it was complete before the join skips to the
+        newest complete one (load shed); at least ``gap_timeout`` (downstream:
+        ``restart_after``; a smaller value is raised to it, so a dead feedback source is
+        declared lost before load is shed). None: never shed (offline reading).
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
@@ -190,8 +192,8 @@ class StampJoin:
                  max_gap: int = 0, max_lag: float | None = None) -> None:
         self.required = tuple(required)
         self.max_gap = int(max_gap)
-        self.max_lag = (None if max_lag is None or sequence is not None
-                        else max(float(max_lag), gap_timeout or 0.0))
+        self.max_lag = (None if max_lag is None else max(
+            float(max_lag), gap_timeout or 0.0, restart_after if sequence is not None else 0.0))
         self.feedback_source = feedback_source
         self.feedback = dict(feedback or {})
         self.names = (*self.required, *self.feedback)
@@ -545,6 +547,23 @@ class StampJoin:
                 self._forget(seq.popleft())
             s, slot = later, self.pending[later]
             skipped = True
+        t = self._complete_since.get(s)
+        if t is not None and self.max_lag is not None and now - t > self.max_lag:
+            newest = max(self._complete_since)
+            if newest > s:
+                # behind by more than max_lag: skip to the newest complete sequence stamp
+                # (a restart of this node there; the entry node's own stamps go on)
+                n = 0
+                while seq and seq[0] < newest:
+                    n += 1
+                    self._forget(seq.popleft())
+                if seq and seq[0] == newest:
+                    seq.popleft()
+                self.shed += n
+                self.shed_episodes += 1
+                k = self.k_next
+                return self._release(newest, True, None if k is None else (k, newest - 1),
+                                     shed=n)
         k = self.k_next
         bridged = s in self._bridge_at and not skipped
         restart = (k is None or s in self._restart_at or self._restart_next
