@@ -118,9 +118,9 @@ COMMON_PARAMS = (
     Param("max_pending", 100000, "samples buffered while waiting for inputs", low=10,
           high=10000000),
     Param("max_lag", MAX_LAG, "s a complete sample may wait behind a backlog before the "
-          "node sheds load: it skips to the newest complete sample (counted: shed on "
-          "/diagnostics); at least gap_timeout (the chain's entry and the monitor)",
-          low=0.01, high=3600.0),
+          "node sheds load: it skips to the newest complete sample (counted: shed_samples "
+          "on /diagnostics); at least gap_timeout; 0.0: never (every sample processed, "
+          "however late: flat-out replays are lossless)", low=0.0, high=3600.0),
 )
 
 #: s a plain sample waits for a later held input (``plant/u``) before it is paired with the
@@ -492,7 +492,7 @@ class FdNode(LifecycleNode):
                               horizon=self.params.stamp_horizon,
                               restart_after=self.params.restart_after,
                               feedback_source=self._feedback_source,
-                              max_gap=max_gap, max_lag=self.params.max_lag)
+                              max_gap=max_gap, max_lag=self.params.max_lag or None)
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()

@@ -30,7 +30,7 @@ lost) is not a new run: the sample goes on without it (its initial value) and th
 waiting for that feedback until it comes again (``feedback_back``: a restarted peer rejoins).
 
 No input pattern blinds a node for good (doc/howto/overload-and-recovery.md): a node more
-than ``max_lag`` s behind sheds load (``shed``: skips to the newest complete sample, as
+than ``max_lag`` s behind (when set) sheds load (``shed``: skips to the newest complete sample, as
 across a hole), a dead feedback source costs ``gap_timeout`` s once, a stopped or restarted
 source is a hole or a new run.
 
@@ -66,8 +66,10 @@ STAMP_HORIZON = 100_000
 RESTART_AFTER = 1.0
 #: Lost samples in a row that are bridged (the run goes on, its memory kept); more: a restart.
 MAX_GAP = 10
-#: s a complete sample may wait (behind a backlog) before the node skips to the newest one.
-MAX_LAG = 2.0
+#: s a complete sample may wait (behind a backlog) before the node skips to the newest one;
+#: 0: never (the default: a source faster than the node -- ``replay --rate 0``, ``plant_sim``
+#: flat out -- is processed completely, as those sources promise; a live robot sets it).
+MAX_LAG = 0.0
 
 #: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
 NoteFn = Callable[[str, str, Any], None]
