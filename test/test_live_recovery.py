@@ -86,8 +86,8 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
                                            "fd/bias_estimate"))
         col, sent = rig.col, [0]
 
-        def pace(cond, timeout: float, procs=()) -> bool:
-            """Publish the next sample every 10 ms (a 100 Hz source: 10 x real time) until
+        def pace(cond, timeout: float, procs=(), every: float = 0.01) -> bool:
+            """Publish the next sample every ``every`` s (100 Hz: 10 x real time) until
             ``cond`` holds or ``timeout`` s pass."""
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline and sent[0] < len(u):
@@ -95,7 +95,7 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
                     return True
                 rig.send(u, y, [sent[0]])
                 sent[0] += 1
-                spin_until(rig.ex, lambda: False, 0.01, procs)
+                spin_until(rig.ex, lambda: False, every, procs)
             return cond()
 
         try:
@@ -123,7 +123,10 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
                     first_new[0] = time.monotonic()
                 return bool(first_new[0]) and not obs.join.lost_feedback \
                     and not det.join.lost_feedback
-            assert pace(back, 60.0, new), (obs.join.lost_feedback, [p.output() for p in new])
+            # 50 Hz while the processes start (a slow start must not use up the samples
+            # before the guard crossing at 936)
+            assert pace(back, 60.0, new, 0.02), (obs.join.lost_feedback,
+                                                 [p.output() for p in new])
             t_rejoin = time.monotonic() - first_new[0]
             # a bias on h1 from kb: alarmed, estimated by the restarted estimator
             kb = sent[0] + 20
