@@ -610,7 +610,8 @@ def identify(fit: Sequence[Dataset], holdout: Sequence[Dataset] = (), *, name: s
     # the input's effect (three_tank: ls simulates h2 at 50 % fit against iv's 12 % with a
     # pump gain of 58 for the true 6.5). Its candidates are then listed, not chosen.
     ref = next((c for c in candidates if c["estimator"] != "ls"), candidates[0])
-    loop = closed_loop(Re, _errors(ref["models"], Re, qe), fit_inputs, inputs)
+    loop = closed_loop([Rf, Re], [_errors(ref["models"], Rf, qf), _errors(ref["models"], Re, qe)],
+                       fit_inputs, inputs)
     eligible = [c for c in candidates
                 if not (estimator == "auto" and loop["inputs"] and c["estimator"] == "ls")]
     s0 = min(c["sim_error"] for c in eligible)
@@ -632,7 +633,7 @@ def identify(fit: Sequence[Dataset], holdout: Sequence[Dataset] = (), *, name: s
             for src, d in zip(sources or [d.name for d in every], every)]
     Ef, Ev = _errors(Ms, Rf, qf), _errors(Ms, Re, qe)
     quality = _quality(best, Ms, Rf, qf, Re, qe, Ev, tab, modes, fit_inputs, sparsity,
-                       max_radius, inputs, outputs, Ts, bnd, given is not None)
+                       max_radius, inputs, outputs, Ts, bnd, given is not None, loop)
     summary: dict[str, Any] = {
         "plant": name,
         "model": best["kind"], "model_requested": model, "modes_structure": modes,
@@ -690,7 +691,7 @@ def _quality(best: Mapping[str, Any], Ms: Sequence[AffineModel], Rf: _Rows, qf: 
              Re: _Rows, qe: np.ndarray, Ev: np.ndarray, tab: _ModeTable, modes: str,
              fit_inputs: np.ndarray, sparsity: float, max_radius: float | None,
              inputs: Sequence[str], outputs: Sequence[str], Ts: float,
-             bnd: Mapping[str, Any], assumed: bool) -> dict[str, Any]:
+             bnd: Mapping[str, Any], assumed: bool, loop: dict[str, Any]) -> dict[str, Any]:
     """Model quality of the chosen candidate (:mod:`fd_monitor.analysis.identify_quality`)."""
     nmod = len(tab.keys)
     est, kind = best["estimator"], best["kind"]
@@ -716,7 +717,7 @@ def _quality(best: Mapping[str, Any], Ms: Sequence[AffineModel], Rf: _Rows, qf: 
     sigma = np.sqrt(s2 / max(cnt, 1))
     exc, exc_warn = excitation(Rf, qf, Re, qe, Ev, stats, inputs=inputs,
                                fit_inputs=fit_inputs, mode_names=tab.names, per_mode=modes,
-                               sigma=sigma, Ts=Ts, As=[M.A for M in Ms])
+                               sigma=sigma, Ts=Ts, As=[M.A for M in Ms], loop=loop)
     noise_rows, noise_warn = noise_check(np.asarray(bnd["v_bar"]), sigma, outputs, assumed)
     half = halves(lambda rows: _fit_one(Rf, qf, nmod, kind, modes, est, fit_inputs, sparsity,
                                         max_radius, rows),

@@ -71,11 +71,12 @@ GAIN_SE_MAX = 0.10
 #: An input whose own variation (what feedback from the outputs cannot produce) is below this
 #: fraction of its spread is excited only through feedback.
 OWN_SHARE_MIN = 0.01
-#: A stated noise bound below this times the noise's standard deviation is flagged: noise
-#: within +-b has a standard deviation of b / sqrt(3) if uniform (the usual reading of a
-#: bound), so a bound below sqrt(3) sigma cannot be a uniform noise's, and below sigma no
-#: noise's at all.
-NOISE_FACTOR = math.sqrt(3.0)
+#: A stated noise bound below this times the noise's standard deviation sigma is flagged.
+#: Noise within +-b has a standard deviation of at most b, and b / sqrt(3) = 0.58 b if
+#: uniform (the usual reading of a bound): below sigma no noise fits the bound, and below
+#: 1.5 sigma (0.87 of a uniform noise's bound, the slack for sigma's own estimation error)
+#: it is smaller than the residuals show.
+NOISE_FACTOR = 1.5
 #: Newey-West lags of the coefficient covariance (the one-step error is MA(1) in the noise).
 HAC_LAGS = 2
 #: Level of the eigenvalue intervals (simultaneous over every eigenvalue).
@@ -199,8 +200,8 @@ def _fastest_hz(As: Sequence[np.ndarray], Ts: float) -> float:
 def excitation(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, Ee: np.ndarray,
                stats: Sequence[dict[str, Any]], *, inputs: Sequence[str],
                fit_inputs: np.ndarray, mode_names: Sequence[str], per_mode: str,
-               sigma: np.ndarray, Ts: float, As: Sequence[np.ndarray]
-               ) -> tuple[list[dict[str, Any]], list[str]]:
+               sigma: np.ndarray, Ts: float, As: Sequence[np.ndarray],
+               loop: dict[str, Any]) -> tuple[list[dict[str, Any]], list[str]]:
     """Excitation of every fitted input, over all modes and per mode, and the warnings.
 
     Parameters
@@ -211,6 +212,8 @@ def excitation(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, Ee: np.ndar
         :func:`coefficient_statistics` (the gain's standard error).
     sigma : numpy.ndarray
         (ny,) measurement-noise standard deviation (the noise band).
+    loop : dict
+        :func:`closed_loop` (the feedback correlation per input).
 
     Returns
     -------
@@ -218,7 +221,7 @@ def excitation(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, Ee: np.ndar
         ``input``, ``mode`` (``all`` or a mode name), ``samples``, ``spread`` (std, input
         units), ``own_share`` (std of its own part / std), ``pe_order`` (of its own part),
         ``above_noise_db`` (its own part over the noise the controller feeds back, dB),
-        ``feedback_corr`` (largest |corr(e_i,k, u_k+1)| on held-out data), ``gain_rel_se``,
+        ``feedback_corr`` (:func:`feedback_corr`), ``gain_rel_se``,
         ``weak`` (bool), ``reason``.
     warnings : list of str
         One per weakly excited input (and mode, for ``full``): what, what it means, what to do.
@@ -235,7 +238,7 @@ def excitation(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, Ee: np.ndar
     for j in fit_inputs:
         j = int(j)
         other = [i for i in range(nu) if i != j]
-        corr = feedback_corr(Re, Ee, j)
+        corr = loop["corr"].get(inputs[j], 0.0)
         for mname, m in modes:
             sel = m & lag
             N = int(sel.sum())
@@ -277,32 +280,46 @@ def excitation(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, Ee: np.ndar
     return rows_out, warnings
 
 
-def feedback_corr(R: _Rows, E: np.ndarray, j: int) -> float:
-    """Largest ``|corr(e_i,k, u_j,k+1)|`` over the outputs i: does input j react to the
-    one-step error (the output noise) of the sample before? Zero in open loop (up to
-    ``1 / sqrt(N)``); a controller that reads the outputs makes it large (Ljung 1999,
-    Sec. 16.6: the residual-input cross-correlation at negative lags reveals feedback)."""
+def _next_pairs(R: _Rows, E: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(e_k, u_k+1, [y_k, u_k, 1]) over the rows whose next sample is in the record."""
     nxt = np.zeros(R.size, dtype=bool)
     if R.size > 1:
         nxt[:-1] = (np.diff(R.k) == 1) & (np.diff(R.seg) == 0)
+    sel = np.nonzero(nxt)[0]
+    past = np.hstack([R.X[sel], R.U[sel], np.ones((sel.size, 1))])
+    return E[sel], R.U[sel + 1], past
+
+
+def feedback_corr(pairs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], j: int) -> float:
+    """Largest partial ``|corr(e_i,k, u_j,k+1 | y_k, u_k)|`` over the outputs i: does input j
+    react to the one-step error (the output noise) of the sample before, beyond what the
+    previous measurement and input predict of it? Zero in open loop (up to ``1 / sqrt(N)``);
+    a controller that reads the outputs makes it nonzero (Ljung 1999, Sec. 16.6: the
+    residual-input cross-correlation at negative lags reveals feedback)."""
+    E = np.vstack([p[0] for p in pairs])
+    un = np.concatenate([p[1][:, j] for p in pairs])
+    past = np.vstack([p[2] for p in pairs])
+    if un.size < past.shape[1] + 3:
+        return 0.0
+    r = un - past @ partial_coefficients(un, past)
     corr = 0.0
-    if nxt.sum() > 3:
-        un = R.U[1:][nxt[:-1], j]
-        for i in range(E.shape[1]):
-            e = E[:-1][nxt[:-1], i]
-            if np.std(un) > 0 and np.std(e) > 0:
-                corr = max(corr, abs(float(np.corrcoef(e, un)[0, 1])))
+    for i in range(E.shape[1]):
+        e = E[:, i]
+        if np.std(r) > 1e-12 * max(float(np.std(un)), 1e-300) and np.std(e) > 0:
+            corr = max(corr, abs(float(np.corrcoef(e, r)[0, 1])))
     return corr
 
 
-def closed_loop(R: _Rows, E: np.ndarray, fit_inputs: np.ndarray,
+def closed_loop(Rs: Sequence[_Rows], Es: Sequence[np.ndarray], fit_inputs: np.ndarray,
                 inputs: Sequence[str]) -> dict[str, Any]:
-    """Which inputs react to the output noise (:func:`feedback_corr` above ``3 / sqrt(N)``,
-    the 3-sigma level of a correlation estimate of independent series)."""
-    N = max(R.size - 1, 1)
+    """Which inputs react to the output noise (:func:`feedback_corr` over the rows ``Rs``
+    with their one-step errors ``Es``, above ``3 / sqrt(N)``, the 3-sigma level of a
+    correlation estimate of independent series)."""
+    pairs = [_next_pairs(R, E) for R, E in zip(Rs, Es)]
+    N = max(sum(p[0].shape[0] for p in pairs), 1)
     limit = 3.0 / math.sqrt(N)
-    corr = {inputs[int(j)]: feedback_corr(R, E, int(j)) for j in fit_inputs}
-    return {"corr": corr, "limit": limit,
+    corr = {inputs[int(j)]: feedback_corr(pairs, int(j)) for j in fit_inputs}
+    return {"corr": corr, "limit": limit, "samples": N,
             "inputs": [nm for nm, c in corr.items() if c > limit]}
 
 
@@ -382,8 +399,8 @@ def noise_check(v_bar: np.ndarray, sigma: np.ndarray, outputs: Sequence[str],
                 f"output {o}: {src} noise bound {v_bar[i]:.4g} is below {NOISE_FACTOR:.3g} x "
                 f"the standard deviation {sigma[i]:.4g} of the one-step errors' "
                 f"high-frequency part (white noise within +-b has a standard deviation of at "
-                f"most b, b / sqrt(3) if uniform): the noise is larger than the bound says, "
-                f"and a design on it will raise false alarms (state the sensor's datasheet "
+                f"most b, b / sqrt(3) = 0.58 b if uniform): the noise is larger than the bound "
+                f"says, and a design on it will raise false alarms (state the sensor's datasheet "
                 f"bound with --noise-bound, or raise --margin)")
     return rows, warns
 

@@ -216,7 +216,7 @@ def print_quality(s: dict[str, Any]) -> None:
                  for b in q["bounds"]], header=("bound", "how", "samples", "seconds"))
     print_table([(n["output"], n["bound"], n["hf_std"], f"{n['ratio']:.3g}",
                   "ok" if n["ok"] else "BELOW") for n in q["noise_check"]],
-                header=("noise check", "bound", "hf std", "bound / std", "bound >= 1.73 std"))
+                header=("noise check", "bound", "hf std", "bound / std", "bound >= 1.5 std"))
     h = q["halves"]
     if "fit_first" in h:
         print("halves: sim fit % first " + ", ".join(_pct(f) for f in h["fit_first"])
