@@ -204,7 +204,9 @@ def print_quality(s: dict[str, Any]) -> None:
                             f"{100 * c['interval_level']:.0f} % joint interval (real, "
                             f"+-{z:.3g} se)"))
         print(f"regression condition number (columns scaled): {c['condition_number']:.4g} "
-              f"({c['samples']} samples)")
+              f"({c['samples']} samples)"
+              + ("; standard errors and eigenvalues of the regression before --max-radius "
+                 "clipped it" if s.get("max_radius") is not None else ""))
     print_table([(e["input"], e["mode"], e["spread"], f"{100 * e['own_share']:.3g}",
                   e["pe_order"], _db(e["above_noise_db"]), f"{e['feedback_corr']:.3f}",
                   "inf" if e["gain_rel_se"] == float("inf") else
