@@ -722,7 +722,7 @@ def _quality(best: Mapping[str, Any], Ms: Sequence[AffineModel], Rf: _Rows, qf: 
     half = halves(lambda rows: _fit_one(Rf, qf, nmod, kind, modes, est, fit_inputs, sparsity,
                                         max_radius, rows),
                   Rf, lambda M: np.asarray(simulation(M, Re, qe)["fit"]), stats_of,
-                  np.asarray(sim["fit"]), len(outputs))
+                  np.asarray(sim["fit"]), outputs, inputs)
     coef = []
     for st in stats:
         e = st["eig"]

@@ -408,7 +408,8 @@ def noise_check(v_bar: np.ndarray, sigma: np.ndarray, outputs: Sequence[str],
 def halves(fit: Callable[[np.ndarray], list[AffineModel]], Rf: _Rows,
            sim: Callable[[Sequence[AffineModel]], np.ndarray],
            stats: Callable[[np.ndarray], list[dict[str, Any]]],
-           full_fit: np.ndarray, n: int) -> dict[str, Any]:
+           full_fit: np.ndarray, outputs: Sequence[str], inputs: Sequence[str]
+           ) -> dict[str, Any]:
     """The model fitted on the first and on the second half of the fit rows, compared.
 
     Parameters
@@ -421,6 +422,8 @@ def halves(fit: Callable[[np.ndarray], list[AffineModel]], Rf: _Rows,
         Row mask -> :func:`coefficient_statistics` of those rows (their standard errors).
     full_fit : numpy.ndarray
         (ny,) the full data's simulation fit.
+    outputs, inputs : sequence of str
+        Channel names (to name the entry that differs most).
 
     Returns
     -------
@@ -453,7 +456,9 @@ def halves(fit: Callable[[np.ndarray], list[AffineModel]], Rf: _Rows,
             if z.size and float(z.max()) > zmax:
                 zmax = float(z.max())
                 r, c = np.unravel_index(int(np.argmax(z)), z.shape)
-                where = f"{key}[{r},{c}]" + ("" if a["mode"] in ("all",) else f" ({a['mode']})")
+                cols = outputs if key == "A" else inputs
+                where = f"{key}[{outputs[r]},{cols[c]}]" + (
+                    "" if a["mode"] == "all" or len(S1) == 1 else f" ({a['mode']})")
     zc = float(norm.ppf(1 - 0.05 / (2 * max(entries, 1))))
     dfit = float(np.max(np.abs(np.asarray(f1) - np.asarray(f2)))) \
         if np.all(np.isfinite(f1)) and np.all(np.isfinite(f2)) else math.inf
