@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm, logm
 from scipy.optimize import linprog, nnls
+from scipy.signal import lfilter
 from scipy.stats import norm
 
 from fd_monitor.core.thresholds import noise_l1_bound
@@ -438,6 +439,10 @@ def simulate(models: list[AffineModel], q: np.ndarray, U: np.ndarray, x0: np.nda
         m = q == j
         F[m] = U[m] @ M.B.T + M.offset
     As = [M.A for M in models]
+    if len(set(q.tolist())) == 1 and N > 0:
+        fast = _simulate_modal(As[int(q[0])], F, np.asarray(x0, dtype=float))
+        if fast is not None:
+            return fast
     with np.errstate(over="ignore", invalid="ignore"):
         if n == 1:                       # scalar: plain floats are ~10 x faster than numpy
             a = [float(A[0, 0]) for A in As]
@@ -454,6 +459,23 @@ def simulate(models: list[AffineModel], q: np.ndarray, U: np.ndarray, x0: np.nda
             x = As[q[k]] @ x + F[k]
             X[k + 1] = x
     return X
+
+
+def _simulate_modal(A: np.ndarray, F: np.ndarray, x0: np.ndarray) -> np.ndarray | None:
+    """``x_{k+1} = A x_k + F_k`` in modal coordinates (``A = V diag(lam) V^-1``: one first-order
+    recursion per eigenvalue, :func:`scipy.signal.lfilter`), or None when V is ill-conditioned
+    (a nearly defective A: the loop is then the accurate way)."""
+    lam, V = np.linalg.eig(A)
+    if np.linalg.cond(V) > 1e6 or np.any(np.abs(lam) > 1.0 + 1e-9):
+        return None                      # a growing mode: the loop reports its overflow as is
+    Vi = np.linalg.inv(V)
+    G = F @ Vi.T                                           # (N, n) forcing, modal
+    z0 = Vi @ x0
+    Z = np.empty((F.shape[0] + 1, lam.size), dtype=complex)
+    Z[0] = z0
+    for i, li in enumerate(lam):
+        Z[1:, i], _ = lfilter([1.0], [1.0, -li], G[:, i], zi=[li * z0[i]])
+    return np.asarray(np.real(Z @ V.T))
 
 
 def nrmse_fit(Y: np.ndarray, Yhat: np.ndarray) -> np.ndarray:
