@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -48,8 +48,26 @@ from fd_monitor.core.identify import (
     solve,
 )
 
-if TYPE_CHECKING:
-    from fd_monitor.analysis.identify import _Rows
+
+class _Rows(Protocol):
+    """One-step rows (:class:`fd_monitor.analysis.identify._Rows`; a protocol here, so this
+    module does not import the one that calls it)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    Xn: np.ndarray
+    Xp: np.ndarray
+    Up: np.ndarray
+    lag: np.ndarray
+    key: np.ndarray
+    seg: np.ndarray
+    k: np.ndarray
+    ds: np.ndarray
+
+    def take(self, sel: np.ndarray) -> Any: ...
+
+    @property
+    def size(self) -> int: ...
 
 __all__ = [
     "GAIN_SE_MAX",
@@ -455,7 +473,7 @@ def halves(fit: Callable[[np.ndarray], list[AffineModel]], Rf: _Rows,
                 z = np.where(used, d / np.where(used, s, 1.0), 0.0)
             if z.size and float(z.max()) > zmax:
                 zmax = float(z.max())
-                r, c = np.unravel_index(int(np.argmax(z)), z.shape)
+                r, c = (int(i) for i in np.unravel_index(int(np.argmax(z)), z.shape))
                 cols = outputs if key == "A" else inputs
                 where = f"{key}[{outputs[r]},{cols[c]}]" + (
                     "" if a["mode"] == "all" or len(S1) == 1 else f" ({a['mode']})")

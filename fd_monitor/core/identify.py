@@ -454,10 +454,10 @@ def simulate(models: list[AffineModel], q: np.ndarray, U: np.ndarray, x0: np.nda
                 x = a[ql[k]] * x + f[k]
                 out.append(x)
             return np.asarray(out, dtype=float)[:, None]
-        x = np.asarray(x0, dtype=float)
+        xv = np.asarray(x0, dtype=float)
         for k in range(N):
-            x = As[q[k]] @ x + F[k]
-            X[k + 1] = x
+            xv = As[q[k]] @ xv + F[k]
+            X[k + 1] = xv
     return X
 
 
