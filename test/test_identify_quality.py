@@ -253,6 +253,9 @@ def test_a_datasheet_noise_bound_is_stated_as_assumed_and_checked():
     np.testing.assert_array_equal(ok.system.measurement_noise, [V_BAR, V_BAR])
     assert s["measurement_noise"]["assumed"] and "assumed" in s["quality"]["bounds"][0]["how"]
     assert s["warnings"] == []
+    # the multi-step simulation the --plot draws beside the one-step prediction
+    sim = ok.validation["simulation"]
+    assert sim["simulated"].shape == sim["measured"].shape == (399, 2)
     sigma = np.asarray(s["quality"]["noise_std_hf"])
     np.testing.assert_allclose(sigma, V_BAR / np.sqrt(3), rtol=0.1)   # uniform noise's std
     low = identify(fit, held, name="cl", model="linear", estimator="iv",

@@ -1190,7 +1190,8 @@ def plot_validation(result: Identified, path: str | Path) -> Path:
                 ax.plot(ts, np.clip(sim["simulated"][:, i], -1e300, 1e300), lw=0.8,
                         label="simulated (free run)")
             if i < len(fits):
-                ax.set_title(f"fit {_pct(fits[i])} %", fontsize=8)
+                ax.set_title(f"simulation fit {_pct(fits[i])} % (all held-out records)",
+                             fontsize=8)
             if i == 0:
                 ax.legend(fontsize=7)
     for j in range(3):
