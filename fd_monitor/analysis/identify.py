@@ -909,7 +909,8 @@ def _fit_candidates(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, tab: _
                 try:
                     Ms = _fit_one(Rf, qf, 1, kind, modes, est, fit_inputs, sparsity,
                                   max_radius)
-                except (IdentificationError, np.linalg.LinAlgError, ValueError) as exc:
+                except (IdentificationError, np.linalg.LinAlgError, ValueError,
+                        IndexError) as exc:       # a failed optional candidate is skipped
                     if estimator == "n4sid":
                         raise IdentificationError(f"--estimator n4sid: {exc}") from None
                     continue

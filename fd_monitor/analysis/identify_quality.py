@@ -262,12 +262,16 @@ def excitation(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, Ee: np.ndar
             N = int(sel.sum())
             u = Rf.U[sel, j]
             spread = float(np.std(u)) if N else 0.0
+            judged = mname == "all" or len(mode_names) == 1 or per_mode == "full"
             if N < 3 * (2 * n + nu + 1) or spread == 0.0:
-                rows_out.append({"input": inputs[j], "mode": mname, "samples": N,
-                                 "spread": spread, "own_share": 0.0, "pe_order": 0,
-                                 "above_noise_db": -math.inf, "feedback_corr": corr,
-                                 "gain_rel_se": math.inf, "weak": True,
-                                 "reason": "too few samples" if spread else "constant"})
+                why = "too few samples" if spread else "constant"
+                row = {"input": inputs[j], "mode": mname, "samples": N, "spread": spread,
+                       "own_share": 0.0, "pe_order": 0, "above_noise_db": -math.inf,
+                       "feedback_corr": corr, "gain_rel_se": _gain_se(stats, mname, j, per_mode),
+                       "weak": judged, "reason": why if judged else why + " (shared B)"}
+                rows_out.append(row)
+                if judged:
+                    warnings.append(_advice(row, 0.0, N, Ts, f_hz))
                 continue
             qs = qf[sel]
             ind = (qs[:, None] == np.unique(qs)[None, :]).astype(float)
@@ -283,7 +287,6 @@ def excitation(Rf: _Rows, qf: np.ndarray, Re: _Rows, qe: np.ndarray, Ee: np.ndar
             share = own_sd / spread
             weak_share = share < OWN_SHARE_MIN
             weak_gain = g > GAIN_SE_MAX
-            judged = mname == "all" or len(mode_names) == 1 or per_mode == "full"
             weak = judged and (weak_share or weak_gain)
             reason = ", ".join(r for r, w in (("feedback only", weak_share),
                                               ("gain uncertain", weak_gain)) if w) or "ok"

@@ -9,8 +9,11 @@ envelope the data covered) that ``validate``, ``design thresholds ... --envelope
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from typing import Any
+
+import numpy as np
 
 from fd_monitor.analysis.identify import (
     ESTIMATORS,
@@ -131,7 +134,9 @@ def run(args: argparse.Namespace) -> int:
         plot_validation(res, args.plot)
     s = res.summary
     if args.json:
-        print_json({"plant_file": str(out), "plot": args.plot, **s})
+        # strict JSON: a quantity the data do not determine (an infinite standard error, a
+        # diverging simulation) is null, not the non-standard Infinity
+        print_json(_finite({"plant_file": str(out), "plot": args.plot, **s}))
         return 0
     print(f"identified {s['plant']} -> {out}: {s['model']} modes ({s['modes_structure']}), "
           f"estimator {s['estimator']}, Ts = {s['sample_time']:g} s")
@@ -244,3 +249,17 @@ def _db(x: float) -> str:
     if x < -99:
         return "none"
     return f"{x:.3g}"
+
+
+def _finite(obj: Any) -> Any:
+    """``obj`` with every non-finite float (and -1e300, a diverged fit) replaced by None."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        return x if math.isfinite(x) and abs(x) < 1e299 else None
+    return obj
