@@ -346,9 +346,11 @@ def closed_loop(Rs: Sequence[_Rows], Es: Sequence[np.ndarray], fit_inputs: np.nd
 
 def _gain_se(stats: Sequence[dict[str, Any]], mode: str, j: int, per_mode: str) -> float:
     """Relative standard error of input j's B column (its 2-norm)."""
+    if per_mode == "full" and len(stats) > 1:
+        if mode == "all":                  # every mode its own B: the least determined one
+            return max(_gain_se([st], mode, j, "offset") for st in stats)
+        stats = [next((s for s in stats if s["mode"] == mode), stats[0])]
     st = stats[0]
-    if per_mode == "full":
-        st = next((s for s in stats if s["mode"] == mode), stats[0])
     b = float(np.linalg.norm(st["B"][:, j]))
     se = float(np.linalg.norm(st["se_B"][:, j]))
     if not math.isfinite(se):
@@ -421,8 +423,11 @@ def noise_check(v_bar: np.ndarray, sigma: np.ndarray, outputs: Sequence[str],
                 f"the standard deviation {sigma[i]:.4g} of the one-step errors' "
                 f"high-frequency part (white noise within +-b has a standard deviation of at "
                 f"most b, b / sqrt(3) = 0.58 b if uniform): the noise is larger than the bound "
-                f"says, and a design on it will raise false alarms (state the sensor's datasheet "
-                f"bound with --noise-bound, or raise --margin)")
+                f"says, and a design on it will raise false alarms ("
+                + ("check the datasheet value against what the sensor sees installed "
+                   "(quantisation, vibration, interference), or leave --noise-bound out to "
+                   "measure it)" if assumed else
+                   "state the sensor's datasheet bound with --noise-bound, or raise --margin)"))
     return rows, warns
 
 
