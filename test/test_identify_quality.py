@@ -178,6 +178,7 @@ def test_an_input_excited_only_through_feedback_is_named_and_strict_refuses(bags
     assert len(warns) == 1 and warns[0].startswith("WARNING: input tau2 is weakly excited")
     assert "gain is not determined" in warns[0] and "add a dither to tau2" in warns[0]
     assert "tau2" in stdout and "WEAK" in stdout        # the excitation table
+    assert "rank 3 of 4" in stdout                      # tau2 = -2 w2: one dependent column
     out.unlink()
     rc, stdout, err = _cli(capsys, *args, "--strict")
     assert rc == 2 and not out.exists()

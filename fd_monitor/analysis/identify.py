@@ -729,6 +729,7 @@ def _quality(best: Mapping[str, Any], Ms: Sequence[AffineModel], Rf: _Rows, qf: 
         z = float(e["z"])
         coef.append({
             "mode": st["mode"], "samples": st["samples"], "condition_number": st["condition"],
+            "rank": st["rank"], "columns": st["columns"],
             "A": _floats(st["A"]), "se_A": _floats(st["se_A"]),
             "B": _floats(st["B"]), "se_B": _floats(st["se_B"]),
             "eigenvalues": [{"real": float(lam.real), "imag": float(lam.imag),

@@ -175,7 +175,8 @@ def coefficient_statistics(R: _Rows, q: np.ndarray, n_modes: int, *, kind: str,
     list of dict
         One per group (``all`` for shared A, B; one per mode for ``full``): ``mode``, ``A``,
         ``B``, ``se_A`` (n, n), ``se_B`` (n, nu), ``cov_A`` (n n, n n), ``eig`` (see
-        :func:`fd_monitor.core.identify.eigen_intervals`), ``condition``, ``samples``.
+        :func:`fd_monitor.core.identify.eigen_intervals`), ``condition``, ``rank`` (of
+        ``columns`` regressors), ``samples``.
     """
     n, nu = R.X.shape[1], R.U.shape[1]
     iv = estimator != "ls"
@@ -201,8 +202,19 @@ def coefficient_statistics(R: _Rows, q: np.ndarray, n_modes: int, *, kind: str,
         cov_A = cov[np.ix_(idx, idx)]
         out.append({"mode": name, "A": A, "B": B, "se_A": se[:, :n], "se_B": se_B,
                     "cov_A": cov_A, "eig": eigen_intervals(A, cov_A, LEVEL),
-                    "condition": condition_number(Th), "samples": int(Th.shape[0])})
+                    "condition": condition_number(Th), "rank": _rank(Th),
+                    "columns": int(Th.shape[1]), "samples": int(Th.shape[0])})
     return out
+
+
+def _rank(Theta: np.ndarray) -> int:
+    """Numerical rank of the regressors (columns scaled; singular values above 1e-9 of the
+    largest, the level at which :func:`hac_covariance` calls a direction undetermined)."""
+    norms = np.linalg.norm(Theta, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    G = (Theta.T @ Theta) / np.outer(norms, norms)
+    ev = np.sqrt(np.maximum(np.linalg.eigvalsh(G), 0.0))
+    return int(np.count_nonzero(ev > 1e-9 * ev.max())) if ev.size and ev.max() > 0 else 0
 
 
 def _fastest_hz(As: Sequence[np.ndarray], Ts: float) -> float:

@@ -208,8 +208,8 @@ def print_quality(s: dict[str, Any]) -> None:
                     header=("eigenvalue", "se real", "se imag",
                             f"{100 * c['interval_level']:.0f} % joint interval (real, "
                             f"+-{z:.3g} se)"))
-        print(f"regression condition number (columns scaled): {c['condition_number']:.4g} "
-              f"({c['samples']} samples)"
+        print(f"regression condition number (columns scaled): {c['condition_number']:.4g}, "
+              f"rank {c['rank']} of {c['columns']} ({c['samples']} samples)"
               + ("; standard errors and eigenvalues of the regression before --max-radius "
                  "clipped it" if s.get("max_radius") is not None else ""))
     print_table([(e["input"], e["mode"], e["spread"], f"{100 * e['own_share']:.3g}",

@@ -525,9 +525,10 @@ def hac_covariance(Theta: np.ndarray, E: np.ndarray, Z: np.ndarray | None = None
     ``Xi = M^-1 Z' Y`` with ``M = Z' Theta`` (Z = Theta for least squares), so
     ``Xi - Xi_true = M^-1 sum_k z_k e_k'`` and ``cov(vec Xi) = (I_m (x) M^-1) S (I_m (x) M^-1)'``
     with ``S`` the long-run covariance of ``g_k = e_k (x) z_k`` (Newey-West, Bartlett weights
-    over ``lags`` lags). The lags are needed: the one-step error ``v_{k+1} - A v_k + eta_k``
-    of a measured state is correlated over one sample, so the textbook ``sigma^2 (X'X)^-1``
-    understates the spread.
+    over ``lags`` lags).
+    The lags are needed: the one-step error ``v_{k+1} - A v_k + eta_k`` of a measured state
+    is correlated over one sample, so the textbook ``sigma^2 (X'X)^-1`` misstates the spread.
+    Conservative where the measurement noise dominates and A is near I (see the code).
 
     Parameters
     ----------
@@ -554,16 +555,23 @@ def hac_covariance(Theta: np.ndarray, E: np.ndarray, Z: np.ndarray | None = None
     if N <= p:
         return np.full((m * p, m * p), np.inf)
     G = (E[:, :, None] * Zm[:, None, :]).reshape(N, m * p)      # e_k (x) z_k
-    S = G.T @ G
+    S0 = G.T @ G
     cont = np.ones(N, dtype=bool) if breaks is None else ~np.asarray(breaks, dtype=bool)
     ok = np.ones(N, dtype=bool)
+    Gam = []
     for lag in range(1, lags + 1):
         ok = ok[1:] & cont[lag:] if lag > 1 else cont[1:].copy()
         if not ok.any():
             break
-        w = 1.0 - lag / (lags + 1.0)
         P = G[lag:][ok].T @ G[:-lag][ok]
-        S += w * (P + P.T)
+        Gam.append(P + P.T)
+    # Newey-West (Bartlett weights 1 - l / (lags + 1)): always positive semidefinite. Where
+    # the measurement noise dominates and A is near I, the MA(1) error's lag-1 covariance
+    # nearly cancels its variance and these weights leave part of it in, so the standard
+    # errors are conservative there (measured on a simulation of the dc_motor example over 20
+    # seeds: 3.8 x the spread of the estimates; on the closed-loop test plant 1.2 x). Uniform
+    # weights cancel it in expectation but, estimated, are too noisy (4 standard errors off).
+    S = S0 + sum((1.0 - (i + 1) / (lags + 1.0)) * g for i, g in enumerate(Gam))
     S *= N / (N - p)
     # A regressor that is a linear combination of the others (an input that is a static
     # feedback of the measured outputs) has no determined coefficient: the directions of the
