@@ -69,6 +69,9 @@ def main() -> int:
     a = ap.parse_args()
     out = Path(a.out or tempfile.mkdtemp(prefix="identify_cl_"))
     out.mkdir(parents=True, exist_ok=True)
+    if any(out.iterdir()):
+        print(f"{out}: not empty (bags are never overwritten): give a new --out")
+        return 2
     for dither in (0.0, 0.3):
         tag = "dither" if dither else "no_dither"
         fit = bag(out / f"{tag}_fit", 1, 3000, dither)

@@ -569,7 +569,7 @@ def hac_covariance(Theta: np.ndarray, E: np.ndarray, Z: np.ndarray | None = None
     # the measurement noise dominates and A is near I, the MA(1) error's lag-1 covariance
     # nearly cancels its variance and these weights leave part of it in, so the standard
     # errors are conservative there (measured on a simulation of the dc_motor example over 20
-    # seeds: 3.8 x the spread of the estimates; on the closed-loop test plant 1.2 x). Uniform
+    # seeds: 3.8 x the spread of the estimates; on the closed-loop test plant 1.5 x). Uniform
     # weights cancel it in expectation but, estimated, are too noisy (4 standard errors off).
     S = S0 + sum((1.0 - (i + 1) / (lags + 1.0)) * g for i, g in enumerate(Gam))
     S *= N / (N - p)
