@@ -1049,8 +1049,10 @@ def _render(doc: Mapping[str, Any], summary: Mapping[str, Any]) -> str:
         "compare):",
         *(f"#   {c['model']}/{c['estimator']} {c['validation_rms']:.4g}; "
           + ", ".join(_pct(f) for f in c["simulation_fit"])
-          + (" (chosen: the lowest simulation error)" if c["chosen"] and
-             len(summary["candidates"]) > 1 else "")
+          + (" (chosen: the lowest simulation error" + (
+              "" if summary["closed_loop"]["least_squares_chosen_from"] else
+              "; closed-loop data: least squares not chosen") + ")"
+             if c["chosen"] and len(summary["candidates"]) > 1 else "")
           for c in summary["candidates"]),
         "# fit bags:",
         *(f"#   {b['bag']}  sha256 {b['sha256']}  ({b['samples']} samples)"

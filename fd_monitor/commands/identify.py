@@ -183,7 +183,9 @@ def _pct(x: float) -> str:
 def print_quality(s: dict[str, Any]) -> None:
     """The candidates, the quality and the excitation tables (issue 20)."""
     outs = s["outputs"]
-    print_table([(f"{c['model']}/{c['estimator']}" + (" *" if c["chosen"] else ""),
+    ls_out = not s["closed_loop"]["least_squares_chosen_from"]
+    print_table([(f"{c['model']}/{c['estimator']}" + (" *" if c["chosen"] else "")
+                  + (" (closed loop: not chosen)" if ls_out and c["estimator"] == "ls" else ""),
                   c["parameters"], c["validation_rms"],
                   *(_pct(f) for f in c["simulation_fit"])) for c in s["candidates"]],
                 header=("candidate", "parameters", "held-out 1-step RMS",
