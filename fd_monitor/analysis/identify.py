@@ -20,8 +20,13 @@ What the written plant file is (schema: :mod:`fd_monitor.model.system`):
   region the bounds were measured in and a ``design thresholds --envelope declared`` certifies;
 * ``faults``: a ``sensor_bias`` per output, an ``actuator`` fault per input;
 * provenance as comments at the top (bags with SHA-256, method, fit and validation errors,
-  sample counts) and a summary in ``description``; no date, so the same bags and options give
-  the same file byte for byte.
+  sample counts, the candidates with their held-out simulation fit, the quality warnings) and
+  a summary in ``description``; no date, so the same bags and options give the same file
+  byte for byte.
+
+How good the model is (held-out simulation fit, standard errors, excitation, bounds measured
+or assumed, halves, physical parameters) is :mod:`fd_monitor.analysis.identify_quality`, in
+every run's summary (``quality``, ``warnings``).
 """
 
 from __future__ import annotations
@@ -406,7 +411,9 @@ class Identified:
         Method, modes, sample counts, errors and bounds (the ``--json`` document).
     validation : dict
         Held-out one-step predictions of the first held-out record, for the plot: ``record``,
-        ``k`` (N,), ``measured``, ``predicted``, ``bound`` (N, ny), ``outputs``.
+        ``k`` (N,), ``measured``, ``predicted``, ``bound`` (N, ny), ``outputs``; and
+        ``simulation``: ``k``, ``measured``, ``simulated`` of the free-run simulation of the
+        first held-out run.
     models : tuple of AffineModel
         One per mode, in the order of ``system.modes``.
     conditions : tuple of GuardCondition
