@@ -703,10 +703,14 @@ def _quality(best: Mapping[str, Any], Ms: Sequence[AffineModel], Rf: _Rows, qf: 
     nmod = len(tab.keys)
     est, kind = best["estimator"], best["kind"]
 
-    def stats_of(rows: np.ndarray | None = None) -> list[dict[str, Any]]:
+    def stats_of(rows: np.ndarray | None = None,
+                 at: Sequence[AffineModel] | None = None) -> list[dict[str, Any]]:
         R, q = (Rf, qf) if rows is None else (Rf.take(rows), qf[rows])
-        return coefficient_statistics(R, q, nmod, kind=kind, per_mode=modes, estimator=est,
-                                      inputs=fit_inputs, mode_names=tab.names)
+        if est == "n4sid" and at is None:         # the n4sid model itself, at these rows
+            at = _fit_one(Rf, qf, nmod, kind, modes, est, fit_inputs, sparsity, None, rows)
+        return coefficient_statistics(R, q, nmod, kind=kind, per_mode=modes,
+                                      estimator="ls" if est == "n4sid" else est,
+                                      inputs=fit_inputs, mode_names=tab.names, at=at)
 
     stats = stats_of()
     sim = simulation(Ms, Re, qe)

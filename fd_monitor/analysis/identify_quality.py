@@ -162,13 +162,15 @@ def _regression(R: _Rows, q: np.ndarray, n_modes: int, kind: str, iv: bool,
 
 def coefficient_statistics(R: _Rows, q: np.ndarray, n_modes: int, *, kind: str,
                            per_mode: str, estimator: str, inputs: np.ndarray,
-                           mode_names: Sequence[str]) -> list[dict[str, Any]]:
+                           mode_names: Sequence[str],
+                           at: Sequence[AffineModel] | None = None) -> list[dict[str, Any]]:
     """Standard errors of A and B, eigenvalue intervals and the condition number.
 
     The statistics are those of the unconstrained regression of the chosen kind (``sparse``:
     of its affine library, before terms are dropped; a clipped radius: before clipping), fitted
-    with the chosen estimator (n4sid: the IV regression on the same rows, its nearest
-    regression counterpart).
+    with the chosen estimator. ``at``: a one-mode model that is not a regression's (n4sid):
+    the least-squares sandwich evaluated at its coefficients and its residuals (n4sid has no
+    covariance of its own; this is the spread the same rows give a regression estimate).
 
     Returns
     -------
@@ -179,8 +181,8 @@ def coefficient_statistics(R: _Rows, q: np.ndarray, n_modes: int, *, kind: str,
         ``columns`` regressors), ``samples``.
     """
     n, nu = R.X.shape[1], R.U.shape[1]
-    iv = estimator != "ls"
-    lib_kind = "affine" if kind == "sparse" else kind
+    iv = estimator == "iv"
+    lib_kind = "affine" if kind == "sparse" or at is not None else kind
     groups = [("all" if n_modes > 1 else mode_names[0], np.ones(R.size, dtype=bool),
                q, n_modes)] if per_mode == "offset" else \
         [(mode_names[j], q == j, np.zeros(R.size, dtype=int), 1) for j in range(n_modes)]
@@ -188,7 +190,11 @@ def coefficient_statistics(R: _Rows, q: np.ndarray, n_modes: int, *, kind: str,
     for name, rows, qq, nm in groups:
         Rg = R.take(rows)
         Th, Y, Z, brk = _regression(Rg, qq[rows], nm, lib_kind, iv, inputs)
-        Xi = solve(Th, Y, Z)
+        if at is not None and len(at) == 1:
+            Mx = at[0]
+            Xi = np.vstack([Mx.A.T, Mx.B[:, inputs].T, Mx.offset[None, :]])
+        else:
+            Xi = solve(Th, Y, Z)
         E = Y - Th @ Xi
         p = Th.shape[1]
         cov = hac_covariance(Th, E, Z, breaks=brk, lags=HAC_LAGS)
@@ -383,8 +389,9 @@ def _advice(row: dict[str, Any], own_sd: float, N: int, Ts: float, f_hz: float) 
         want = max(want, own_sd * g / target)
     dither = math.sqrt(max(want ** 2 - own_sd ** 2, 0.0))
     more = (g / target) ** 2 if math.isfinite(g) and g > target else 0.0
-    spectrum = (f"white, or a PRBS held 1-3 samples, its spectrum flat up to {f_hz:.3g} Hz, "
-                f"the fastest mode")
+    spectrum = (f"random levels or a PRBS held 2-3 samples, its spectrum flat up to "
+                f"{f_hz:.3g} Hz, the fastest mode; a dither that changes every sample is "
+                f"invisible to the iv estimate, whose instrument is the previous sample")
     if math.isfinite(g) and g <= 10:
         todo = (f"add a dither to {row['input']} ({spectrum}) of at least {dither:.3g} RMS in "
                 f"its units")

@@ -555,6 +555,9 @@ def hac_covariance(Theta: np.ndarray, E: np.ndarray, Z: np.ndarray | None = None
     if N <= p:
         return np.full((m * p, m * p), np.inf)
     G = (E[:, :, None] * Zm[:, None, :]).reshape(N, m * p)      # e_k (x) z_k
+    # centred: zero already at a least-squares / IV solution (its normal equations); at
+    # coefficients from elsewhere (a subspace fit) the mean is a bias, not a spread
+    G = G - G.mean(axis=0)
     S0 = G.T @ G
     cont = np.ones(N, dtype=bool) if breaks is None else ~np.asarray(breaks, dtype=bool)
     ok = np.ones(N, dtype=bool)
