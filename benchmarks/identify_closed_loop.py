@@ -175,6 +175,13 @@ def main() -> int:
                   f"{'' if n['ok'] else ' BELOW'}")
         for w in s["warnings"]:
             print("  WARNING: " + w[:160] + "...")
+        if dither:
+            iv = identify([_arm(1, dither=dither), _arm(2, dither=dither)],
+                          [_arm(3, dither=dither)], name="arm", max_window=0.5,
+                          model="affine", estimator="iv")
+            co = iv.summary["quality"]["coefficients"][0]
+            print(f"  --estimator iv alone (a white dither is invisible to its instrument): "
+                  f"B[qd2,tau2] = {co['B'][3][1]:.3g} +- {co['se_B'][3][1]:.2g}")
     print(f"\nbags and plant files in {out}")
     return 0
 

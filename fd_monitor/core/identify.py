@@ -492,9 +492,9 @@ def nrmse_fit(Y: np.ndarray, Yhat: np.ndarray) -> np.ndarray:
         (m,) percent; 100 is a perfect fit, 0 no better than the mean, negative worse
         (-inf for a simulation that diverged).
     """
-    num = np.linalg.norm(Y - Yhat, axis=0)
-    den = np.linalg.norm(Y - Y.mean(axis=0), axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        num = np.linalg.norm(Y - Yhat, axis=0)      # a diverged simulation: inf, said as such
+        den = np.linalg.norm(Y - Y.mean(axis=0), axis=0)
         fit = 100.0 * (1.0 - num / np.where(den > 0, den, np.nan))
     return np.asarray(np.where(np.isfinite(fit), fit, -np.inf))
 
