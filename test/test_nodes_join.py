@@ -191,28 +191,112 @@ def test_reset_forgets_everything():
     assert release(j) == [(0, True, None, FB0)]
 
 
-def test_lost_feedback_is_a_restart_after_the_timeout_not_a_stall():
-    """A burst that overflowed a publisher's history lost fb_1: without a timeout the join
-    would wait for it forever (and buffer everything after it)."""
+def test_lost_feedback_goes_on_without_it_then_the_restarted_source_rejoins():
+    """fb_1 did not come (its source was killed, or a burst overflowed its publisher's
+    history): without a timeout the join would wait for it forever. After gap_timeout s
+    sample 1 goes on with fb's initial value and no restart (the run's memory is kept);
+    fb is not waited for again -- a killed source stays matched until its DDS lease ends,
+    and waiting gap_timeout s per sample was a crawl no restarted source could catch up
+    with -- until a message of it arrives, even for a sample already processed (issue 26:
+    a restarted bias_estimator rejoins the running chain)."""
+    j = entry(gap_timeout=1.0)
+    feed(j, 0)
+    release(j)
+    feed(j, 1, now=0.5)
+    feed(j, 2, now=0.5)
+    assert release(j, 0.9) == []                        # fb_1 may still come
+    out = list(j.ready(1.0))          # due gap_timeout s after sample 0 was released
+    assert [(s.k, s.restart, s.feedback_lost, s.inputs["fb"]) for s in out] == [
+        (1, False, True, FB0), (2, False, False, FB0)]
+    assert j.lost_feedback == {"fb"} and j.feedback_losses == 1 and j.restarts == 0
+    feed(j, 3, now=2.1)
+    assert release(j, 2.1) == [(3, False, None, FB0)]   # not waited for
+    j.put("fb", 3, "late fb3", 2.2)                     # the restarted source's first one
+    assert j.lost_feedback == set() and j.resumed == ["fb"]
+    feed(j, 4, now=2.2)
+    assert release(j, 2.3) == []                        # waited for again
+    j.put("fb", 4, "fb4", 2.3)
+    assert release(j, 2.3) == [(4, False, None, "fb4")]
+
+
+def test_lost_feedback_with_a_later_one_here_is_one_sample_only():
+    """Only fb_1 was lost (fb_2 is already here): 1 goes on without it, fb stays awaited."""
     j = entry(gap_timeout=1.0)
     feed(j, 0)
     release(j)
     feed(j, 1, now=1.0)
     feed(j, 2, now=1.0)
-    assert release(j, 1.5) == []                        # fb_1 may still come
-    out = list(j.ready(2.0))
-    assert [(s.k, s.restart, s.feedback_lost) for s in out] == [(1, True, True)]
-    j.put("fb", 2, "fb2")
-    assert release(j, 2.0) == [(2, False, None, "fb2")]
+    j.put("fb", 2, "fb2", 1.0)
+    assert release(j, 2.0) == [(1, False, None, FB0), (2, False, None, "fb2")]
+    assert j.lost_feedback == set()
 
 
-def test_downstream_lost_feedback_restarts_after_restart_after():
+def test_downstream_lost_feedback_goes_on_after_restart_after():
+    """Downstream, the feedback for a sample is due restart_after s after the previous one
+    was released, however late the sample's own est came (the entry node may have waited
+    for a dead peer already)."""
     j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0)
     j.put("est", 0, "e0", 0.0, restart=True)
     release(j)
-    j.put("est", 1, "e1", 1.0)
-    assert release(j, 1.5) == []
-    assert [(s.k, s.restart, s.feedback_lost) for s in j.ready(2.0)] == [(1, True, True)]
+    j.put("est", 1, "e1", 0.5)
+    assert release(j, 0.9) == []
+    assert [(s.k, s.restart, s.feedback_lost) for s in j.ready(1.0)] == [(1, False, True)]
+    j.put("est", 2, "e2", 2.0)
+    assert release(j, 2.0) == [(2, False, None, FB0)]   # not waited for until fb comes
+    j.put("fb", 2, "fb2 late", 2.1)
+    j.put("est", 3, "e3", 2.1)
+    assert release(j, 2.2) == []
+    j.put("fb", 3, "fb3", 2.2)
+    assert release(j, 2.2) == [(3, False, None, "fb3")]
+
+
+def test_entry_behind_by_more_than_max_lag_sheds_to_the_newest_sample():
+    """A node that cannot keep up (the next sample waits behind a backlog for more than
+    max_lag s) skips to the newest complete sample: the skipped stamps are a hole (a restart
+    beyond max_gap, a bridge within), counted in ``shed``; nothing stalls (issue 26: the
+    standalone detector took 84 s to drain 10 s of 10 kHz input)."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=0.5, max_lag=2.0, max_gap=3)
+    feed(j, 0)
+    assert release(j) == [(0, True, None, FB0)]
+    for k in range(1, 50):
+        feed(j, k, now=0.01 * k)
+    j.put("fb", 1, "fb1", 0.5)
+    assert release(j, 0.5) == [(1, False, None, "fb1")]   # in lock step, behind
+    j.put("fb", 2, "fb2", 2.5)
+    out = list(j.ready(2.5))                            # 2 complete at 0.02: 2.48 s ago
+    assert [(s.k, s.restart, s.hole, s.shed) for s in out] == [(49, True, (2, 48), 47)]
+    assert (j.shed, j.shed_episodes) == (47, 1)
+    # a short skip is bridged with the feedback in force
+    for k in range(50, 53):
+        feed(j, k, now=2.6)
+    j.put("fb", 50, "fb50", 2.6)
+    assert release(j, 2.6) == [(50, False, None, "fb50")]
+    out = list(j.ready(5.0))
+    assert [(s.k, s.bridge, s.hole, s.shed, s.inputs["fb"]) for s in out] == [
+        (52, True, (51, 51), 1, FB0)]
+
+
+def test_downstream_behind_by_more_than_max_lag_restarts_at_the_newest_sample():
+    """A downstream node behind its entry node (est_k waiting, complete, for more than
+    max_lag s) skips to the newest complete est and restarts there."""
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0, max_lag=1.0)
+    j.put("est", 0, "e0", 0.0, restart=True)
+    assert release(j) == [(0, True, None, FB0)]
+    for k in range(1, 30):
+        j.put("est", k, f"e{k}", 0.01 * k)
+    j.put("fb", 1, "fb1", 0.5)
+    assert release(j, 0.5) == [(1, False, None, "fb1")]
+    out = list(j.ready(1.1))                            # est_2 complete at 0.02
+    assert [(s.k, s.restart, s.hole, s.shed) for s in out] == [(29, True, (2, 28), 27)]
+    j.put("est", 30, "e30", 1.2)
+    j.put("fb", 30, "fb30", 1.2)
+    assert release(j, 1.2) == [(30, False, None, "fb30")]
+
+
+def test_max_lag_is_at_least_the_feedback_timeout_and_offline_never_sheds():
+    assert StampJoin(["u"], {"fb": 0}, gap_timeout=1.0, max_lag=0.1).max_lag == 1.0
+    assert StampJoin(["est"], sequence="est", restart_after=2.0, max_lag=1.0).max_lag == 2.0
+    assert StampJoin(["u"], gap_timeout=1.0).max_lag is None
 
 
 def test_downstream_skips_a_stamp_whose_inputs_were_published_before_it_subscribed():
@@ -335,8 +419,8 @@ def test_entry_short_hole_is_bridged_with_the_feedback_in_force():
 
 def test_entry_bridge_waits_for_the_feedback_of_the_last_sample():
     """The hole is decided before the feedback of the last processed sample arrived: the
-    bridge waits for it (it is on its way), and gives up after gap_timeout (a restart with
-    lost feedback), as for any feedback."""
+    bridge waits for it (it is on its way), and after gap_timeout bridges without it (its
+    initial value, feedback_lost), as for any feedback."""
     j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=1.0, max_gap=3)
     feed(j, 0)
     bridged(j)
@@ -347,10 +431,10 @@ def test_entry_bridge_waits_for_the_feedback_of_the_last_sample():
     assert bridged(j, 0.3) == [(2, False, True, 1, (1, 1), "fb1")]
     j.reject(3)
     feed(j, 4, now=1.0)
-    assert bridged(j, 1.5) == []
-    out = list(j.ready(2.0))
-    assert [(s.k, s.restart, s.bridge, s.feedback_lost) for s in out] == [(4, True, False,
-                                                                           True)]
+    assert bridged(j, 1.2) == []                       # 2 was released at 0.3
+    out = list(j.ready(1.3))
+    assert [(s.k, s.restart, s.bridge, s.feedback_lost, s.inputs["fb"]) for s in out] == [
+        (4, False, True, True, FB0)]
 
 
 def test_entry_refused_samples_are_bridged_with_the_feedback_carried():

@@ -61,12 +61,17 @@ def example(tmp_path_factory):
 def test_identified_parameters_are_the_true_ones(example):
     from fd_monitor.model.system import load_system
 
-    plant, _, _ = example
+    plant, ident, _ = example
     system = load_system(plant)
     assert system.inputs == ("effort",) and system.outputs == ("velocity",)
     got = physical(system)
     for k, v in TRUE.items():
         assert got[k] == pytest.approx(v, rel=0.05), (k, got)
+    # identify maps the model back itself (issue 20 item 6), as computed here by hand
+    (p,) = ident["quality"]["physical"]
+    assert (p["joint"], p["input"]) == ("motor", "effort")
+    assert (p["inertia"], p["damping"], p["constant_torque"]) == pytest.approx(
+        (got["inertia"], got["viscous"], got["coulomb"]), rel=1e-9)
     assert system.measurement_noise[0] > 0 and system.envelope is not None
 
 

@@ -51,13 +51,14 @@ __all__ = ["MAX_DISTINCT_LABELS", "MAX_LABEL_CHARS", "MAX_MAGNITUDE", "add_stric
 
 
 
-def add_strict_flag(parser: Any) -> None:
-    """Add ``--strict`` (exit status 2 when the input was not used whole)."""
+def add_strict_flag(parser: Any, also: str = "") -> None:
+    """Add ``--strict`` (exit status 2 when the input was not used whole); ``also``: what
+    else the command refuses under it (a help-text clause)."""
     parser.add_argument("--strict", action="store_true",
                         help="exit with status 2 when anything of the bag was not used "
                              "(damaged chunks, refused or missing samples, dropped messages, "
-                             "metadata.yaml disagreeing with the MCAP); see `integrity` in "
-                             "--json")
+                             "metadata.yaml disagreeing with the MCAP; see `integrity` in "
+                             "--json)" + (f", {also}" if also else ""))
 
 
 def enforce_strict(doc: Mapping[str, Any], bag: str | Path, strict: bool) -> None:

@@ -86,6 +86,7 @@ from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
 from fd_monitor.wire.stream import (
     MAX_GAP,
+    MAX_LAG,
     RESTART_AFTER,
     STAMP_HORIZON,
     InputStream,
@@ -134,6 +135,10 @@ COMMON_PARAMS = (
           high=1000000),
     Param("max_pending", 100000, "samples buffered while waiting for inputs", low=10,
           high=10000000),
+    Param("max_lag", MAX_LAG, "s a complete sample may wait behind a backlog before the "
+          "node sheds load: it skips to the newest complete sample (counted: shed_samples "
+          "on /diagnostics); at least gap_timeout; 0.0: never (every sample processed, "
+          "however late: flat-out replays are lossless)", low=0.0, high=3600.0),
 )
 
 #: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes
@@ -156,7 +161,8 @@ HOLD_WAIT = 0.1
 _GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
 
 #: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
-_WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run"))
+_WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run",
+                        "shed", "feedback_back"))
 
 #: Parameters that take effect when set (the others are read-only).
 RUNTIME_PARAMS = ("gains", "stale_timeout", "diagnostics_period", "log_throttle",
@@ -641,7 +647,7 @@ class FdNode(LifecycleNode):
                               horizon=self.params.stamp_horizon,
                               restart_after=self.params.restart_after,
                               feedback_source=self._feedback_source,
-                              max_gap=max_gap)
+                              max_gap=max_gap, max_lag=self.params.max_lag or None)
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
@@ -785,7 +791,15 @@ class FdNode(LifecycleNode):
                           "bad_messages": self.bad_messages, "holes": self.holes,
                           "bridged": self.join.bridges, "restarted": self.join.restarts,
                           "new_runs": self.join.new_runs, "processed": self.processed,
-                          "last_warning": reason, **self._time_base()})
+                          **self._load_counts(), "last_warning": reason,
+                          **self._time_base()})
+
+    def _load_counts(self) -> dict[str, Any]:
+        """Load shed and lost feedback (wire/join.py), for the ``input`` status."""
+        j = self.join
+        return {"shed_samples": j.shed, "shed_episodes": j.shed_episodes,
+                "feedback_lost": j.feedback_losses,
+                "feedback_not_waited_for": ",".join(sorted(j.lost_feedback)) or "none"}
 
     def _time_base(self) -> dict[str, Any]:
         """The adapter's time-base counts (held samples, gaps, late/duplicate/decimated
@@ -871,7 +885,7 @@ class FdNode(LifecycleNode):
                 "holes": self.holes, "bridged": self.join.bridges,
                 "restarted": self.join.restarts, "new_runs": self.join.new_runs,
                 "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for(),
-                **self._time_base()})
+                **self._load_counts(), **self._time_base()})
         else:
             self.diag.touch("input")
 
@@ -890,7 +904,7 @@ class FdNode(LifecycleNode):
     def _note(self, kind: str, line: str, stamp: Any) -> None:
         """A report of the input policy (:class:`~fd_monitor.wire.stream.InputStream`):
         out of order, holes and new runs are warnings; the others are dropped messages."""
-        if kind in ("hole", "feedback_lost"):
+        if kind == "hole":
             self.holes += 1
         if kind in _WARN_ONLY:
             self._warn(line)

@@ -23,7 +23,6 @@ import math
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -32,6 +31,7 @@ from fd_monitor.model.errors import MessageError, NonFiniteError, WrongLengthErr
 
 __all__ = [
     "STAMP_OFFSET",
+    "MAX_LABEL_CHARS",
     "MAX_STAMP",
     "ArrivalStamper",
     "Decoded",
@@ -53,6 +53,14 @@ __all__ = [
 STAMP_OFFSET = 1
 #: Largest stamp a float64 holds exactly.
 MAX_STAMP = 2**53
+#: Longest ``layout.dim[0].label`` accepted (characters; a message with a longer one is
+#: refused): 16 KiB names hundreds of channels. Unbounded, every distinct label a sender
+#: invents was kept by the caches below (1 MB labels grew a node by 2.9 GB, issue 26).
+MAX_LABEL_CHARS = 16_384
+#: Bytes of label text the label cache and the CDR layout cache hold at most (each is
+#: emptied when a new entry would pass it: a topic has one layout, so only a sender that
+#: invents layouts refills it).
+_CACHE_BYTES = 1 << 20
 
 
 def join_labels(labels: Sequence[str]) -> str:
@@ -63,10 +71,30 @@ def join_labels(labels: Sequence[str]) -> str:
     return ",".join(labels)
 
 
-@lru_cache(maxsize=256)   # every message of a topic carries the same labels
+#: label text -> its split, bounded by bytes (:data:`_CACHE_BYTES`), not by entries.
+_LABELS: dict[str, tuple[str, ...]] = {}
+_labels_bytes = 0
+
+
 def split_labels(text: str) -> tuple[str, ...]:
-    """``"h1,h2"`` -> ``("h1", "h2")``; ``""`` -> ``()``."""
-    return tuple(s.strip() for s in text.split(",")) if text.strip() else ()
+    """``"h1,h2"`` -> ``("h1", "h2")``; ``""`` -> ``()``.
+
+    Cached (every message of a topic carries the same labels) within :data:`_CACHE_BYTES`;
+    a text longer than :data:`MAX_LABEL_CHARS` is split but never cached (:func:`decode`
+    refuses such a message before it gets here).
+    """
+    global _labels_bytes
+    got = _LABELS.get(text)
+    if got is not None:
+        return got
+    got = tuple(s.strip() for s in text.split(",")) if text.strip() else ()
+    if len(text) <= MAX_LABEL_CHARS:
+        if _labels_bytes + len(text) > _CACHE_BYTES:
+            _LABELS.clear()
+            _labels_bytes = 0
+        _LABELS[text] = got
+        _labels_bytes += len(text)
+    return got
 
 
 def encode_data(stamp: int, values: Any) -> list[float]:
@@ -207,7 +235,12 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
     dims = list(msg.layout.dim)
     got_labels: tuple[str, ...] = ()
     if dims:
-        got_labels = split_labels(str(dims[0].label))
+        text = str(dims[0].label)
+        if len(text) > MAX_LABEL_CHARS:
+            raise MessageError(f"{where}: layout.dim[0].label of {len(text)} characters: "
+                               f"longer than {MAX_LABEL_CHARS} (channel names, "
+                               f"comma-separated)")
+        got_labels = split_labels(text)
         if int(dims[0].size) != values.size:
             raise WrongLengthError(f"{where}: layout.dim[0].size {int(dims[0].size)} but "
                                f"{values.size} values")
@@ -270,6 +303,7 @@ _U32X2 = struct.Struct("<II").unpack_from
 #: data parses the same way, so only its data is read (the messages of a topic share their
 #: header bytes: labels, sizes, offset; /plant/u and /plant/y of three_tank share a length).
 _CDR_SHAPES: dict[int, list[tuple[bytes, CdrLayout, int, int]]] = {}
+_cdr_bytes = 0
 
 
 def cdr_shape(raw: bytes) -> tuple[bytes, CdrLayout, int, int] | None:
@@ -302,6 +336,8 @@ def cdr_shape(raw: bytes) -> tuple[bytes, CdrLayout, int, int] | None:
             end = pos + 4 + length
             if length < 1 or end > n or raw[3 + end] != 0:      # rosbags: check_string
                 return None
+            if length > MAX_LABEL_CHARS + 1:
+                return None      # not cached: the caller's decode refuses it in one line
             label = raw[8 + pos:3 + end].decode()
             pos = (end + 3) & -4
             size, stride = _U32X2(raw, 4 + pos)
@@ -320,8 +356,12 @@ def cdr_shape(raw: bytes) -> tuple[bytes, CdrLayout, int, int] | None:
     if pos + 8 * size + 7 < n + 4:                 # rosbags: "CDR message size mismatch"
         return None
     shape = (raw[:4 + pos], CdrLayout(tuple(dims), offset), 4 + pos, size)
-    if len(_CDR_SHAPES) >= 256:     # bounded: ever new layouts only parse every message
+    global _cdr_bytes
+    if len(_CDR_SHAPES) >= 256 or _cdr_bytes + 2 * pos > _CACHE_BYTES:
+        # bounded (entries and bytes): ever new layouts only parse every message
         _CDR_SHAPES.clear()
+        _cdr_bytes = 0
+    _cdr_bytes += 2 * pos                   # the prefix bytes and the label text
     shapes = _CDR_SHAPES.setdefault(n + 4, [])
     if len(shapes) >= 8:
         del shapes[0]

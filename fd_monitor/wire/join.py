@@ -35,6 +35,28 @@ Feedback is waited for only while its source exists (``feedback_source``: the no
 whether a publisher is matched); without one the sample is released with that feedback at its
 initial value and no restart: the node runs open loop.
 
+Lost feedback is not a reason to forget. When the feedback for a sample has not come in time
+(``gap_timeout`` s after the sample was complete, entry role; ``restart_after`` s,
+downstream), the sample is released with that feedback at its initial value
+(:attr:`Sample.feedback_lost`), the run goes on (no restart: the mode, the estimates and the
+alarm memory are kept), and that input is not waited for again until a message of it
+arrives (:attr:`StampJoin.lost_feedback`). A peer killed without a goodbye stays *matched*
+until its DDS lease runs out, so the publisher count alone would make the node wait
+``gap_timeout`` s at every sample (a crawl of one sample a second, ever further behind the
+source, that a restarted peer -- which gets only the source's new samples -- can never catch
+up with). The restarted peer processes the samples published after it subscribed; its first
+feedback message, even one for a sample already processed, makes the node wait for that
+feedback again from its next sample on: the peer then follows the run in lock step.
+
+A node that cannot keep up sheds load (``max_lag``): when the next sample has been complete
+for more than ``max_lag`` s (it waits behind a backlog), the join skips to the newest complete
+sample, as across a hole: stamps ``k_next .. newest - 1`` are lost (:attr:`Sample.shed`,
+counted in :attr:`StampJoin.shed`); the entry role bridges the newest (at most ``max_gap``
+skipped) or restarts the run there, a downstream node restarts there (the entry node's
+stream goes on: its flags are followed again from the next sample). Live, a sample is
+therefore processed at most ``max_lag`` s (plus one check period) after it was complete,
+whatever came before it.
+
 A stamp cannot blind the join. A stamp below the next one (a source that restarted its
 stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
 like 2**52) is *held* aside, not refused: the first one of an episode is reported. The held
@@ -110,8 +132,12 @@ class Sample(NamedTuple):
         First sample of a new run adopted from held stamps: (the old stream's next stamp,
         messages held meanwhile).
     feedback_lost : bool
-        A restart because the feedback for ``k`` did not come in time (lost on the way:
-        a burst overflowed a publisher's history); without it the join would wait forever.
+        The feedback for ``k`` did not come in time (its source died, or the message was
+        lost on the way: a burst overflowed a publisher's history): ``inputs`` hold that
+        feedback's initial value; no restart (the run and its memory go on).
+    shed : int
+        Samples skipped just before ``k`` because the node was more than ``max_lag`` s
+        behind (load shed; ``hole`` names them).
     """
 
     k: int
@@ -122,6 +148,7 @@ class Sample(NamedTuple):
     feedback_lost: bool = False
     bridge: bool = False
     gap: int = 0
+    shed: int = 0
 
 
 class StampJoin:
@@ -154,6 +181,11 @@ class StampJoin:
     max_gap : int
         Entry role: lost samples in a row that are bridged (:attr:`Sample.bridge`); more
         restart. 0: every hole restarts. The downstream role follows the entry's flags.
+    max_lag : float, optional
+        s the next sample may wait after it was complete before the join skips to the
+        newest complete one (load shed); at least ``gap_timeout`` (downstream:
+        ``restart_after``; a smaller value is raised to it, so a dead feedback source is
+        declared lost before load is shed). None: never shed (offline reading).
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
@@ -161,9 +193,11 @@ class StampJoin:
                  gap_timeout: float | None = None, horizon: int | None = None,
                  restart_after: float = 1.0,
                  feedback_source: Callable[[str], bool] | None = None,
-                 max_gap: int = 0) -> None:
+                 max_gap: int = 0, max_lag: float | None = None) -> None:
         self.required = tuple(required)
         self.max_gap = int(max_gap)
+        self.max_lag = (None if max_lag is None else max(
+            float(max_lag), gap_timeout or 0.0, restart_after if sequence is not None else 0.0))
         self.feedback_source = feedback_source
         self.feedback = dict(feedback or {})
         self.names = (*self.required, *self.feedback)
@@ -208,6 +242,17 @@ class StampJoin:
         #: Samples released as bridges, and as restarts after the first sample.
         self.bridges = 0
         self.restarts = 0
+        #: Feedback inputs declared lost: not waited for until a message of theirs arrives.
+        self.lost_feedback: set[str] = set()
+        #: The feedback inputs the last :attr:`Sample.feedback_lost` sample went without.
+        self.last_lost: tuple[str, ...] = ()
+        #: Feedback inputs that came back since the caller last cleared this list.
+        self.resumed: list[str] = []
+        #: Samples released without (some of) their feedback; samples skipped (load shed)
+        #: and the times it happened.
+        self.feedback_losses = 0
+        self.shed = 0
+        self.shed_episodes = 0
 
     def reset(self) -> None:
         """Forget everything: the next complete sample starts a run (a reset service)."""
@@ -216,7 +261,8 @@ class StampJoin:
         self.__init__(self.required, self.feedback, self.max_pending,  # type: ignore[misc]
                       sequence=self.sequence, gap_timeout=self.gap_timeout,
                       horizon=self.horizon, restart_after=self.restart_after,
-                      feedback_source=self.feedback_source, max_gap=self.max_gap)
+                      feedback_source=self.feedback_source, max_gap=self.max_gap,
+                      max_lag=self.max_lag)
 
     # -- input ---------------------------------------------------------------------------------
 
@@ -231,6 +277,10 @@ class StampJoin:
         """
         if name not in self.names:
             raise KeyError(name)
+        if name in self.lost_feedback:
+            # its source is back (a restarted peer follows the run): wait for it again
+            self.lost_feedback.discard(name)
+            self.resumed.append(name)
         if self.k_next is not None and stamp < self.k_next and self._in_hole(stamp):
             # Feedback for a skipped sample, or (downstream) anything of a dead stamp.
             if name in self.feedback or self.sequence is not None:
@@ -363,8 +413,10 @@ class StampJoin:
             yield s
 
     def _release(self, k: int, restart: bool, hole: tuple[int, int] | None,
-                 lost: bool = False, bridge: dict[str, Any] | None = None) -> Sample:
-        """Release sample k; ``bridge``: the feedback in force across a bridged gap."""
+                 lost: bool = False, bridge: dict[str, Any] | None = None,
+                 shed: int = 0) -> Sample:
+        """Release sample k; ``bridge``: the feedback in force across a bridged gap;
+        ``shed``: samples skipped before it (load shed)."""
         if self.rejected:
             self.rejected = {j for j in self.rejected if j > k}
         slot = self._forget(k)
@@ -395,7 +447,7 @@ class StampJoin:
             inputs = slot
         self._last = (gap, inputs, restart)
         return Sample(k, inputs, restart, hole, adopted, lost, bridge is not None,
-                      gap if (hole is not None or bridge is not None) else 0)
+                      gap if (hole is not None or bridge is not None) else 0, shed)
 
     def _bridge_feedback(self, j: int) -> dict[str, Any] | None:
         """The feedback in force across a gap that starts at stamp ``j`` (the carried one
@@ -425,16 +477,23 @@ class StampJoin:
             if not self._complete_since:
                 return None
             return self._release(min(self._complete_since), True, None)
-        if k in self._complete_since:
+        t = self._complete_since.get(k)
+        if t is not None and self.max_lag is not None and now - t > self.max_lag:
+            newest = max(self._complete_since)
+            if newest > k:
+                return self._shed(k, newest)
+        if t is not None:
             if self._restart_next or self._missing > self.max_gap:
                 return self._release(k, True, None)
             if self._missing:
                 # after refused samples: bridged with the feedback carried (none waited for)
                 return self._release(k, False, None, bridge=self._carry or {})
-            if self._feedback_here(self.pending[k]):
+            slot = self.pending[k]
+            if self._feedback_here(slot):
                 return self._release(k, False, None)
             if self._feedback_overdue(k, now, self.gap_timeout):
-                return self._release(k, True, None, lost=True)
+                self._lose(k, slot)
+                return self._release(k, False, None, lost=True)
             return None                          # waiting for feedback, not a hole
         later = [j for j in self._complete_since if j > k]
         if not later:
@@ -449,11 +508,28 @@ class StampJoin:
         fb = self._bridge_feedback(k)
         if fb is None:
             # the feedback of the last processed sample has not come yet (it is on its way):
-            # wait for it as for any feedback, then give up and restart
-            if self._feedback_overdue(s, now, self.gap_timeout):
-                return self._release(s, True, (k, s - 1), lost=True)
-            return None
+            # wait for it as for any feedback, then bridge without it
+            if not self._feedback_overdue(s, now, self.gap_timeout):
+                return None
+            return self._release(s, False, (k, s - 1), lost=True,
+                                 bridge=self._lose(k, self.pending.get(k, {})))
         return self._release(s, False, (k, s - 1), bridge=fb)
+
+    def _shed(self, k: int, s: int) -> Sample:
+        """The node is more than ``max_lag`` s behind at ``k``: skip to the newest complete
+        stamp ``s`` (``k .. s - 1`` lost, as a hole: bridged when short, else a restart;
+        a bridge takes the feedback in force for ``k`` when it is here, else the initial
+        values -- nothing is waited for when behind)."""
+        n = s - k
+        self.shed += n
+        self.shed_episodes += 1
+        if self._restart_next or self._missing + n > self.max_gap:
+            return self._release(s, True, (k, s - 1), shed=n)
+        fb = self._bridge_feedback(k)
+        if fb is None:
+            slot = self.pending.get(k, {})
+            fb = {f: slot.get(f, init) for f, init in self.feedback.items()}
+        return self._release(s, False, (k, s - 1), bridge=fb, shed=n)
 
     def _next_downstream(self, now: float) -> Sample | None:
         if self._held_restart:
@@ -477,6 +553,23 @@ class StampJoin:
                 self._forget(seq.popleft())
             s, slot = later, self.pending[later]
             skipped = True
+        t = self._complete_since.get(s)
+        if t is not None and self.max_lag is not None and now - t > self.max_lag:
+            newest = max(self._complete_since)
+            if newest > s:
+                # behind by more than max_lag: skip to the newest complete sequence stamp
+                # (a restart of this node there; the entry node's own stamps go on)
+                n = 0
+                while seq and seq[0] < newest:
+                    n += 1
+                    self._forget(seq.popleft())
+                if seq and seq[0] == newest:
+                    seq.popleft()
+                self.shed += n
+                self.shed_episodes += 1
+                k = self.k_next
+                return self._release(newest, True, None if k is None else (k, newest - 1),
+                                     shed=n)
         k = self.k_next
         bridged = s in self._bridge_at and not skipped
         restart = (k is None or s in self._restart_at or self._restart_next
@@ -491,32 +584,51 @@ class StampJoin:
             if fb is None:
                 if not self._feedback_overdue(s, now, self.restart_after):
                     return None
-                restart = lost = True
+                fb, lost = self._lose(k, self.pending.get(k, {})), True
         elif not restart and not self._feedback_here(slot):
             if not self._feedback_overdue(s, now, self.restart_after):
                 return None
-            restart = lost = True
+            self._lose(s, slot)
+            lost = True
         hole = (k, s - 1) if k is not None and s != k else None
         seq.popleft()
         self._bridge_at.discard(s)
         return self._release(s, restart, hole, lost, None if restart else fb)
 
     def _feedback_here(self, slot: dict[str, Any]) -> bool:
-        """Every feedback input of ``slot`` is here or has no publisher to wait for (then its
-        initial value is put in ``slot``)."""
+        """Every feedback input of ``slot`` is here, declared lost, or has no publisher to
+        wait for (then its initial value is put in ``slot``)."""
         missing = [n for n in self.feedback if n not in slot]
         if not missing:
             return True
-        if self.feedback_source is None or any(self.feedback_source(n) for n in missing):
+        lost = self.lost_feedback
+        if any(n not in lost and (self.feedback_source is None or self.feedback_source(n))
+               for n in missing):
             return False
         slot.update((n, self.feedback[n]) for n in missing)
         return True
 
+    def _lose(self, k: int, slot: dict[str, Any]) -> dict[str, Any]:
+        """The feedback missing from ``slot`` (stamp ``k``) did not come in time: put its
+        initial value in ``slot`` (returned, feedback only) and stop waiting for it -- unless
+        a later stamp already has it (its source is alive, only this message was lost)."""
+        missing = tuple(n for n in self.feedback if n not in slot)
+        for n in missing:
+            slot[n] = self.feedback[n]
+            if not any(n in other for j, other in self.pending.items() if j > k):
+                self.lost_feedback.add(n)
+        self.last_lost = missing
+        self.feedback_losses += 1
+        return {n: slot[n] for n in self.feedback}
+
     def _feedback_overdue(self, k: int, now: float, timeout: float | None) -> bool:
-        """Sample k's required inputs have been here ``timeout`` s since the previous sample
-        was released (its feedback could not exist before), its feedback has not."""
-        t = self._complete_since.get(k)
-        return timeout is not None and t is not None and now - max(t, self._progress) >= timeout
+        """Sample k's required inputs are here and ``timeout`` s have passed since the
+        previous sample was released (its feedback could not exist before; it is due then,
+        however late k itself came: a downstream node whose est_k came late because the
+        entry node waited for a dead peer does not wait as long again), its feedback has
+        not come."""
+        return (timeout is not None and k in self._complete_since
+                and now - self._progress >= timeout)
 
     # -- queries -------------------------------------------------------------------------------
 

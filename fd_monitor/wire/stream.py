@@ -24,12 +24,20 @@ refused, or both in a row) is *bridged*: the sample after it is stepped after
 :meth:`~fd_monitor.core.runtime.Runtime.bridge`, which keeps the fault memory (bias estimate,
 alarm and isolation history, mode, AGEI phase) and carries the state estimate over the gap.
 Only a new run restarts from scratch (:meth:`~fd_monitor.core.runtime.Runtime.reset`): the
-first sample, a gap longer than ``max_gap``, stamps that restart lower (``new_run``), lost
-feedback in the chain (``feedback_lost``), a ``~/reset``.
+first sample, a gap longer than ``max_gap``, stamps that restart lower (``new_run``), a
+``~/reset``. Lost feedback in the chain (``feedback_lost``: its source died or a message was
+lost) is not a new run: the sample goes on without it (its initial value) and the node stops
+waiting for that feedback until it comes again (``feedback_back``: a restarted peer rejoins).
+
+No input pattern blinds a node for good (doc/howto/overload-and-recovery.md): a node more
+than ``max_lag`` s behind (when set) sheds load (``shed``: skips to the newest complete sample, as
+across a hole), a dead feedback source costs ``gap_timeout`` s once, a stopped or restarted
+source is a hole or a new run.
 
 Reports go to the caller's ``note(kind, line, stamp)``; ``kind`` is the step's kind above,
 ``hole`` (``stamp`` is the inclusive ``(first, last)``; bridged or restarted), ``bridge`` (a
-bridge after samples the core refused, no hole), ``feedback_lost`` or ``new_run``.
+bridge after samples the core refused, no hole), ``feedback_lost``, ``feedback_back``,
+``shed`` (``stamp`` the skipped ``(first, last)``) or ``new_run``.
 A node logs the line and reports it on ``/diagnostics``; the offline reader turns it into an
 :class:`~fd_monitor.analysis.offline.InputReport` entry. Live, ``now`` is the node's
 monotonic clock; offline it is each bag record's log time in s, and ``+inf`` at the end of
@@ -47,8 +55,8 @@ from typing import Any
 
 from fd_monitor.wire.join import Sample, StampJoin
 
-__all__ = ["GAP_TIMEOUT", "InputStream", "MAX_GAP", "RESTART_AFTER", "STAMP_HORIZON",
-           "TopicOrder"]
+__all__ = ["GAP_TIMEOUT", "InputStream", "MAX_GAP", "MAX_LAG", "RESTART_AFTER",
+           "STAMP_HORIZON", "TopicOrder"]
 
 #: s a later sample must have been complete before a missing one is declared lost.
 GAP_TIMEOUT = 1.0
@@ -58,6 +66,10 @@ STAMP_HORIZON = 100_000
 RESTART_AFTER = 1.0
 #: Lost samples in a row that are bridged (the run goes on, its memory kept); more: a restart.
 MAX_GAP = 10
+#: s a complete sample may wait (behind a backlog) before the node skips to the newest one;
+#: 0: never (the default: a source faster than the node -- ``replay --rate 0``, ``plant_sim``
+#: flat out -- is processed completely, as those sources promise; a live robot sets it).
+MAX_LAG = 0.0
 
 #: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
 NoteFn = Callable[[str, str, Any], None]
@@ -136,7 +148,13 @@ class InputStream:
             restart: bool = False, bridge: bool = False) -> bool:
         """Join one input (already order-checked, or paired by sample-and-hold) and release
         what became ready; False when the join reported and did not join it."""
-        line = self.join.put(name, stamp, values, now, restart, bridge)
+        join = self.join
+        line = join.put(name, stamp, values, now, restart, bridge)
+        if join.resumed:
+            for n in join.resumed:
+                self.note("feedback_back", f"{n}: feedback came again (stamp {stamp}): waiting "
+                          f"for it again from sample {join.k_next}", stamp)
+            join.resumed.clear()
         if line is not None:
             self.note(line.kind, line, stamp if line.stamp is None else line.stamp)
             return False
@@ -147,15 +165,24 @@ class InputStream:
         """Run every sample the join releases at ``now``; report holes and new runs."""
         join = self.join
         for s in join.ready(now):
+            if s.feedback_lost:
+                names = ", ".join(join.last_lost) or "feedback"
+                gone = ", ".join(sorted(join.lost_feedback))
+                self.note("feedback_lost", f"feedback for sample {s.k} did not come in time "
+                          f"({names}): processed with its initial value, state kept"
+                          + (f"; not waited for until it comes again ({gone})" if gone
+                             else " (a later one is here)"), s.k)
             if s.new_run is not None:
                 old, count = s.new_run
                 self.note("new_run", f"new run: the stream restarted at stamp {s.k} (the old "
                           f"one stopped before {old}; {count} messages held meanwhile); "
                           f"fresh state", s.k)
-            elif s.feedback_lost:
-                self.note("feedback_lost", f"feedback for sample {s.k} did not come in time "
-                          f"(lost on the way?): restarted at {s.k} (fresh state, feedback at "
-                          f"initial values)", s.k)
+            elif s.shed:
+                a, b = s.hole or (s.k, s.k)
+                what = "bridged" if s.bridge else "restarted"
+                self.note("shed", f"behind by more than {join.max_lag:g} s: skipped stamps "
+                          f"{a}..{b} ({s.shed} samples) to the newest complete one; {what} at "
+                          f"{s.k}", (a, b))
             elif s.hole is not None:
                 a, b = s.hole
                 span = f"stamp {a}" if a == b else f"stamps {a}..{b}"

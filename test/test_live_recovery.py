@@ -1,0 +1,303 @@
+"""No input pattern blinds a node for good (issue 26 item 0), over real DDS.
+
+The three blinding cases of issue 26, each with the recovery time that
+doc/howto/overload-and-recovery.md states, waited for on conditions with deadlines:
+
+* a restarted peer: SIGKILL of the ``agei`` and ``bias_estimator`` processes of the chain and
+  a restart: the in-process observer and detector go on after ``gap_timeout`` /
+  ``restart_after`` (1 s), the restarted processes rejoin the running chain, a bias injected
+  afterwards is alarmed and estimated, no alarm before it (before: one sample a second, every
+  output stopped, the bias never alarmed);
+* overload: a burst far faster than the chain: it sheds load (counted, on /diagnostics) and a
+  sample published after the burst is processed within ``max_lag`` + 1 s (before: the
+  backlog drained at the chain's pace, 84 s for 10 s of 10 kHz input);
+* the label attack: 1 MB labels, each one new, into a ``monitor`` and a standalone
+  ``detector`` process: refused in one line each, counted, and their resident memory stays
+  bounded: 50 more such labels add less than 16 MB (before: +2.9 GB for 300 of them, kept);
+  good input processed after.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import numpy as np
+import pytest
+from ros_util import Collector, Proc, ros_context, spin_until
+from test_nodes_graph import Rig, params
+
+pytestmark = pytest.mark.ros
+
+U_LABELS, Y_LABELS = ("q1", "q2", "v13"), ("h1", "h2", "h3")
+
+
+def nominal_run(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """three_tank_bias_h1, seed 2, first n samples (no fault, no guard crossing before 900)."""
+    from fd_monitor.core.simulator import simulate
+    from fd_monitor.model.scenario import load_scenario
+
+    traj = simulate(load_scenario("three_tank_bias_h1"), 2, n)
+    return traj.u[0].copy(), traj.y[0].copy()
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of process ``pid`` (VmRSS of /proc/<pid>/status), MB."""
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+def events_executor(rig: Rig, ctx) -> None:
+    """Spin the rig's nodes on rclpy's EventsExecutor, as ``run_node`` does (messages are
+    taken from DDS as they arrive, so a backlog queues in the nodes, where they see it)."""
+    from rclpy.experimental import EventsExecutor
+
+    everything = [*rig.nodes, rig.col.node, rig.drv]
+    for n in everything:
+        rig.ex.remove_node(n)
+    rig.ex = EventsExecutor(context=ctx)
+    for n in everything:
+        rig.ex.add_node(n)
+
+
+def stamps(col, topic: str) -> list[int]:
+    return [int(m.data[0]) for m in col.msgs[topic]]
+
+
+def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
+    """SIGKILL agei and bias_estimator mid-run, start them again: the running observer and
+    detector stop waiting for their feedback after 1 s (no restart: no fresh state), the new
+    processes' first feedback makes the observer wait for it again (rejoined within 1 s of
+    it), and a +5 cm bias on h1 injected after that is alarmed at once and estimated."""
+    from fd_monitor.nodes.detector import DetectorNode
+    from fd_monitor.nodes.observer import ObserverNode
+
+    u, y = nominal_run(900)
+    peers = ("agei", "bias_estimator")
+    old = [Proc(["run", n]) for n in peers]
+    new: list[Proc] = []
+    with ros_context() as ctx:
+        obs = ObserverNode(context=ctx)
+        det = DetectorNode(context=ctx, parameter_overrides=params(layout="chain"))
+        rig = Rig(ctx, [obs, det], topics=("fd/state_estimate", "fd/alarm",
+                                           "fd/bias_estimate"))
+        col, sent = rig.col, [0]
+
+        def pace(cond, timeout: float, procs=(), every: float = 0.01) -> bool:
+            """Publish the next sample every ``every`` s (100 Hz: 10 x real time) until
+            ``cond`` holds or ``timeout`` s pass."""
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline and sent[0] < len(u):
+                if cond():
+                    return True
+                rig.send(u, y, [sent[0]])
+                sent[0] += 1
+                spin_until(rig.ex, lambda: False, every, procs)
+            return cond()
+
+        try:
+            fed_back = [obs._data_inputs[n].sub for n in ("sigma", "guard")]
+            assert rig.spin(lambda: all(s.get_publisher_count() for s in fed_back)
+                            and rig.matched(2, 0.0), 60.0, ), [p.output() for p in old]
+            # in lock step with the peers: their feedback for the samples sent
+            assert pace(lambda: len(col.msgs["/fd/bias_estimate"]) >= 30, 30.0, old)
+            for p in old:
+                p.signal(signal.SIGKILL)
+            for p in old:
+                p.wait(10.0)
+            k_kill, t_kill = sent[0], time.monotonic()
+            new = [Proc(["run", n]) for n in peers]
+            # the survivors go on without the dead peers' feedback
+            assert pace(lambda: max(stamps(col, "/fd/alarm"), default=0) > k_kill + 5, 10.0)
+            t_on = time.monotonic() - t_kill
+            assert obs.join.lost_feedback == {"sigma", "guard"}
+            assert det.join.lost_feedback == {"override"}
+            # the restarted peers' first feedback; then the observer waits for it again
+            first_new = [0.0]
+
+            def back() -> bool:
+                if not first_new[0] and any(k > k_kill for k in stamps(col, "/fd/bias_estimate")):
+                    first_new[0] = time.monotonic()
+                return bool(first_new[0]) and not obs.join.lost_feedback \
+                    and not det.join.lost_feedback
+            # 50 Hz while the processes start (a slow start must not use up the samples
+            # before the guard crossing at 936)
+            assert pace(back, 60.0, new, 0.02), (obs.join.lost_feedback,
+                                                 [p.output() for p in new])
+            t_rejoin = time.monotonic() - first_new[0]
+            # a bias on h1 from kb: alarmed, estimated by the restarted estimator
+            kb = sent[0] + 20
+            y[kb:, 0] += 0.05
+            assert pace(lambda: any(m.data[0] >= kb and m.data[1] > 0.5
+                                    for m in col.msgs["/fd/alarm"]), 20.0, new)
+            assert pace(lambda: any(m.data[0] >= kb and m.data[-1] >= kb and m.data[-2] > 0.5
+                                    for m in col.msgs["/fd/bias_estimate"]), 20.0, new)
+        finally:
+            for p in [*old, *new]:
+                p.stop()
+            rig.close()
+        print(f"kill at sample {k_kill}: outputs on {t_on:.2f} s later; restarted peers "
+              f"rejoined {t_rejoin:.2f} s after their first feedback; bias at {kb}")
+        # gap_timeout (1 s) per dead feedback source of the observer (the two peers may die
+        # one sample apart); the detector's wait for agei's override counts from its own
+        # last output, so it adds nothing; + 1.5 s for a loaded machine
+        assert t_on <= 2 * 1.0 + 1.5
+        assert t_rejoin <= 1.0 + 1.0
+        alarms = col.decoded("/fd/alarm")
+        assert not any(d.values.any() for d in alarms if d.stamp < kb), \
+            [d.stamp for d in alarms if d.values.any()][:5]          # no false alarm
+        first = min(d.stamp for d in alarms if d.values[0] > 0.5)
+        assert kb <= first <= kb + 3
+        # reported: the lost feedback and its return, on the observer's input channel
+        lines = " ".join(s.message for s in col.statuses("observer: input"))
+        assert "did not come in time" in lines and "feedback came again" in lines
+        for p in [*old, *new]:
+            assert "Traceback" not in p.output(), p.output()
+
+
+def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
+    """4,000 samples unpaced into the four chain nodes (one executor, as the standalone
+    detector): more than max_lag (1 s here) behind, the observer skips to the newest sample
+    (counted: shed on /diagnostics); a sample published after the burst is processed within
+    max_lag + 2 s."""
+    from fd_monitor.nodes.common import data_pub_qos
+    from fd_monitor.nodes.monitor import make_chain
+
+    u, y = nominal_run(4200)
+    burst = 4000      # below Fast DDS's KEEP_ALL reader limit (5,000): no DDS loss here
+    with ros_context() as ctx:
+        nodes = make_chain(context=ctx, parameter_overrides=params(max_lag=1.0,
+                                                                   diagnostics_period=0.2))
+        rig = Rig(ctx, nodes, topics=("fd/state_estimate",), driver_qos=data_pub_qos(burst + 200))
+        events_executor(rig, ctx)
+        obs = nodes[0]
+        try:
+            assert rig.matched()
+            t0 = time.monotonic()
+            rig.send(u, y, range(burst))                 # unpaced: far beyond the chain's pace
+            t_sent = time.monotonic()
+            # after it, a 100 Hz source again: each sample processed within max_lag + 2 s
+            delays = []
+            for k in range(burst, burst + 150):
+                t = time.monotonic()
+                rig.send(u, y, [k])
+                ok = rig.spin(lambda k=k: max(stamps(rig.col, "/fd/state_estimate"),
+                                              default=-1) >= k, 1.0 + 2.0)
+                delays.append(time.monotonic() - t)
+                assert ok, (k, obs.join.k_next, obs.join.shed, max(delays))
+                if k >= burst + 20 and time.monotonic() - t_sent > 3.0:
+                    break
+            assert obs.join.shed > 0 and obs.join.shed_episodes >= 1
+            assert rig.spin(lambda: any("behind by more than" in s.message
+                                        for s in rig.col.statuses("observer: input")), 5.0)
+            shed = [s for s in rig.col.statuses("observer: input")
+                    if any(v.key == "shed_samples" and int(v.value) > 0 for v in s.values)]
+            assert shed                                  # the count is on /diagnostics
+            got = stamps(rig.col, "/fd/state_estimate")
+            assert got == sorted(got)
+        finally:
+            rig.close()
+        print(f"burst of {burst} sent in {t_sent - t0:.2f} s; shed {obs.join.shed} samples in "
+              f"{obs.join.shed_episodes} episode(s), processed {obs.processed}; after it, "
+              f"worst delay {max(delays):.2f} s over {len(delays)} samples")
+
+
+def test_label_attack_is_refused_with_bounded_memory_and_good_input_goes_on():
+    """100 messages with a distinct ~1 MB label each into ``monitor`` and the standalone
+    ``detector`` (separate processes): every one refused (label too long), counted on
+    /diagnostics; VmRSS of each process: the second 50 add less than 16 MB, all 100 less
+    than 64 MB (the receive buffers of 1 MB messages; the old caches kept 2 MB or more per
+    label and node); good input after it gives residuals again."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+    from fd_monitor.nodes.common import data_pub_qos
+    from fd_monitor.wire.conversions import to_msg
+
+    u, y = nominal_run(120)
+    spaces = ("/lm", "/ld")
+    procs = [Proc(["run", "monitor", "--ros-args", "-r", "__ns:=/lm", "-p",
+                   "diagnostics_period:=0.2"]),
+             Proc(["run", "detector", "--ros-args", "-r", "__ns:=/ld", "-p",
+                   "diagnostics_period:=0.2"])]
+    n_bad = 100
+    try:
+        with ros_context() as ctx:
+            col = Collector(ctx, [f"{ns}/fd/residual" for ns in spaces], diagnostics=True)
+            drv = Node("label_driver", context=ctx)
+            pubs = {(ns, t): drv.create_publisher(Float64MultiArray, f"{ns}/plant/{t}",
+                                                  data_pub_qos())
+                    for ns in spaces for t in ("u", "y")}
+            ex = SingleThreadedExecutor(context=ctx)
+            ex.add_node(col.node)
+            ex.add_node(drv)
+
+            def send(ks):
+                for k in ks:
+                    for ns in spaces:
+                        pubs[(ns, "u")].publish(to_msg(U_LABELS, k, u[k]))
+                        pubs[(ns, "y")].publish(to_msg(Y_LABELS, k, y[k]))
+
+            def residuals(ns, k):
+                return any(m.data[0] >= k for m in col.msgs[f"{ns}/fd/residual"])
+
+            def refused(ns) -> int:
+                return max((int(v.value) for s in col.statuses(f"{ns}/")
+                            if s.name.endswith("observer: input") or
+                            s.name.endswith("monitor: input")
+                            for v in s.values if v.key == "bad_messages"), default=0)
+
+            assert spin_until(ex, lambda: all(p.get_subscription_count() >= 1
+                                              for p in pubs.values()), 60.0, procs)
+            # good input (100 Hz) until both give residuals (every node of theirs is up)
+            k = 0
+            deadline = time.monotonic() + 60.0
+            while not all(residuals(ns, 0) for ns in spaces):
+                assert time.monotonic() < deadline and k < 80, [p.output() for p in procs]
+                send([k])
+                k += 1
+                spin_until(ex, lambda: False, 0.01, procs)
+            k_bad = k
+            before = [rss_mb(p.p.pid) for p in procs]
+            pad = "x" * (1 << 20)
+            for i in range(n_bad):
+                if i and i % 10 == 0:
+                    # in batches of 10 (a sender as fast as the nodes): the receive buffers
+                    # DDS and the allocator keep then depend on no queue's depth
+                    assert spin_until(ex, lambda i=i: all(refused(ns) >= i for ns in spaces),
+                                      60.0, procs), [refused(ns) for ns in spaces]
+                if i == n_bad // 2:
+                    half = [rss_mb(p.p.pid) for p in procs]
+                m = to_msg(Y_LABELS, k_bad, y[k_bad])
+                dim = MultiArrayDimension()
+                dim.label, dim.size, dim.stride = f"h1,h2,h3{i:04d}{pad}", 3, 3
+                m.layout.dim = [dim]
+                for ns in spaces:
+                    pubs[(ns, "y")].publish(m)
+                spin_until(ex, lambda: False, 0.0)
+
+            assert spin_until(ex, lambda: all(refused(ns) >= n_bad for ns in spaces), 60.0,
+                              procs), [refused(ns) for ns in spaces]
+            send(range(k_bad + 1, k_bad + 20))         # good input again (k_bad refused)
+            assert spin_until(ex, lambda: all(residuals(ns, k_bad + 19) for ns in spaces),
+                              30.0, procs)
+            after = [rss_mb(p.p.pid) for p in procs]
+            lines = " ".join(s.message for s in col.statuses("input"))
+            assert "longer than 16384" in lines
+    finally:
+        for p in procs:
+            p.stop()
+    print(f"VmRSS before {before} MB, after {n_bad // 2} labels of 1 MB {half} MB, after "
+          f"{n_bad}: {after} MB")
+    for p in procs:
+        out = p.output()
+        assert "Traceback" not in out, out[-3000:]
+        assert out.count("longer than 16384") <= n_bad // 4   # throttled: 1 line a s a node
+    for b, h, a in zip(before, half, after):
+        # bounded: 50 more new labels add nothing (no cache keeps them); what the first ones
+        # added is the receive buffers of 1 MB messages (DDS, allocator), not per label
+        assert a - h < 16.0 and a - b < 64.0, (before, half, after)
