@@ -16,7 +16,9 @@ import yaml
 from fd_monitor.analysis.offline import InputReport
 from fd_monitor.commands.cli import main
 from fd_monitor.core.methods import load_gains
-from fd_monitor.model.paths import config_dir, path_for_file, resolve_for_file
+from fd_monitor.model.paths import path_for_file, resolve_for_file
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"   # the shipped files
 
 GAINS = "dc_motor_identified_thresholds"
 #: Every shipped adapter file -> (a faulty scenario of its plant, the gain file that monitors
@@ -91,7 +93,7 @@ def test_analyze_a_robot_bag_with_a_skipped_sample_and_a_hole(tmp_path, capsys):
 
 
 def test_every_shipped_adapter_is_covered():
-    assert sorted(p.stem for p in (config_dir() / "adapters").glob("*.yaml")) == sorted(SHIPPED)
+    assert sorted(p.stem for p in (CONFIG / "adapters").glob("*.yaml")) == sorted(SHIPPED)
 
 
 @pytest.mark.parametrize("adapter", sorted(SHIPPED))
@@ -135,7 +137,7 @@ def test_path_for_file_is_relative_to_the_anchor_and_posix(tmp_path):
 
 def _own_plant(tmp_path):
     """The identified motor as a plant file of the user's (another name, not shipped)."""
-    src = (config_dir() / "systems" / "dc_motor_identified.yaml").read_text()
+    src = (CONFIG / "systems" / "dc_motor_identified.yaml").read_text()
     plant = tmp_path / "plants" / "motor.yaml"
     plant.parent.mkdir(parents=True)
     plant.write_text(src.replace("\nname: dc_motor_identified\n", "\nname: my_motor\n"))
@@ -212,7 +214,7 @@ def test_bad_system_file_key_is_one_line(tmp_path):
     from fd_monitor.model.errors import GainFileError
     from fd_monitor.model.gains import write_gain_doc
 
-    doc = yaml.safe_load((config_dir() / "gains" / f"{GAINS}.yaml").read_text())
+    doc = yaml.safe_load((CONFIG / "gains" / f"{GAINS}.yaml").read_text())
     doc["system"]["file"] = 3
     write_gain_doc(tmp_path / "g.yaml", doc)
     with pytest.raises(GainFileError, match=r"g.yaml: system.file: expected the plant file's "
@@ -257,7 +259,7 @@ def test_evaluate_refuses_a_gain_file_of_another_plant(capsys):
 
 @pytest.mark.parametrize("adapter", sorted(SHIPPED))
 def test_validate_recognises_a_shipped_adapter_file(capsys, adapter):
-    path = config_dir() / "adapters" / f"{adapter}.yaml"
+    path = CONFIG / "adapters" / f"{adapter}.yaml"
     code, out, err = _cli(capsys, "validate", path)      # was "name: expected the plant's name"
     assert code == 0, err
     assert out.startswith(f"valid adapter {path}:"), out
@@ -310,7 +312,7 @@ def test_validate_dry_run_shows_how_a_bag_pairs_into_samples(tmp_path, capsys):
     assert dry["counts"] == {"no_value": 1, "stale": 1} and dry["new_runs"] == []
     # each sample: the command in force at its JointState
     assert [f["k"] for f in dry["first_samples"]] == [1, 2, 3, 4, 5]
-    code, out, err = _cli(capsys, "validate", config_dir() / "adapters" / "dc_motor.yaml",
+    code, out, err = _cli(capsys, "validate", CONFIG / "adapters" / "dc_motor.yaml",
                           "--bag", bag)
     assert code == 0, err
     assert "samples: 300 present (k 0..299), 298 used; 1 no_value, 1 stale" in out, out
