@@ -216,15 +216,17 @@ class QBObserver:
         return mode, x
 
     def _advance(self, uu: np.ndarray, yy: np.ndarray) -> None:
-        """x_{k+1} and the mode of k + 1 from (u_k, y_k) (13a)-(13b)."""
-        mode, x = self.mode, self.x
-        z = np.concatenate([uu, yy, [1.0]])
-        xn = self.Phi[mode] @ x + self.Gam[mode] @ z
+        """x_{k+1} and the mode of k + 1 from (u_k, y_k) (13a)-(13b), on the float maps of
+        :meth:`step1`: one recursion for every caller (node, runtime, bridge), so the observer
+        node and the offline runtime give the same bits."""
+        mode = self.mode
+        fphi, fgam, _ = self._floats()[mode]
+        ul, yl = uu.tolist(), yy.tolist()
+        xn = [a + b for a, b in zip(fphi(self.x.tolist()), fgam(ul + yl + [1.0]))]
         # the plant's guards on one run (SampledPlant.next_mode's comparisons, on floats)
-        ul = uu.tolist()
         q = self._plant.next_mode1(mode, (), ul, "controlled")
-        q = self._plant.next_mode1(q, xn.tolist(), ul, "autonomous")
-        self.x, self.mode = xn, q
+        q = self._plant.next_mode1(q, xn, ul, "autonomous")
+        self.x, self.mode = np.array(xn), q
 
     def bridge(self, k: int, u: Any, y: Any) -> None:
         """The next sample is ``(k, u_k, y_k)``, those between are lost: predict through the
@@ -245,8 +247,11 @@ class QBObserver:
         self.k = int(k) - 1
 
     def residual(self, mode: int, x_hat: np.ndarray, y: Any) -> np.ndarray:
-        """(ny,) residual ``r = y - C_mode x_hat`` (Remark 1), output units."""
-        return np.asarray(y, dtype=float) - self.model.C[mode] @ x_hat
+        """(ny,) residual ``r = y - C_mode x_hat`` (Remark 1), output units, summed as
+        :meth:`step1` sums it (the detector node computes it from the published x^)."""
+        fc = self._floats()[mode][2]
+        return np.array([a - b for a, b in zip(np.asarray(y, dtype=float).tolist(),
+                                               fc(np.asarray(x_hat, dtype=float).tolist()))])
 
 
 class QBDetector:

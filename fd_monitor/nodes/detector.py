@@ -25,8 +25,7 @@ import numpy as np
 from rclpy.qos import QoSProfile
 
 from fd_monitor.core.detector import ResidualDetector, no_override
-from fd_monitor.core.qb import QBDetector
-from fd_monitor.core.qb_model import qb_model
+from fd_monitor.core.qb import QBDetector, QBObserver
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, MessageError
 from fd_monitor.model.gains import GainFile
@@ -200,7 +199,8 @@ class DetectorNode(ResidualReport, FdNode):
     def _start_qb(self) -> None:
         s = self.system
         self.detector = QBDetector(s, self.gain_file)
-        self._C = qb_model(s).C                 # r = y - C_q x^ (QBObserver.residual)
+        # r = y - C_q x^ summed as the observer and the offline runtime sum it
+        self._qb_observer = QBObserver(s, self.gain_file)
         self.channels = [f"residual {c}" for c in self.detector.channels]
         self._layouts = {t: t.channels(self.detector.channels) for t in self.outputs}
         self.start_inputs([Input.of("est", STATE_ESTIMATE, s, sequence=True)])
@@ -252,7 +252,7 @@ class DetectorNode(ResidualReport, FdNode):
     def _step_qb(self, k: int, mode: int, x_hat: np.ndarray, y_t: np.ndarray,
                  inputs: dict[str, Any]) -> dict[str, Any]:
         det = self.detector
-        sig = det.signals(x_hat, y_t - self._C[mode] @ x_hat)
+        sig = det.signals(x_hat, self._qb_observer.residual(mode, x_hat, y_t))
         thr = det.rho * det.bounds(mode)
         return {"residual": sig, "threshold": thr, "alarm": sig > thr}
 
