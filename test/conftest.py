@@ -37,6 +37,9 @@ if _ROS:
     _ids = None
     if _worker.startswith("gw") and _count > 1:
         _ids = [d for d in range(1, 101) if d % _count == int(_worker[2:]) % _count]
+        # the controller's own ROS_DOMAIN_ID (it ran this file first) reaches every worker
+        # in its environment: kept, all workers would share one domain and hear each other
+        os.environ.pop("ROS_DOMAIN_ID", None)
     isolate_env(os.environ, keep_domain=True, candidates=_ids)
 elif "ROS_DOMAIN_ID" not in os.environ:
     os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))

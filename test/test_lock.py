@@ -61,6 +61,9 @@ def unlocked_imports(files: list[Path], locked: set[str]) -> list[str]:
     ros-rclpy); the standard library and the project's own modules are skipped."""
     local = {p.stem for d in SCANNED for p in (REPO / d).rglob("*.py")} | set(SCANNED) | {
         "setup", "__future__"}
+    # the vendored ROS 2 launch packages (third_party/, not on the registry; their sources
+    # are in the repository, put on the path by scripts/third_party.py)
+    local |= {p.parent.name for p in (REPO / "third_party").glob("*/*/*/__init__.py")}
     dists = md.packages_distributions()
     bad = []
     for mod, where in sorted(imported_modules(files).items()):

@@ -237,12 +237,12 @@ def test_thesis_and_switched_plants_through_simulate_analyze_report(tmp_path, na
     faulty channel after its onset, `report` writes its figures and finds the library's
     expectations hold."""
     spec = LIB[name]
-    bag = tmp_path / "bag"
+    bag = tmp_path / name                # expected.yaml names its bag folder
     doc = _cli("simulate", spec.scenario, "--seed", str(spec.seed), "--duration",
                str(spec.duration), "-o", str(bag), "--json")
     assert doc["samples"] == round(spec.duration / doc["sample_time"])
     # the library bag's messages, within rounding (made on another machine: bag_compare)
-    assert_bags_close(bag / "bag.mcap", spec.folder / f"{name}.mcap")
+    assert_bags_close(bag / f"{name}.mcap", spec.folder / f"{name}.mcap")
     exp = load_expected(spec.expected_file)
     an = _cli("analyze", str(bag), "--gains", spec.gains, "--json")
     first = {}
