@@ -38,6 +38,7 @@ import numpy as np
 from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime, scan_bag
 from fd_monitor.analysis.summary import analyze_run
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.commands.fleet import add_fleet_arguments, is_fleet, run_fleet
 from fd_monitor.core.runtime import runtime_for
 from fd_monitor.model.errors import BagError
 from fd_monitor.model.system import System
@@ -48,7 +49,10 @@ __all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """BAG, --gains, --system, --no-agei, --json."""
-    parser.add_argument("bag", metavar="BAG", help="rosbag2 folder with /plant/u and /plant/y")
+    parser.add_argument("bag", metavar="BAG", nargs="+",
+                        help="rosbag2 folder with /plant/u and /plant/y; several BAGs, a "
+                             "folder of bags or a glob pattern: the many-bag run "
+                             "(doc/howto/fleet.md)")
     parser.add_argument("--gains", required=True, metavar="GAINS",
                         help="gain file of any method (path or name in config/gains/)")
     parser.add_argument("--system", default=None, metavar="SYSTEM",
@@ -61,6 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-agei", action="store_true",
                         help="ablation: run without the AGEI module")
     add_json_flag(parser)
+    add_fleet_arguments(parser)
 
 
 def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: np.ndarray,
@@ -182,6 +187,9 @@ def _region_cell(a: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Analyse and print."""
+    if is_fleet(args):
+        return run_fleet(args)
+    args.bag = args.bag[0]
     doc = analyze_bag(args.bag, args.gains, args.system, agei=not args.no_agei,
                       adapter=args.adapter)
     if args.json:

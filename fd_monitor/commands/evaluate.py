@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from fd_monitor.analysis.evaluate import run_campaign
+from fd_monitor.commands._cluster import add_cluster_arguments, campaign_rows
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.core.runtime import runtime_class
 from fd_monitor.model.errors import FdMonitorError
@@ -78,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write summary.md and PNG plots (detection rate and delay "
                              "against fault magnitude, false-alarm rate) into DIR")
     add_json_flag(parser)
+    add_cluster_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,9 +124,10 @@ def run(args: argparse.Namespace) -> int:
             variants[est] = opts
     else:
         variants[gains.method] = common
-    rows = run_campaign(gains, scenarios, args.runs, seed0=args.seed0, chunk=args.chunk,
-                        rhos=args.rho, transient=args.transient, channels=args.channels,
-                        variants=variants, progress=not args.no_progress, system=system)
+    rows = campaign_rows(args, gains, scenarios, args.runs, seed0=args.seed0,
+                         chunk=args.chunk, rhos=args.rho, transient=args.transient,
+                         channels=args.channels, variants=variants,
+                         progress=not args.no_progress, system=system)
     if args.report is not None:
         from fd_monitor.analysis.report import campaign_report
 
