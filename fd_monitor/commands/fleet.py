@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -34,12 +33,12 @@ from fd_monitor.analysis.fleet import (
     is_bag,
     read_tables,
 )
-from fd_monitor.analysis.scaleout import RateBar, open_client, run_tasks
+from fd_monitor.analysis.scaleout import RateBar, TaskRun, open_client, run_tasks
 from fd_monitor.commands._cluster import add_cluster_arguments
 from fd_monitor.commands._common import print_json, print_table
 from fd_monitor.model.errors import FdMonitorError
 
-__all__ = ["add_fleet_arguments", "analyze_task", "is_fleet",
+__all__ = ["add_fleet_arguments", "analyze_fleet", "analyze_task", "fleet_jobs", "is_fleet",
            "run_fleet"]
 
 
@@ -121,6 +120,32 @@ def analyze_task(job: dict[str, Any]) -> dict[str, Any]:
                 "alarms": []}
 
 
+def fleet_jobs(sources: list[str], gains: str | None, system: str | None = None,
+               adapter: str | None = None, agei: bool = True,
+               fleet_map: FleetMap | None = None) -> list[dict[str, Any]]:
+    """One :func:`analyze_task` job per bag of ``sources`` (:func:`find_bags`): paths made
+    absolute for the workers, the ``bag`` column as the user named it."""
+    return [{"bag": str(Path(b).resolve()), "name": os.path.normpath(str(b)),
+             "gains": _local(gains), "system": _local(system), "adapter": _local(adapter),
+             "agei": agei, "map": fleet_map} for b in find_bags(sources)]
+
+
+def analyze_fleet(client: Any, jobs: list[dict[str, Any]], out: str | Path,
+                  progress: bool = False) -> tuple[TaskRun, FleetTables]:
+    """Run the jobs on ``client`` and write the tables into ``out`` as they finish.
+
+    Returns
+    -------
+    (TaskRun, FleetTables)
+        What ran (``stopped`` after Ctrl-C) and the closed tables (their counts).
+    """
+    bar = RateBar(len(jobs), "analyze", "bags", enabled=progress)
+    with FleetTables(out) as tables:
+        run = run_tasks(client, analyze_task, jobs,
+                        lambda _i, r: tables.add(r["row"], r["alarms"]), bar)
+    return run, tables
+
+
 def run_fleet(args: argparse.Namespace) -> int:
     """Analyse many bags on Dask, write the tables, print the summary."""
     from fd_monitor.model.paths import check_output
@@ -131,16 +156,9 @@ def run_fleet(args: argparse.Namespace) -> int:
         raise FdMonitorError(f"--out {out}: holds the tables of an earlier run (would "
                              f"overwrite; use --force)")
     fmap = FleetMap.load(args.map) if args.map else None
-    bags = find_bags(args.bag)
-    jobs = [{"bag": str(Path(b).resolve()), "name": os.path.normpath(str(b)),
-             "gains": _local(args.gains), "system": _local(args.system),
-             "adapter": _local(args.adapter), "agei": not args.no_agei, "map": fmap}
-            for b in bags]
-    bar = RateBar(len(jobs), "analyze", "bags", enabled=not args.no_progress)
-    with open_client(args.workers, args.scheduler) as client, FleetTables(out) as tables:
-        bar.t0 = time.monotonic()      # the rate from the first task, not the start-up
-        run = run_tasks(client, analyze_task, jobs,
-                        lambda _i, r: tables.add(r["row"], r["alarms"]), bar)
+    jobs = fleet_jobs(args.bag, args.gains, args.system, args.adapter, not args.no_agei, fmap)
+    with open_client(args.workers, args.scheduler) as client:
+        run, tables = analyze_fleet(client, jobs, out, progress=not args.no_progress)
     bag_rows, alarms = read_tables(out)
     s = fleet_summary(bag_rows, alarms)
     if args.json:
