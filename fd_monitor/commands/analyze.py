@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime, scan_bag
+from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime
+from fd_monitor.analysis.streaming import analyze_streaming, census
 from fd_monitor.analysis.summary import analyze_run
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.commands.fleet import add_fleet_arguments, is_fleet, run_fleet
@@ -142,12 +143,12 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     gains = load_gains(gains_source, system)   # plant SHA-256 and certificate
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
-    scan = scan_bag(bag)                        # the one read of the bag
     if adapter is not None:                     # the robot's topics (wire/adapters.py)
-        run = run_bag(bag, gains, system=system, agei=agei, scan=scan, adapter=adapter)
+        run = run_bag(bag, gains, system=system, agei=agei, adapter=adapter)
         return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
                 "method": gains.method, "agei": agei, "adapter": str(adapter),
                 **analyze_run(run)}
+    scan = census(bag)                          # topics and types; no message kept
     present = scan.present
     needed = [PLANT_Y.absolute] + ([PLANT_U.absolute] if system.nu else [])
     for t in needed:
@@ -162,9 +163,10 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
             raise BagError(f"{bag}: {t} has channels {list(labels)} but plant {system.name} "
                            f"(gain file {gains.path}) has {what} {list(names)}: wrong gain "
                            f"file for this bag?")
-    run = run_bag(bag, gains, system=system, agei=agei, scan=scan)
+    # read, step and reduce in chunks: memory does not follow the bag's length
     return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
-            "method": gains.method, "agei": agei, **analyze_run(run)}
+            "method": gains.method, "agei": agei,
+            **analyze_streaming(bag, gains, system, agei, scan)}
 
 
 def samples_line(doc: dict[str, Any]) -> str:
