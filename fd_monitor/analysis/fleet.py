@@ -252,7 +252,7 @@ class FleetMap:
                 raise FdMonitorError(f"{where}: unknown key(s) {sorted(extra)} (expected "
                                      f"match, gains, system, adapter)")
             rules.append(FleetRule({str(k): str(v) for k, v in r["match"].items()},
-                                   _near(p, r["gains"]), _near(p, r.get("system")),
+                                   str(_near(p, r["gains"])), _near(p, r.get("system")),
                                    _near(p, r.get("adapter"))))
         return cls(tuple(rules), str(p))
 

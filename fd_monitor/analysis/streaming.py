@@ -191,7 +191,7 @@ class _Reducer:
         rt = self.rt
         m = len(rt.channels)
         iso = self.last.get("isolated")
-        outside = None
+        outside: Any = None                      # SparseRows (region_mark reads it as dense)
         if rt.region_names:
             r = len(rt.region_names)
             outside = SparseRows(
@@ -331,7 +331,7 @@ def analyze_streaming(bag: str | Path, gains: Any, system: Any, agei: bool = Tru
     if red.n == 0:
         raise BagError(f"{bag}: no valid (u, y) sample on {t_u} and {t_y}"
                        + "".join(f" and {_side_topic(n).absolute}" for n in side))
-    for k, exc in refused:                       # as run_bag reports them: after the stream
-        _refused(rep, k, exc)
+    for k_ref, why in refused:                   # as run_bag reports them: after the stream
+        _refused(rep, k_ref, why)
     run = red.run(bag, gains, system, None if truth is None else truth.arrays(), rep)
     return analyze_run(run)

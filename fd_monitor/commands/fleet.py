@@ -53,7 +53,7 @@ def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
                         "plant file, adapter); --gains for the bags no rule matches")
     g.add_argument("--force", action="store_true", help="overwrite the tables in --out")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_cluster_arguments(g)  # type: ignore[arg-type]
+    add_cluster_arguments(g)
 
 
 def is_fleet(args: argparse.Namespace) -> bool:
