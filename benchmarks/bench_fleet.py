@@ -127,7 +127,7 @@ def fleet(args: argparse.Namespace) -> None:
 
     root = Path(args.work or tempfile.mkdtemp(prefix="bench_fleet_"))
     bags = _fleet_dir(root, args.bags)
-    jobs = fleet_jobs([str(bags)], "three_tank_thresholds")
+    jobs = fleet_jobs([str(bags)], "three_tank_thresholds", analyze_bag)
     print(f"# fleet: {len(jobs)} bags (load before: {load()})")
     analyze_bag(jobs[0]["bag"], "three_tank_thresholds")           # imports, gain file
     w1 = time.perf_counter()

@@ -26,6 +26,7 @@ from fd_monitor.analysis.evaluate import run_campaign
 from fd_monitor.analysis.evaluate_dask import run_campaign_on
 from fd_monitor.analysis.fleet import (
     FleetMap,
+    FleetTables,
     alarm_rows,
     bag_identity,
     bag_row,
@@ -33,8 +34,10 @@ from fd_monitor.analysis.fleet import (
     fleet_summary,
     read_tables,
 )
+from fd_monitor.analysis.scaleout import run_tasks
+from fd_monitor.commands.analyze import analyze_bag
 from fd_monitor.commands.cli import main
-from fd_monitor.commands.fleet import analyze_fleet, fleet_jobs
+from fd_monitor.commands.fleet import analyze_fleet, analyze_task, fleet_jobs
 from fd_monitor.model.gains import load_gains
 from fd_monitor.model.scenario import load_scenario
 
@@ -93,6 +96,12 @@ def _one_by_one(root, capsys):
             sorted(alarms, key=lambda r: (r["bag"], r["first_sample"], r["channel"])))
 
 
+def jobs_of(fleet):
+    """The fleet's jobs (the corrupt bag included)."""
+    return fleet_jobs([str(fleet)], GAINS, analyze_bag,
+                      fleet_map=FleetMap.load(fleet / "fleet_map.yaml"))
+
+
 def _short_scenarios(tmp_path):
     """pwa_cascade scenarios of 4 s (400 samples): fault free, and b1 +0.5 at 2 s."""
     (tmp_path / "nom.yaml").write_text("name: short_nominal\nsystem: pwa_cascade\n"
@@ -121,13 +130,20 @@ def one_worker(fleet, tmp_path_factory):
     from distributed import Client, LocalCluster
 
     out = tmp_path_factory.mktemp("w1")
-    jobs = fleet_jobs([str(fleet)], GAINS, fleet_map=FleetMap.load(fleet / "fleet_map.yaml"))
+    jobs = jobs_of(fleet)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                       dashboard_address=None) as lc, Client(lc) as client:
         run, tables = analyze_fleet(client, jobs, out / "tables")
         rows, done = run_campaign_on(client, load_gains("pwa_cascade_qb"),
                                      _short_scenarios(out), RUNS, **CAMPAIGN)
-    return run, tables, rows, done
+        # Ctrl-C (KeyboardInterrupt in the result loop) after the first bag: the rest is
+        # cancelled, the tables closed with that bag
+        with FleetTables(out / "stopped") as partial:
+            def first_then_stop(_i, r):
+                partial.add(r["row"], r["alarms"])
+                raise KeyboardInterrupt
+            stop = run_tasks(client, analyze_task, jobs, first_then_stop)
+    return run, tables, rows, done, stop, partial
 
 
 @pytest.fixture(scope="module")
@@ -173,9 +189,13 @@ def two_workers(fleet, tmp_path_factory, one_worker):
 
 def test_many_bags_1_and_2_workers_equal_one_by_one_and_a_corrupt_bag_is_a_row(
         one_worker, two_workers, fleet, tmp_path, capsys):
-    run1, t1, _r, _d = one_worker
+    run1, t1, _r, _d, stop, partial = one_worker
     folder2, doc2, _ev = two_workers
     assert (run1.workers, run1.done, run1.stopped) == (1, 4, False)
+    assert (stop.stopped, stop.done, stop.total) == (True, 0, 4)   # stopped in the 1st callback
+    kept, _a = read_tables(partial.folder)
+    assert partial.bags == 1 and len(kept) == 1 and kept[0]["bag"] in {j["name"] for j in
+                                                                       jobs_of(fleet)}
     assert (doc2["workers"], doc2["bags"], doc2["errors"], doc2["stopped"]) == (2, 4, 1, False)
     b1, a1 = read_tables(t1.folder)
     b2, a2 = read_tables(folder2)
@@ -206,7 +226,7 @@ def test_many_bags_1_and_2_workers_equal_one_by_one_and_a_corrupt_bag_is_a_row(
 def test_evaluate_in_process_1_and_2_workers_identical(one_worker, two_workers, tmp_path):
     ref = run_campaign(load_gains("pwa_cascade_qb"), _short_scenarios(tmp_path), RUNS,
                        **CAMPAIGN)
-    _run, _t, one, done1 = one_worker
+    _run, _t, one, done1, _s, _p = one_worker
     _f, _doc, ev2 = two_workers
     assert (done1.workers, done1.done, done1.stopped) == (1, 6, False)
     assert [(r.as_dict(), r.delays.tolist()) for r in one] == \

@@ -18,7 +18,9 @@ from __future__ import annotations
 import logging
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -74,10 +76,18 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         raise FdMonitorError(f"--workers {workers}: expected an integer >= 1")
     # one single-threaded process per worker: the runtimes are pure Python (the GIL), and
     # numpy's own threads would fight the other workers for the cores
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR,
-                           env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-                                "MKL_NUM_THREADS": "1"})
+    # Ctrl-C in a terminal reaches the whole process group: the worker processes start with
+    # SIGINT ignored (inherited), so only this process stops, cancels and closes them
+    main = threading.current_thread() is threading.main_thread()
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR,
+                               env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                                    "MKL_NUM_THREADS": "1"})
+    finally:
+        if main and before is not None:
+            signal.signal(signal.SIGINT, before)
     client = Client(cluster)
     try:
         yield client

@@ -190,7 +190,7 @@ def _region_cell(a: dict[str, Any]) -> str:
 def run(args: argparse.Namespace) -> int:
     """Analyse and print."""
     if is_fleet(args):
-        return run_fleet(args)
+        return run_fleet(args, analyze_bag)
     args.bag = args.bag[0]
     doc = analyze_bag(args.bag, args.gains, args.system, agei=not args.no_agei,
                       adapter=args.adapter)

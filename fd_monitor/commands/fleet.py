@@ -16,6 +16,7 @@ import argparse
 import glob
 import os
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +83,9 @@ def analyze_task(job: dict[str, Any]) -> dict[str, Any]:
     ----------
     job : dict
         ``bag`` (path to read), ``name`` (the bag as the user named it: the ``bag``
-        column), ``gains``, ``system``, ``adapter``, ``agei``, ``map`` (FleetMap or None).
+        column), ``gains``, ``system``, ``adapter``, ``agei``, ``map`` (FleetMap or None),
+        ``analyze`` (the single-bag analysis,
+        :func:`fd_monitor.commands.analyze.analyze_bag`).
 
     Returns
     -------
@@ -91,8 +94,7 @@ def analyze_task(job: dict[str, Any]) -> dict[str, Any]:
         failure -- an unreadable or corrupt bag, no gain file for it, a bug -- is the row's
         ``error``, never an exception.
     """
-    from fd_monitor.commands.analyze import analyze_bag
-
+    analyze_bag = job["analyze"]             # commands.analyze.analyze_bag, by reference
     bag, name = job["bag"], job["name"]
     ident: dict[str, Any] = {"robot": Path(name).parent.name}
     gains = job.get("gains")
@@ -113,21 +115,24 @@ def analyze_task(job: dict[str, Any]) -> dict[str, Any]:
         if caught and "integrity" not in doc:
             doc["damage"] = [str(w.message) for w in caught]
         return {"row": bag_row(doc, ident), "alarms": alarm_rows(doc, ident)}
-    except FdMonitorError as exc:
-        return {"row": error_row(name, ident, str(exc), gains), "alarms": []}
+    except FdMonitorError as exc:      # the bag named as the user named it
+        return {"row": error_row(name, ident, str(exc).replace(bag, name), gains),
+                "alarms": []}
     except Exception as exc:  # a bag must never fail the fleet: name what went wrong
         return {"row": error_row(name, ident, f"{name}: {type(exc).__name__}: {exc}", gains),
                 "alarms": []}
 
 
-def fleet_jobs(sources: list[str], gains: str | None, system: str | None = None,
-               adapter: str | None = None, agei: bool = True,
+def fleet_jobs(sources: list[str], gains: str | None, analyze: Callable[..., Any],
+               system: str | None = None, adapter: str | None = None, agei: bool = True,
                fleet_map: FleetMap | None = None) -> list[dict[str, Any]]:
     """One :func:`analyze_task` job per bag of ``sources`` (:func:`find_bags`): paths made
-    absolute for the workers, the ``bag`` column as the user named it."""
+    absolute for the workers, the ``bag`` column as the user named it; ``analyze`` is
+    :func:`fd_monitor.commands.analyze.analyze_bag` (passed in: that module imports this
+    one)."""
     return [{"bag": str(Path(b).resolve()), "name": os.path.normpath(str(b)),
              "gains": _local(gains), "system": _local(system), "adapter": _local(adapter),
-             "agei": agei, "map": fleet_map} for b in find_bags(sources)]
+             "agei": agei, "map": fleet_map, "analyze": analyze} for b in find_bags(sources)]
 
 
 def analyze_fleet(client: Any, jobs: list[dict[str, Any]], out: str | Path,
@@ -146,8 +151,9 @@ def analyze_fleet(client: Any, jobs: list[dict[str, Any]], out: str | Path,
     return run, tables
 
 
-def run_fleet(args: argparse.Namespace) -> int:
-    """Analyse many bags on Dask, write the tables, print the summary."""
+def run_fleet(args: argparse.Namespace, analyze: Callable[..., Any]) -> int:
+    """Analyse many bags on Dask (``analyze``: the single-bag analysis), write the tables,
+    print the summary."""
     from fd_monitor.model.paths import check_output
 
     out = Path(args.out or "fleet")
@@ -156,7 +162,8 @@ def run_fleet(args: argparse.Namespace) -> int:
         raise FdMonitorError(f"--out {out}: holds the tables of an earlier run (would "
                              f"overwrite; use --force)")
     fmap = FleetMap.load(args.map) if args.map else None
-    jobs = fleet_jobs(args.bag, args.gains, args.system, args.adapter, not args.no_agei, fmap)
+    jobs = fleet_jobs(args.bag, args.gains, analyze, args.system, args.adapter,
+                      not args.no_agei, fmap)
     with open_client(args.workers, args.scheduler) as client:
         run, tables = analyze_fleet(client, jobs, out, progress=not args.no_progress)
     bag_rows, alarms = read_tables(out)
