@@ -54,6 +54,17 @@ print(n)
 """
 
 
+def _cpu() -> float:
+    """This process's CPU time, s (run on each worker)."""
+    return time.process_time()
+
+
+def worker_cpu(client: object, before: dict[str, float] | None = None) -> dict[str, float]:
+    """CPU seconds of each worker process (since ``before``)."""
+    now = client.run(_cpu)  # type: ignore[attr-defined]
+    return {w: v - (before or {}).get(w, 0.0) for w, v in now.items()}
+
+
 def load() -> str:
     """The 1, 5 and 15 min load averages."""
     return " ".join(f"{v:.2f}" for v in os.getloadavg())
@@ -137,22 +148,27 @@ def fleet(args: argparse.Namespace) -> None:
     for n in (1, 2):
         with open_client(n) as client:
             client.run(lambda: __import__("fd_monitor.commands.analyze"))   # warm the workers
+            c0 = worker_cpu(client)
             run, tables = analyze_fleet(client, jobs, root / f"tables_{n}")
+            cpu = worker_cpu(client, c0)
         b, _a = read_tables(root / f"tables_{n}")
         samples = sum(r["samples"] or 0 for r in b)
-        rows.append((n, run.seconds, samples, tables.errors))
+        rows.append((n, run.seconds, samples, tables.errors, cpu))
         print(f"  {n} worker(s): {run.seconds:.1f} s, {samples} samples, "
-              f"{tables.errors} errors (load {load()})", flush=True)
+              f"{tables.errors} errors, worker CPU s {sorted(round(v, 1) for v in cpu.values())}"
+              f" (load {load()})", flush=True)
     s1, s2 = rows[0][1], rows[1][1]
     print("| workers | s | bags/s | samples/s | samples/s per worker | vs single-bag analyze |")
     print("|---|---|---|---|---|---|")
     per_bag = single["samples"] / single["wall"]
-    for n, sec, samples, _e in rows:
+    for n, sec, samples, _e, _c in rows:
         print(f"| {n} | {sec:.1f} | {len(jobs) / sec:.2f} | {samples / sec:,.0f} | "
               f"{samples / sec / n:,.0f} | {samples / sec / n / per_bag:.2f}x |")
     print(f"single-bag analyze in this process (warm): {single['samples']} samples in "
           f"{single['wall']:.2f} s = {per_bag:,.0f} samples/s")
-    print(f"speed-up 2 vs 1 worker: {s1 / s2:.2f}x (target >= 1.8); load after: {load()}")
+    print(f"speed-up 2 vs 1 worker: {s1 / s2:.2f}x wall (target >= 1.8); on idle cores: "
+          f"{sum(rows[0][4].values()) / max(rows[1][4].values()):.2f}x (1 worker's CPU over "
+          f"the busiest of 2 workers' CPU); load after: {load()}")
 
 
 def evaluate(args: argparse.Namespace) -> None:
@@ -173,15 +189,19 @@ def evaluate(args: argparse.Namespace) -> None:
     for n in (1, 2):
         with open_client(n) as client:
             client.run(lambda: __import__("fd_monitor.analysis.evaluate"))
+            c0 = worker_cpu(client)
             rows, done = run_campaign_on(client, g, [sc], args.runs, chunk=250,
                                          rhos=[0.05, 1.0], progress=False)
-        got.append((n, done.seconds, [r.as_dict() for r in rows]))
+            cpu = worker_cpu(client, c0)
+        got.append((n, done.seconds, [r.as_dict() for r in rows], cpu))
         print(f"  {n} worker(s): {done.seconds:.1f} s ({args.runs / done.seconds:.0f} runs/s; "
-              f"load {load()})", flush=True)
+              f"worker CPU s {sorted(round(v, 1) for v in cpu.values())}; load {load()})",
+              flush=True)
     assert got[0][2] == got[1][2], "figures differ between 1 and 2 workers"
     print(f"identical figures: {got[0][2]}")
-    print(f"speed-up 2 vs 1 worker: {got[0][1] / got[1][1]:.2f}x (target >= 1.8); load "
-          f"after: {load()}")
+    print(f"speed-up 2 vs 1 worker: {got[0][1] / got[1][1]:.2f}x wall (target >= 1.8); on "
+          f"idle cores: {sum(got[0][3].values()) / max(got[1][3].values()):.2f}x (1 worker's "
+          f"CPU over the busiest of 2 workers' CPU); load after: {load()}")
 
 
 def main() -> None:

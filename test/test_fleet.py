@@ -132,7 +132,7 @@ def one_worker(fleet, tmp_path_factory):
     out = tmp_path_factory.mktemp("w1")
     jobs = jobs_of(fleet)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as lc, Client(lc) as client:
+                      dashboard_address=":0") as lc, Client(lc) as client:
         run, tables = analyze_fleet(client, jobs, out / "tables")
         rows, done = run_campaign_on(client, load_gains("pwa_cascade_qb"),
                                      _short_scenarios(out), RUNS, **CAMPAIGN)
@@ -161,11 +161,13 @@ def two_workers(fleet, tmp_path_factory, one_worker):
     quiet = {"env": env, "cwd": REPO, "stdout": subprocess.DEVNULL,
              "stderr": subprocess.DEVNULL}
     procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                               "--no-dashboard"], **quiet)]
+                               "--no-dashboard", "--dashboard-address", "127.0.0.1:0"],
+                              **quiet)]
     try:
         # the workers retry until the scheduler listens
         procs += [subprocess.Popen([dask, "worker", addr, "--nthreads", "1", "--no-nanny",
-                                    "--no-dashboard", "--name", f"w{i}"], **quiet)
+                                    "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
+                                    "--name", f"w{i}"], **quiet)
                   for i in range(2)]
         with Client(addr, timeout="60s") as c:
             c.wait_for_workers(2, timeout=60)
