@@ -54,8 +54,9 @@ from fd_monitor.wire.topics import side_topic as _side_topic
 
 __all__ = ["CHUNK", "StreamScan", "analyze_streaming", "census"]
 
-#: Samples stepped between two reductions of the runtime's outputs; records decoded per batch.
-CHUNK = 4096
+#: Records decoded per batch, and samples stepped between two reductions of the runtime's
+#: outputs (a RuntimeOutput is ~4 KB: 1024 of them are the largest thing held).
+CHUNK = 1024
 
 
 @dataclass
@@ -152,6 +153,7 @@ class _Truth:
             return None
         k = np.concatenate(self.stamps) if self.stamps else np.zeros(0, np.int64)
         m = np.concatenate(self.modes) if self.modes else np.zeros(0)
+        self.stamps, self.modes = [], []         # one copy, not two
         return TopicArrays(PLANT_TRUTH.absolute, ("mode",), k, m.reshape(-1, 1),
                            np.zeros(0, np.int64))
 
@@ -175,12 +177,13 @@ class _Reducer:
         tr = self.rt.stack(outs, [], [])
         self.k.append(tr.k)
         self.mode.append(tr.mode)
-        self.alarm.append(tr.alarm)
+        self.alarm.append(tr.alarm.copy())       # alone: not a view of a larger block
         if tr.outside is not None:
             hit = np.flatnonzero(np.any(tr.outside != 0.0, axis=1))
             self.nz_index.append(hit + self.n)
-            self.nz_rows.append(tr.outside[hit])
-        self.last = {name: v[-1:] for name, v in tr.estimates.items()}
+            self.nz_rows.append(tr.outside[hit].copy())
+        # copies: a view would keep the chunk's whole arrays
+        self.last = {name: v[-1:].copy() for name, v in tr.estimates.items()}
         self.n += len(outs)
         outs.clear()
 
@@ -198,11 +201,12 @@ class _Reducer:
                 np.concatenate(self.nz_index) if self.nz_index else np.zeros(0, np.int64),
                 np.concatenate(self.nz_rows) if self.nz_rows else np.zeros((0, r)),
                 self.n, r)
+        k, alarm, mode = (np.concatenate(x) for x in (self.k, self.alarm, self.mode))
+        self.k, self.alarm, self.mode = [], [], []          # one copy, not two
         return BagRun(bag=bag, method=rt.method, gains=str(gains.path), system=system,
-                      k=np.concatenate(self.k), channels=tuple(rt.channels),
+                      k=k, channels=tuple(rt.channels),
                       units=tuple(rt.units), signal=np.zeros((0, m)),
-                      threshold=np.zeros((0, m)), alarm=np.concatenate(self.alarm),
-                      mode_hat=np.concatenate(self.mode),
+                      threshold=np.zeros((0, m)), alarm=alarm, mode_hat=mode,
                       estimate=rt.bias_estimates(self.last),
                       isolated=None if iso is None else iso.astype(bool), truth=truth,
                       inputs=rep, outside=outside, region_names=tuple(rt.region_names),

@@ -441,16 +441,20 @@ def truth_at(truth: Any, ks: Sequence[int], labels: Sequence[str]) -> np.ndarray
     stamps = np.asarray(truth.stamps, dtype=np.int64).reshape(-1)
     if not stamps.size or not len(ks):
         return out
-    # sorted, the last message of each stamp (a stable sort keeps the record order)
-    order = np.argsort(stamps, kind="stable")
-    ss = stamps[order]
-    last = np.r_[ss[1:] != ss[:-1], True]
-    uniq, row = ss[last], order[last]
+    if stamps.size < 2 or bool(np.all(stamps[1:] > stamps[:-1])):
+        uniq, row = stamps, None                 # the usual truth: one message per stamp
+    else:
+        # sorted, the last message of each stamp (a stable sort keeps the record order)
+        order = np.argsort(stamps, kind="stable")
+        ss = stamps[order]
+        last = np.r_[ss[1:] != ss[:-1], True]
+        uniq, row = ss[last], order[last]
     kk = np.asarray([int(k) for k in ks], dtype=np.int64) if not isinstance(ks, np.ndarray) \
-        else ks.astype(np.int64)
+        else np.asarray(ks, dtype=np.int64)
     pos = np.minimum(np.searchsorted(uniq, kk), uniq.size - 1)
     hit = uniq[pos] == kk
-    out[hit] = truth.values[row[pos[hit]]][:, cols]
+    idx = pos[hit] if row is None else row[pos[hit]]
+    out[hit] = truth.values[idx][:, cols]
     return out
 
 
