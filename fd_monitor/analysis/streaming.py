@@ -143,7 +143,10 @@ class _Truth:
     def _flush(self) -> None:
         if self._k:
             self.stamps.append(np.asarray(self._k, dtype=np.int64))
-            self.modes.append(np.asarray(self._m, dtype=float))
+            # float32 holds a mode index (and NaN) exactly, in half the memory
+            m = np.asarray(self._m, dtype=float)
+            exact = np.array_equal(m.astype(np.float32), m, equal_nan=True)
+            self.modes.append(m.astype(np.float32) if exact else m)
             self._k, self._m = [], []
 
     def arrays(self) -> TopicArrays | None:
@@ -152,7 +155,7 @@ class _Truth:
         if self.bad or self.labels is None or self.col is None:
             return None
         k = np.concatenate(self.stamps) if self.stamps else np.zeros(0, np.int64)
-        m = np.concatenate(self.modes) if self.modes else np.zeros(0)
+        m = (np.concatenate(self.modes) if self.modes else np.zeros(0)).astype(float, copy=False)
         self.stamps, self.modes = [], []         # one copy, not two
         return TopicArrays(PLANT_TRUTH.absolute, ("mode",), k, m.reshape(-1, 1),
                            np.zeros(0, np.int64))
@@ -176,7 +179,9 @@ class _Reducer:
             return
         tr = self.rt.stack(outs, [], [])
         self.k.append(tr.k)
-        self.mode.append(tr.mode)
+        # a mode index is small: int32 halves what a long run keeps (the values are equal)
+        self.mode.append(tr.mode.astype(np.int32) if tr.mode.size and
+                         int(np.abs(tr.mode).max()) < 2 ** 31 else tr.mode)
         self.alarm.append(tr.alarm.copy())       # alone: not a view of a larger block
         if tr.outside is not None:
             hit = np.flatnonzero(np.any(tr.outside != 0.0, axis=1))
