@@ -17,7 +17,9 @@ less, and :func:`analyze_streaming` gives the same document with
   SparseRows`), the last estimates; the truth's stamps and mode (16 bytes a sample, bags with
   ``/plant/truth``).
 
-So a bag of 10^6 samples holds about 40 MB instead of 4.4 GB (``benchmarks/bench_fleet.py``).
+So ``analyze`` of a bag of 10^6 samples peaks at 145 MB (the interpreter and its imports
+included; the bag reader also drops the pages it has read, :mod:`fd_monitor.wire.bags`)
+instead of 4.4 GB (``benchmarks/bench_fleet.py``).
 The document is :func:`~fd_monitor.analysis.summary.analyze_run`'s, bit for bit
 (``test/test_streaming.py`` on every bag of the library).
 """
