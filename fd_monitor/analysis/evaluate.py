@@ -257,36 +257,64 @@ def _scenario_alarms(runner: Callable[..., BatchResult], gains: GainFile, sc: Sc
         ``[transient, onset)``), and (runs,) index of the first alarm at or after the onset
         (-1: none; faulty scenarios only).
     """
+    fa: dict[tuple[str, int], list[np.ndarray]] = {}
+    first: dict[tuple[str, int], list[np.ndarray]] = {}
+    for c in range(-(-runs // chunk)):
+        seeds = list(range(seed0 + c * chunk, seed0 + min((c + 1) * chunk, runs)))
+        got = chunk_alarms(runner, gains, sc, seeds, variants, rhos, transient, channels,
+                           monitor, bar)
+        for key, (f, d) in got.items():
+            fa.setdefault(key, []).append(f)
+            if d is not None:
+                first.setdefault(key, []).append(d)
+    return fa, first
+
+
+def chunk_alarms(runner: Callable[..., BatchResult], gains: GainFile, sc: Scenario,
+                 seeds: Sequence[int], variants: Mapping[str, Mapping[str, Any]],
+                 rhos: Sequence[float] | None, transient: float,
+                 channels: Sequence[str] | None, monitor: System | None = None,
+                 bar: ProgressBar | None = None
+                 ) -> dict[tuple[str, int], tuple[np.ndarray, np.ndarray | None]]:
+    """Simulate one chunk of a scenario's runs (one per seed) and run every variant on it.
+
+    A run's numbers depend only on its seed (each run has its own generator), so a
+    campaign cut into the same chunks gives the same numbers wherever the chunks run.
+
+    Returns
+    -------
+    dict
+        (variant, rho index) -> ((runs,) bool "false alarm" (any alarm in
+        ``[transient, onset)``), (runs,) index of the first alarm at or after the onset, -1:
+        none; None for a fault-free scenario).
+    """
     rho_list: list[float | None] = list(rhos) if rhos else [None]
     dt = sc.system.sample_time
     onset = _onset(sc)
     k_tr = round(transient / dt)
     k_on = sc.n_samples if onset is None else round(onset / dt)
-    fa: dict[tuple[str, int], list[np.ndarray]] = {}
-    first: dict[tuple[str, int], list[np.ndarray]] = {}
-    for c in range(-(-runs // chunk)):
-        seeds = list(range(seed0 + c * chunk, seed0 + min((c + 1) * chunk, runs)))
-        traj = simulate_batch(sc, seeds)
-        for label, opts in variants.items():
-            res = runner(monitor or sc.system, gains, traj, **dict(opts))
-            sel = _select(res, channels)
-            if rhos:
-                if not (res.extra.get("threshold_scalable") and res.residual is not None
-                        and res.threshold is not None):
-                    raise FdMonitorError(f"--rho: method {gains.method!r} has no scalable "
-                                         f"thresholds; evaluate it without --rho")
-                thr = np.broadcast_to(res.threshold, res.residual.shape)[..., sel]
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    ratio = (res.residual[..., sel] / thr).max(axis=2)  # (N, K)
-            for j, rho in enumerate(rho_list):
-                # asarray: numpy's stubs type a reduction as a scalar or an array
-                alarm = np.asarray((ratio > rho) if rho is not None
-                                   else res.alarm[..., sel].any(axis=2))
-                fa.setdefault((label, j), []).append(np.asarray(alarm[:, k_tr:k_on].any(axis=1)))
-                if onset is not None:
-                    first.setdefault((label, j), []).append(_first_true(alarm[:, k_on:]))
+    out: dict[tuple[str, int], tuple[np.ndarray, np.ndarray | None]] = {}
+    traj = simulate_batch(sc, list(seeds))
+    for label, opts in variants.items():
+        res = runner(monitor or sc.system, gains, traj, **dict(opts))
+        sel = _select(res, channels)
+        if rhos:
+            if not (res.extra.get("threshold_scalable") and res.residual is not None
+                    and res.threshold is not None):
+                raise FdMonitorError(f"--rho: method {gains.method!r} has no scalable "
+                                     f"thresholds; evaluate it without --rho")
+            thr = np.broadcast_to(res.threshold, res.residual.shape)[..., sel]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = (res.residual[..., sel] / thr).max(axis=2)  # (N, K)
+        for j, rho in enumerate(rho_list):
+            # asarray: numpy's stubs type a reduction as a scalar or an array
+            alarm = np.asarray((ratio > rho) if rho is not None
+                               else res.alarm[..., sel].any(axis=2))
+            out[(label, j)] = (np.asarray(alarm[:, k_tr:k_on].any(axis=1)),
+                               None if onset is None else _first_true(alarm[:, k_on:]))
+        if bar is not None:
             bar.update(1, f"{sc.name} {label}")
-    return fa, first
+    return out
 
 
 def _row(sc: Scenario, label: str, rho: float | None, runs: int, fa: list[np.ndarray],

@@ -22,7 +22,13 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.analysis.library import BagSpec, Corruption, Library, LibraryError
-from fd_monitor.core.simulator import measured_signals, simulate, truth_values
+from fd_monitor.core.simulator import (
+    PlantSimulator,
+    Trajectory,
+    measured_signals,
+    simulate,
+    truth_values,
+)
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.yaml_io import require_memory
 from fd_monitor.wire.adapters import write_adapted
@@ -152,9 +158,9 @@ def simulate_bag(path: str | Path, scenario: Any, seed: int | None, n_samples: i
     (pathlib.Path, tuple of str)
         The bag folder and its topics, in recording order.
     """
-    msgs = simulated_messages(scenario, seed, n_samples)
     if adapter is None:
-        return _write(path, msgs), tuple(dict.fromkeys(m.topic for m in msgs))
+        return _simulate_streaming(path, scenario, seed, n_samples)
+    msgs = simulated_messages(scenario, seed, n_samples)
 
     t_u, t_y = PLANT_U.absolute, PLANT_Y.absolute
     ys = [m for m in msgs if m.topic == t_y]
@@ -166,6 +172,42 @@ def simulate_bag(path: str | Path, scenario: Any, seed: int | None, n_samples: i
         for m in rest:
             w.write_array(m.topic, m.stamp, m.labels, m.values, m.t_ns)
     return Path(path), (*adapter.topics, *dict.fromkeys(m.topic for m in rest))
+
+
+#: Samples simulated and written at a time by :func:`simulate_bag` (memory vs overhead).
+SIM_CHUNK = 4096
+
+
+def _simulate_streaming(path: str | Path, scenario: Any, seed: int | None, n_samples: int,
+                        chunk: int = SIM_CHUNK) -> tuple[Path, tuple[str, ...]]:
+    """:func:`simulate_bag` without an adapter, ``chunk`` samples at a time: the simulator is
+    stepped, the chunk's messages written, and nothing of it kept, so memory does not grow
+    with the bag's length. The bytes are :func:`simulated_messages` written by
+    :func:`~fd_monitor.wire.bags.write_messages` (the simulator is step-based and its noise
+    drawn per run in fixed blocks: a chunk is the same samples, ``test/test_streaming.py``)."""
+    sys_ = scenario.system
+    dt = sys_.sample_time
+    sim = PlantSimulator(scenario, [scenario.seed if seed is None else seed])
+    topics: tuple[str, ...] = ()
+    with BagWriter(path) as w:
+        for k0 in range(0, n_samples, chunk):
+            steps = [sim.step() for _ in range(min(chunk, n_samples - k0))]
+            ks = np.arange(k0, k0 + len(steps))
+            traj = Trajectory(scenario, sim.seeds, ks, ks * dt,
+                              *(np.stack([getattr(st, f) for st in steps], axis=1)
+                                for f in ("u", "y", "x", "mode", "faults", "rho")))
+            cols = {PLANT_U.absolute: (PLANT_U.labels(sys_), traj.u[0]),
+                    PLANT_Y.absolute: (PLANT_Y.labels(sys_), traj.y[0]),
+                    **{side_topic(n).absolute: lv for n, lv in measured_signals(traj).items()},
+                    PLANT_TRUTH.absolute: (PLANT_TRUTH.labels(scenario), truth_values(traj))}
+            if not topics:
+                topics = tuple(cols)
+                for topic in topics:
+                    w.add_topic(topic)
+            for j, k in enumerate(ks.tolist()):
+                for topic, (labels, vals) in cols.items():
+                    w.write_array(topic, k, labels, vals[j], round(k * dt * 1e9))
+    return Path(path), topics
 
 
 def generate_bag(spec: BagSpec, folder: str | Path | None = None) -> Path:

@@ -24,8 +24,8 @@ from fd_monitor.core.envelope import describe_excess
 from fd_monitor.wire.bags import read_bag
 from fd_monitor.wire.topics import ALARM, BIAS_ESTIMATE, PLANT_TRUTH, STATE_ESTIMATE
 
-__all__ = ["Outputs", "analyze_run", "collapse", "episodes", "first_alarms", "mode_tracking",
-           "outputs_of_run", "region_mark",
+__all__ = ["Outputs", "SparseRows", "analyze_run", "collapse", "episodes", "first_alarms",
+           "mode_tracking", "outputs_of_run", "region_mark",
            "read_bag_truth", "recorded_outputs", "segments", "settled_modes", "summarize",
            "summarize_run", "transitions", "true_biases", "truth_at", "truth_facts"]
 
@@ -223,7 +223,44 @@ def outputs_of_run(run: Any) -> Outputs:
                    restarts=list(run.inputs.restarts), bridges=list(run.inputs.bridges))
 
 
-def region_mark(outside: np.ndarray, starts: np.ndarray, a: int, b: int
+@dataclass
+class SparseRows:
+    """A (n_rows, width) array that is zero but at rows ``index`` (the runtime's ``outside``
+    of a long run, kept by :mod:`fd_monitor.analysis.streaming`: a run is mostly inside its
+    region). :func:`region_mark` reads it as it reads the dense array.
+
+    Attributes
+    ----------
+    index : numpy.ndarray
+        (p,) ascending row indices of the non-zero rows.
+    rows : numpy.ndarray
+        (p, width) those rows.
+    n_rows, width : int
+    """
+
+    index: np.ndarray
+    rows: np.ndarray
+    n_rows: int
+    width: int
+
+    def worst(self, lo: int, hi: int) -> tuple[bool, int]:
+        """Whether rows ``lo..hi-1`` have a non-zero one, and the first row of the largest
+        ``max |row|`` among them (``np.argmax`` of the dense slice: ``lo`` when all zero)."""
+        i, j = np.searchsorted(self.index, [lo, hi])
+        if i == j:
+            return False, lo
+        m = int(np.argmax(np.abs(self.rows[i:j]).max(axis=1)))
+        return True, int(self.index[i + m])
+
+    def row(self, r: int) -> np.ndarray:
+        """(width,) row ``r``."""
+        i = int(np.searchsorted(self.index, r))
+        if i < len(self.index) and int(self.index[i]) == r:
+            return np.array(self.rows[i])
+        return np.zeros(self.width)
+
+
+def region_mark(outside: np.ndarray | SparseRows, starts: np.ndarray, a: int, b: int
                 ) -> tuple[bool, np.ndarray, int]:
     """Whether the alarm episode of samples ``a..b`` lies outside the certified region.
 
@@ -253,6 +290,13 @@ def region_mark(outside: np.ndarray, starts: np.ndarray, a: int, b: int
         Sample index of ``worst``.
     """
     s0 = int(starts[np.searchsorted(starts, a, side="right") - 1]) if np.any(starts <= a) else 0
+    if isinstance(outside, SparseRows):          # the same answer from the non-zero rows
+        hit, at = outside.worst(a, b + 1)
+        if not hit:
+            before, at_b = outside.worst(s0, a)
+            if before:
+                hit, at = True, at_b
+        return hit, outside.row(at), at
     part = outside[a:b + 1]
     if not np.any(part != 0.0) and np.any(outside[s0:a] != 0.0):
         part, first = outside[s0:a], s0
@@ -390,14 +434,27 @@ def read_bag_truth(bag: str | Path) -> Any:
 
 
 def truth_at(truth: Any, ks: Sequence[int], labels: Sequence[str]) -> np.ndarray:
-    """(len(ks), len(labels)) truth values at the given stamps (NaN where absent)."""
-    idx = {int(s): i for i, s in enumerate(truth.stamps)}
+    """(len(ks), len(labels)) truth values at the given stamps (NaN where absent); a stamp
+    recorded twice: its last message."""
     out = np.full((len(ks), len(labels)), np.nan)
     cols = [truth.labels.index(lab) for lab in labels]
-    for j, k in enumerate(ks):
-        i = idx.get(int(k))
-        if i is not None:
-            out[j] = truth.values[i, cols]
+    stamps = np.asarray(truth.stamps, dtype=np.int64).reshape(-1)
+    if not stamps.size or not len(ks):
+        return out
+    if stamps.size < 2 or bool(np.all(stamps[1:] > stamps[:-1])):
+        uniq, row = stamps, None                 # the usual truth: one message per stamp
+    else:
+        # sorted, the last message of each stamp (a stable sort keeps the record order)
+        order = np.argsort(stamps, kind="stable")
+        ss = stamps[order]
+        last = np.r_[ss[1:] != ss[:-1], True]
+        uniq, row = ss[last], order[last]
+    kk = np.asarray([int(k) for k in ks], dtype=np.int64) if not isinstance(ks, np.ndarray) \
+        else np.asarray(ks, dtype=np.int64)
+    pos = np.minimum(np.searchsorted(uniq, kk), uniq.size - 1)
+    hit = uniq[pos] == kk
+    idx = pos[hit] if row is None else row[pos[hit]]
+    out[hit] = truth.values[idx][:, cols]
     return out
 
 

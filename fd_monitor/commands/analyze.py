@@ -39,6 +39,7 @@ from fd_monitor.analysis.integrity import add_strict_flag, describe, enforce_str
 from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime, scan_bag
 from fd_monitor.analysis.summary import analyze_run
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
+from fd_monitor.commands.fleet import add_fleet_arguments, is_fleet, run_fleet
 from fd_monitor.core.methods import runtime_for
 from fd_monitor.model.errors import BagError
 from fd_monitor.model.system import System
@@ -48,8 +49,11 @@ __all__ = ["add_arguments", "run", "analyze_arrays", "analyze_bag"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """BAG, --gains, --system, --no-agei, --json, --strict."""
-    parser.add_argument("bag", metavar="BAG", help="rosbag2 folder with /plant/u and /plant/y")
+    """BAG ..., --gains, --system, --no-agei, --json, --strict, the many-bag options."""
+    parser.add_argument("bag", metavar="BAG", nargs="+",
+                        help="rosbag2 folder with /plant/u and /plant/y; several BAGs, a "
+                             "folder of bags or a glob pattern: the many-bag run "
+                             "(doc/howto/fleet.md)")
     parser.add_argument("--gains", required=True, metavar="GAINS",
                         help="gain file of any method (path or name in config/gains/)")
     parser.add_argument("--system", default=None, metavar="SYSTEM",
@@ -63,6 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ablation: run without the AGEI module")
     add_json_flag(parser)
     add_strict_flag(parser)
+    add_fleet_arguments(parser)
 
 
 def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: np.ndarray,
@@ -139,12 +144,12 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     gains = load_gains(gains_source, system)   # plant SHA-256 and certificate
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
-    scan = scan_bag(bag)                        # the one read of the bag
     if adapter is not None:                     # the robot's topics (wire/adapters.py)
-        run = run_bag(bag, gains, system=system, agei=agei, scan=scan, adapter=adapter)
+        run = run_bag(bag, gains, system=system, agei=agei, adapter=adapter)
         return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
                 "method": gains.method, "agei": agei, "adapter": str(adapter),
                 **analyze_run(run), "integrity": run.integrity}
+    scan = scan_bag(bag)                        # the one read of the bag
     present = scan.present
     needed = [PLANT_Y.absolute] + ([PLANT_U.absolute] if system.nu else [])
     for t in needed:
@@ -185,6 +190,9 @@ def _region_cell(a: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Analyse and print."""
+    if is_fleet(args):
+        return run_fleet(args, analyze_bag)
+    args.bag = args.bag[0]
     doc = analyze_bag(args.bag, args.gains, args.system, agei=not args.no_agei,
                       adapter=args.adapter)
     if args.json:

@@ -18,7 +18,7 @@ import argparse
 import sys
 from typing import Any
 
-from fd_monitor.analysis.evaluate import run_campaign
+from fd_monitor.commands._cluster import add_cluster_arguments, campaign_rows
 from fd_monitor.commands._common import add_json_flag, count, number, print_json, print_table
 from fd_monitor.core.methods import load_gains, runtime_class
 from fd_monitor.model.errors import FdMonitorError
@@ -83,6 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write summary.md and PNG plots (detection rate and delay "
                              "against fault magnitude, false-alarm rate) into DIR")
     add_json_flag(parser)
+    add_cluster_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -129,9 +130,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         variants[gains.method] = common
     try:
-        rows = run_campaign(gains, scenarios, args.runs, seed0=args.seed0, chunk=args.chunk,
-                            rhos=args.rho, transient=args.transient, channels=args.channels,
-                            variants=variants, progress=not args.no_progress, system=system)
+        rows = campaign_rows(args, gains, scenarios, args.runs, seed0=args.seed0,
+                             chunk=args.chunk, rhos=args.rho, transient=args.transient,
+                             channels=args.channels, variants=variants,
+                             progress=not args.no_progress, system=system)
     except KeyboardInterrupt:
         if not args.no_progress:          # end the progress bar's line before the message
             sys.stderr.write("\n")

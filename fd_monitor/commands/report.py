@@ -10,7 +10,10 @@ the check of the bag's ``expected.yaml`` when it has one, the figures). Without 
 the gain file named by the bag's ``expected.yaml`` is used; its plant is the one the gain file
 records (``--system`` to give a plant file). A robot's own bag (JointState, Odometry, ...) is
 read through an adapter file with ``--adapter``, as ``analyze --adapter`` does. Campaign
-reports are written by ``python -m fd_monitor evaluate ... --report DIR``.
+reports are written by ``python -m fd_monitor evaluate ... --report DIR``. BAG may also be the
+``--out`` folder of a many-bag ``analyze`` (its ``bags.parquet``): the fleet page ``fleet.md``
+(per robot; per robot, day and channel; bags that could not be analysed) and
+``alarms_over_time.png`` (doc/howto/fleet.md).
 """
 
 from __future__ import annotations
@@ -60,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if args.transient is not None and not 0 <= args.transient < float("inf"):
         raise FdMonitorError(f"--transient {args.transient}: expected a finite number >= 0")
     check_output(args.output, "-o", FdMonitorError, folder=True, force=args.force)
+    if fleet_folder(args.bag):
+        return _fleet(args)
     res = bag_report(args.bag, args.output, args.gains, transient=args.transient,
                      system=args.system, adapter=args.adapter)
     s = res["summary"]
@@ -83,6 +88,33 @@ def run(args: argparse.Namespace) -> int:
               "integrity": describe(res["integrity"])},
              False, title=f"report of {args.bag}")
     enforce_strict(res["integrity"], args.bag, args.strict)
+    return 0
+
+
+def fleet_folder(path: str) -> bool:
+    """``path`` is the tables folder of a many-bag ``analyze`` (not a bag)."""
+    from pathlib import Path
+
+    from fd_monitor.analysis.fleet import BAGS_FILE
+
+    return (Path(path) / BAGS_FILE).is_file()
+
+
+def _fleet(args: argparse.Namespace) -> int:
+    """The fleet page of a many-bag ``analyze``'s tables."""
+    from fd_monitor.analysis.fleet import fleet_report
+
+    res = fleet_report(args.bag, args.output)
+    doc = {"fleet": args.bag, "summary_md": res["summary_md"], "figures": res["figures"],
+           "bags": res["bags"], "errors": res["errors"],
+           "robots": [r["robot"] for r in res["summary"]["robots"]]}
+    if args.json:
+        emit(doc, True)
+    else:
+        emit({"report": res["summary_md"], "figures": ", ".join(res["figures"].values()),
+              "bags": res["bags"], "errors": res["errors"],
+              "robots": ", ".join(doc["robots"]) or "none"}, False,
+             title=f"fleet report of {args.bag}")
     return 0
 
 

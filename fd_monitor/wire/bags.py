@@ -553,6 +553,22 @@ _SKIPPED = {Opcode.ATTACHMENT, Opcode.ATTACHMENT_INDEX, Opcode.METADATA,
             Opcode.METADATA_INDEX}
 
 
+#: Bytes of a bag read before their pages are dropped from the reader's resident memory.
+_RELEASE = 1 << 24
+
+
+def _release(buf: Any, lo: int, hi: int) -> int:
+    """Drop the pages of ``buf[lo:hi]`` (a read-only file mapping, already read: every record
+    is copied out of it) from this process's resident memory, so reading a bag does not grow
+    the process by the bag's size; the page cache keeps them. Returns the new low mark."""
+    top = hi - hi % mmap.PAGESIZE
+    advice = getattr(mmap, "MADV_DONTNEED", None)
+    if top > lo and advice is not None and hasattr(buf, "madvise"):
+        buf.madvise(advice, lo, top - lo)
+        return top
+    return lo
+
+
 def _parse(buf: Any, pos: int, end: int) -> Any:
     """The record at ``buf[pos:end]``, strictly: it must write back to the same bytes."""
     op = buf[pos]
@@ -675,7 +691,10 @@ class _Scan:
                            f"magic)")
         self._summary(buf)
         pos, ended = 8, False
+        released = 0
         while pos < n:
+            if pos - released >= _RELEASE:
+                released = _release(buf, released, pos)
             if n - pos < 9:
                 self.report(pos, f"file ends inside a record header ({n - pos} bytes): the "
                                  f"writer stopped here")
@@ -756,8 +775,12 @@ class _Scan:
         except _PARSE_ERRORS as exc:
             self.report(pos, f"malformed end-of-data record ({exc})")
             return
-        if not self.damage and rec.data_section_crc and \
-                zlib.crc32(buf[:pos]) != rec.data_section_crc:
+        crc = 0
+        if not self.damage and rec.data_section_crc:
+            for i in range(0, pos, _RELEASE):    # in slices: no copy of the whole file
+                crc = zlib.crc32(buf[i:min(i + _RELEASE, pos)], crc)
+                _release(buf, i, min(i + _RELEASE, pos))
+        if not self.damage and rec.data_section_crc and crc != rec.data_section_crc:
             self.report(pos, "data-section CRC mismatch: bytes outside the message chunks "
                              "(indexes, headers) changed; every message read passed its "
                              "chunk CRC")
