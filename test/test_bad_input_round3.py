@@ -600,7 +600,8 @@ def test_evaluate_stops_cleanly_on_ctrl_c(tmp_path):
     scen = tmp_path / "short.yaml"              # 50 samples a run: the bar comes at once
     scen.write_text(yaml.safe_dump(doc))
     p = subprocess.Popen([sys.executable, "-m", "fd_monitor", "evaluate", GAINS, "-s",
-                          str(scen), "--runs", "1000000", "--chunk", "1"],
+                          str(scen), "--runs", "1000000", "--chunk", "1",
+                          "--workers", "0"],             # the in-process campaign
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         assert p.stderr is not None

@@ -14,20 +14,24 @@ __all__ = ["add_cluster_arguments", "campaign_rows", "wants_cluster"]
 
 def add_cluster_arguments(parser: Any) -> None:
     """``--workers N`` and ``--scheduler tcp://HOST:PORT`` on a parser or argument group."""
-    parser.add_argument("--workers", type=int, default=None, metavar="N",
+    from fd_monitor.commands._common import count
+
+    parser.add_argument("--workers", type=count(0, 1024), default=None, metavar="N",
                         help="worker processes of the embedded Dask cluster (default: one "
-                             "per core)")
+                             "per core; evaluate --workers 0: in this process, no cluster)")
     parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                         help="run on this Dask scheduler's workers instead (they need the "
                              "fd_monitor package; for bags, the bags at the same paths)")
 
 
 def wants_cluster(args: argparse.Namespace, tasks: int, runs: int, chunk: int) -> bool:
-    """``evaluate`` runs on Dask when ``--workers`` or ``--scheduler`` is given, or when its
+    """``evaluate`` runs on Dask when ``--workers N > 0`` or ``--scheduler`` is given, or when its
     campaign has more than one chunk of runs (a smaller one runs in this process: a
     cluster's few seconds of start-up would cost more than they save)."""
-    if args.workers is not None or args.scheduler is not None:
+    if args.scheduler is not None:
         return True
+    if args.workers is not None:
+        return args.workers > 0
     return tasks > 1 and runs > chunk
 
 
