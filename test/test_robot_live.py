@@ -87,7 +87,12 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
                      "--adapter", "dc_motor", "--json"])
         assert r.returncode == 0, r.stderr
         doc = json.loads(r.stdout)
-        assert doc["samples"] == 3200 and doc["input_errors"] == [], \
+        # The recorder logs each message when DDS hands it over: a reliable writer's repair
+        # of a lost datagram can reach the recorder hundreds of samples late, which the
+        # offline reader then reports as `late` (seen in 1 of 4 fresh-clone runs). Nothing
+        # else may be reported, and such a repair must stay rare.
+        others = [e for e in doc["input_errors"] if e["kind"] != "late"]
+        assert doc["samples"] == 3200 and others == [] and len(doc["input_errors"]) <= 3, \
             (doc["samples"], doc["input_errors"])
         assert doc["detection"]["sample"] == first
 
