@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from ros_util import Collector, Proc, biased_h1_run, plain_msg, ros_context, spin_until
+from ros_util import Collector, Proc, biased_h1_run, plain_msg, ros_context, spin_until, status_text
 
 pytestmark = pytest.mark.ros
 
@@ -75,9 +75,8 @@ def test_bad_messages_are_reported_and_change_nothing():
         assert any(o.alarm.any() for o in want)
 
         def reported(node, text, level=WARN):
-            return any(s.level == level and (text in s.message or any(
-                text in kv.value for kv in s.values if kv.key == "reasons"))
-                for s in col.statuses(f"{node}: input"))
+            return any(s.level == level and text in status_text(s)
+                       for s in col.statuses(f"{node}: input"))
 
         checks = [("observer", "/plant/y: value h2 is nan"),
                   ("observer", "/plant/y: wrong length: 2 values, expected 3"),

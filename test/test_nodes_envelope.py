@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 
 import pytest
-from ros_util import Collector, ros_context, spin_until
+from ros_util import Collector, ros_context, spin_until, status_text
 
 pytestmark = pytest.mark.ros
 
@@ -40,7 +40,7 @@ def test_observer_warns_outside_certified_region():
         assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 1, 10.0)
 
         def estimate(level, text):
-            return any(s.level == level and text in s.message
+            return any(s.level == level and text in status_text(s)
                        for s in col.statuses("observer: estimate"))
 
         k = 0

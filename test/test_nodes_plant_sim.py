@@ -6,7 +6,7 @@ import signal
 
 import numpy as np
 import pytest
-from ros_util import Collector, Proc, ros_context, spin_until
+from ros_util import Collector, Proc, ros_context, spin_until, status_text
 
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.scenario import load_scenario
@@ -70,7 +70,7 @@ def test_plant_sim_in_process_paced_with_diagnostics():
         ex.add_node(node)
         assert spin_until(ex, lambda: node.done.done(), 30.0)
         assert spin_until(ex, lambda: len(col.msgs["/plant/y"]) == 20, 10.0)
-        assert spin_until(ex, lambda: any("published 20" in s.message
+        assert spin_until(ex, lambda: any("published 20" in status_text(s)
                                           for s in col.statuses("plant_sim")), 10.0)
         assert node.exit_code == 0 and node.published == 20
         st = col.statuses("plant_sim: simulation")[-1]

@@ -50,7 +50,7 @@ def test_qb_observer_warns_outside_a_stated_envelope(tmp_path):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
-    from ros_util import Collector, ros_context, spin_until
+    from ros_util import Collector, ros_context, spin_until, status_text
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.core.methods import load_gains
@@ -84,7 +84,7 @@ def test_qb_observer_warns_outside_a_stated_envelope(tmp_path):
         assert spin_until(ex, lambda: pub.get_subscription_count() >= 1, 10.0)
 
         def warned():
-            return any(s.level == WARN and "outside certified region: x1 " in s.message
+            return any(s.level == WARN and "outside certified region: x1 " in status_text(s)
                        for s in col.statuses("observer: estimate"))
 
         k = 0

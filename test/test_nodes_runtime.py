@@ -119,7 +119,7 @@ def test_monitor_reports_a_mode_the_design_lacks_and_a_bad_side_signal():
     *_, got, _, statuses = _drive("farhat_koenig_fault", 600, edit, expect=599,
                                   pause_at=(230,))
     est = [s for s in statuses if s.name.endswith("monitor: estimate")]
-    warn = [s for s in est if "outside certified region: mode above by" in s.message]
+    warn = [s for s in est if "outside certified region: mode above by" in status_text(s)]
     assert warn, [s.message for s in est][-5:]
     stamps = got["/fd/residual"][2]
     assert 400 not in stamps and stamps[-1] == 599 and len(stamps) == 599
