@@ -63,7 +63,8 @@ DRIVER = r"""
 import json, sys, time
 import rclpy
 from std_msgs.msg import Float64MultiArray
-from fd_monitor.nodes.common import data_pub_qos, use_dds_profile
+from fd_monitor.nodes.pacing import use_dds_profile
+from fd_monitor.nodes.qos import data_pub_qos
 from fd_monitor.wire.conversions import to_msg
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 use_dds_profile(); rclpy.init()
@@ -122,7 +123,7 @@ LAYOUTS = {
 
 
 def env() -> dict[str, str]:
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     use_dds_profile()
     e = dict(os.environ)
@@ -161,7 +162,7 @@ class Receiver:
         from rclpy.executors import SingleThreadedExecutor
         from std_msgs.msg import Float64MultiArray
 
-        from fd_monitor.nodes.common import data_sub_qos
+        from fd_monitor.nodes.qos import data_sub_qos
 
         self.node = rclpy.create_node(f"bench_rx_{topic.strip('/').replace('/', '_')}")
         self.arrivals: dict[int, float] = {}

@@ -163,8 +163,8 @@ def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
     detector): more than max_lag (1 s here) behind, the observer skips to the newest sample
     (counted: shed on /diagnostics); a sample published after the burst is processed within
     max_lag + 2 s."""
-    from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.nodes.qos import data_pub_qos
 
     u, y = nominal_run(4200)
     burst = 4000      # below Fast DDS's KEEP_ALL reader limit (5,000): no DDS loss here
@@ -215,7 +215,7 @@ def test_label_attack_is_refused_with_bounded_memory_and_good_input_goes_on():
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-    from fd_monitor.nodes.common import data_pub_qos
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     u, y = nominal_run(120)

@@ -44,7 +44,7 @@ class Rig:
         from rclpy.node import Node
         from std_msgs.msg import Float64MultiArray
 
-        from fd_monitor.nodes.common import data_pub_qos
+        from fd_monitor.nodes.qos import data_pub_qos
 
         self.nodes = list(nodes)
         self.col = Collector(ctx, [f"{ns}/{t}" for t in topics], diagnostics=True,
@@ -90,8 +90,8 @@ def test_default_and_best_effort_publishers_feed_the_standalone_detector():
     the input stops."""
     from rclpy.qos import qos_profile_sensor_data
 
-    from fd_monitor.nodes.common import ERROR, STALE, WARN
     from fd_monitor.nodes.detector import make_nodes
+    from fd_monitor.nodes.diagnostics import ERROR, STALE, WARN
 
     u, y = data()
     want = expected(u, y)
@@ -246,7 +246,7 @@ def test_stray_stamp_does_not_blind_the_monitor():
 def test_runtime_parameters_and_gain_swap():
     from rclpy.parameter import Parameter
 
-    from fd_monitor.nodes.common import WARN
+    from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.monitor import make_chain
 
     u, y = data()
@@ -278,7 +278,7 @@ def test_runtime_parameters_and_gain_swap():
 def test_plain_y_without_u_is_reported_not_processed():
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import WARN
+    from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.observer import ObserverNode
 
     with ros_context() as ctx:

@@ -27,8 +27,9 @@ def test_fused_monitor_bad_input_reported_outputs_equal_monitor():
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import ERROR, WARN, data_pub_qos
+    from fd_monitor.nodes.diagnostics import ERROR, WARN
     from fd_monitor.nodes.monitor import MonitorNode, make_nodes
+    from fd_monitor.nodes.qos import data_pub_qos
 
     _, u, y, want = biased_h1_run(K)  # a large bias on h1 from sample 40: alarms in the run
 

@@ -56,8 +56,9 @@ def test_qb_observer_warns_outside_a_stated_envelope(tmp_path):
     from fd_monitor.core.methods import load_gains
     from fd_monitor.model.gains import write_gain_doc
     from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.common import WARN, data_pub_qos
+    from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.observer import ObserverNode
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     system = load_system("pwa_cascade")

@@ -43,7 +43,7 @@ class Bench:
         from rclpy.node import Node
         from std_msgs.msg import Float64MultiArray
 
-        from fd_monitor.nodes.common import data_pub_qos
+        from fd_monitor.nodes.qos import data_pub_qos
 
         self.nodes = list(nodes)
         self.col = Collector(ctx, list(topics), diagnostics=True, name="manners_collector")
@@ -107,7 +107,7 @@ def test_aggregator_reads_an_idle_an_active_an_alarmed_and_a_stopped_monitor():
     """Two fused monitors (namespaces /a and /b): idle OK 'waiting for input'; active OK;
     /b alarmed ERROR; /a stopped after healthy input: STALE as a whole (not ERROR).
     hardware_id: <namespace>/<plant>, or the parameter."""
-    from fd_monitor.nodes.common import OK, STALE
+    from fd_monitor.nodes.diagnostics import OK, STALE
     from fd_monitor.nodes.monitor import MonitorNode
 
     OKi, ERRi, STALEi = 0, 2, 3
@@ -165,8 +165,8 @@ def test_standalone_detector_reset_resets_the_whole_chain_and_the_verdict():
     from std_msgs.msg import Float64MultiArray
     from std_srvs.srv import Trigger
 
-    from fd_monitor.nodes.common import ERROR, OK
     from fd_monitor.nodes.detector import make_nodes
+    from fd_monitor.nodes.diagnostics import ERROR, OK
     from fd_monitor.nodes.fault import fault_qos
     from fd_monitor.wire.conversions import decode
 
@@ -221,7 +221,7 @@ def test_lifecycle_manager_takes_over_inactive_status_and_warns_that_clear():
     from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
 
-    from fd_monitor.nodes.common import MAX_MESSAGE, OK, STALE, WARN
+    from fd_monitor.nodes.diagnostics import MAX_MESSAGE, OK, STALE, WARN
     from fd_monitor.nodes.monitor import MonitorNode
 
     with ros_context() as ctx:
@@ -349,7 +349,7 @@ def test_fused_monitor_publishes_the_2cm_verdict_until_reset():
     from fd_monitor.core.thresholds import as_gains
     from fd_monitor.core.verdict import FaultVerdict, VerdictRule
     from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.common import ERROR
+    from fd_monitor.nodes.diagnostics import ERROR
     from fd_monitor.nodes.monitor import MonitorNode
 
     n = 300

@@ -121,8 +121,8 @@ def _gains(out: Path, env: dict[str, str]) -> Path:
 
 
 def _env(out: Path) -> dict[str, str]:
-    from fd_monitor.nodes.common import use_dds_profile  # noqa: F401  (ROS present?)
     from fd_monitor.nodes.domain import isolate_env
+    from fd_monitor.nodes.pacing import use_dds_profile  # noqa: F401  (ROS present?)
 
     # Its own domain: a foreign node in it would feed the chain or count as a subscriber.
     env = dict(isolate_env(dict(os.environ)))

@@ -7,7 +7,7 @@ events of the one time base (:class:`fd_monitor.wire.adapters.AdapterJoin` on
 input policy as ``u`` and ``y`` with :func:`~fd_monitor.wire.adapters.feed` -- the function
 the offline reader calls -- so everything after it (gaps, new runs, the runtime step,
 diagnostics) is the node's usual path. Subscriptions
-meet reliable and best-effort volatile publishers (:class:`~fd_monitor.nodes.common.DataInput`).
+meet reliable and best-effort volatile publishers (:class:`~fd_monitor.nodes.data_input.DataInput`).
 A message the adapter cannot read (unknown joint, missing field, NaN, another type) is one
 line, logged (throttled) and reported WARN on the node's ``input`` channel; the node keeps
 going. A mapped topic published with another type is reported on ``ros graph``.
@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.nodes.bag_nodes import message_class
-from fd_monitor.nodes.common import DataInput, Param, pub_events
+from fd_monitor.nodes.data_input import DataInput
+from fd_monitor.nodes.params import Param
+from fd_monitor.nodes.qos import pub_events
 from fd_monitor.wire.adapters import HOLD_WAIT, Adapter, AdapterJoin, encode, feed, load_adapter
 
 __all__ = ["ADAPTER_PARAM", "AdapterInput", "RobotPublishers"]

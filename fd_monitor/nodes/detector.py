@@ -31,16 +31,11 @@ from fd_monitor.model.errors import FdMonitorError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
 from fd_monitor.nodes import agei, bias_estimator, observer
-from fd_monitor.nodes.common import (
-    ERROR,
-    OK,
-    WARN,
-    Diagnostics,
-    NodeUsage,
-    Param,
-    run_node,
-)
+from fd_monitor.nodes.diagnostics import ERROR, OK, WARN, Diagnostics
 from fd_monitor.nodes.fd_node import COMMON_PARAMS, WARN_SHARE, FdNode, Input
+from fd_monitor.nodes.params import Param
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.conversions import decode
 from fd_monitor.wire.topics import (
     ALARM,

@@ -21,7 +21,8 @@ from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.core.verdict import FaultVerdict, VerdictOutput, VerdictRule
 from fd_monitor.model.system import System
-from fd_monitor.nodes.common import ERROR, OK, Diagnostics, incompatible_text, pub_events
+from fd_monitor.nodes.diagnostics import ERROR, OK, Diagnostics
+from fd_monitor.nodes.qos import incompatible_text, pub_events
 from fd_monitor.wire.topics import FAULT, Layout, fault_layout
 
 __all__ = ["FaultHost", "FaultReport", "fault_qos"]

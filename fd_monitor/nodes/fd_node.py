@@ -65,22 +65,18 @@ from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageErr
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes.adapter_input import AdapterInput
-from fd_monitor.nodes.common import (
-    DEFAULT_DEPTH,
+from fd_monitor.nodes.data_input import DataInput
+from fd_monitor.nodes.diagnostics import (
     MAX_MESSAGE,
     OK,
     WAITING,
     WARN,
-    DataInput,
     Diagnostics,
-    Param,
-    SerializedArray,
-    data_pub_qos,
-    declare_parameters,
     default_hardware_id,
-    incompatible_text,
-    pub_events,
 )
+from fd_monitor.nodes.params import Param, declare_parameters
+from fd_monitor.nodes.qos import DEFAULT_DEPTH, data_pub_qos, incompatible_text, pub_events
+from fd_monitor.nodes.serialized import SerializedArray
 from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
@@ -260,7 +256,7 @@ class FdNode(LifecycleNode):
 
     inputs: Sequence[Input] = ()
     #: ``run_node`` runs the node on rclpy's EventsExecutor (plain inputs still get their
-    #: source timestamps: :func:`~fd_monitor.nodes.common.with_message_info`).
+    #: source timestamps: :func:`~fd_monitor.nodes.data_input.with_message_info`).
     events_executor = True
     #: Gain-file method (a name of :data:`fd_monitor.core.methods.METHODS`) -> the function
     #: building the node's runtime for it, called with the node (:meth:`start_runtime`).
@@ -411,7 +407,7 @@ class FdNode(LifecycleNode):
 
         When the context is gone already (SIGINT, SIGTERM) no transition can be announced and
         the node's rosout publisher is dead: the log line is left in ``final_log`` (logger
-        name, text) for :func:`~fd_monitor.nodes.common.run_node` to write once the node is
+        name, text) for :func:`~fd_monitor.nodes.process.run_node` to write once the node is
         destroyed (console and log file only).
         """
         state_id, label = self._state_machine.current_state
@@ -947,7 +943,7 @@ class FdNode(LifecycleNode):
 
     def publish_array(self, pub: Any, labels: Sequence[str], stamp: int, values: Any) -> None:
         """Publish one stamped, labelled message (serialized directly:
-        :class:`~fd_monitor.nodes.common.SerializedArray`, one per layout)."""
+        :class:`~fd_monitor.nodes.serialized.SerializedArray`, one per layout)."""
         key = tuple(labels)
         ser = self._serialized.get(key)
         if ser is None:

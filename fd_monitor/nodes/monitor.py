@@ -30,7 +30,7 @@ executor in one process, each with its own name, parameters and diagnostics: the
 form of the ``thresholds`` method in one process (bit-identical to the fused node).
 
 The executor is rclpy's EventsExecutor driven by a ``spin_once`` loop (its ``spin()`` does
-nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
+nothing in these wheels); see :func:`fd_monitor.nodes.process.run_node`.
 """
 
 from __future__ import annotations
@@ -52,8 +52,8 @@ from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
-from fd_monitor.nodes.common import OK, NodeUsage, Param, SerializedArray, run_node
 from fd_monitor.nodes.detector import DetectorNode, ResidualReport, companion_name
+from fd_monitor.nodes.diagnostics import OK
 from fd_monitor.nodes.fault import FaultReport
 from fd_monitor.nodes.fd_node import (
     COMMON_PARAMS,
@@ -65,6 +65,10 @@ from fd_monitor.nodes.fd_node import (
     Input,
 )
 from fd_monitor.nodes.observer import EstimateReport, ObserverNode
+from fd_monitor.nodes.params import Param
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.serialized import SerializedArray
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
     ALARM,
     BIAS_ESTIMATE,
