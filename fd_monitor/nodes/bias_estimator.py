@@ -19,9 +19,11 @@ from fd_monitor.core.bias_estimator import BiasEstimator
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, FAULT_PARAMS
 from fd_monitor.nodes.diagnostics import OK, WARN, Diagnostics
 from fd_monitor.nodes.fault import FaultReport
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FAULT_PARAMS, FdNode, Input
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
 from fd_monitor.nodes.process import run_node
 from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (

@@ -31,8 +31,10 @@ from fd_monitor.model.errors import FdMonitorError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
 from fd_monitor.nodes import agei, bias_estimator, observer
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, WARN_SHARE
 from fd_monitor.nodes.diagnostics import ERROR, OK, WARN, Diagnostics
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, WARN_SHARE, FdNode, Input
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
 from fd_monitor.nodes.params import Param
 from fd_monitor.nodes.process import run_node
 from fd_monitor.nodes.usage import NodeUsage

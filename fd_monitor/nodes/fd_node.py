@@ -47,7 +47,6 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
@@ -65,6 +64,7 @@ from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageErr
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes.adapter_input import AdapterInput
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, RUNTIME_PARAMS
 from fd_monitor.nodes.data_input import DataInput
 from fd_monitor.nodes.diagnostics import (
     MAX_MESSAGE,
@@ -74,80 +74,19 @@ from fd_monitor.nodes.diagnostics import (
     Diagnostics,
     default_hardware_id,
 )
+from fd_monitor.nodes.inputs import Input
 from fd_monitor.nodes.params import Param, declare_parameters
 from fd_monitor.nodes.qos import DEFAULT_DEPTH, data_pub_qos, incompatible_text, pub_events
 from fd_monitor.nodes.serialized import SerializedArray
 from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
-from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
 from fd_monitor.wire.stream import (
-    MAX_GAP,
-    MAX_LAG,
-    RESTART_AFTER,
-    STAMP_HORIZON,
     InputStream,
     TopicOrder,
 )
-from fd_monitor.wire.topics import RESET, Layout, Topic
+from fd_monitor.wire.topics import RESET, Topic
 
-__all__ = ["COMMON_PARAMS", "FAULT_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode",
-           "Input", "load_plant_and_gains"]
-
-#: The join's hole timeout, of every node that joins plant/u and plant/y.
-GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have been complete "
-                    "before a missing one is declared lost (a hole: restart at the next valid "
-                    "sample); absorbs out-of-order publication", low=0.001, high=3600.0)
-#: The longest hole bridged, of every node that joins plant/u and plant/y.
-MAX_GAP_PARAM = Param("max_gap", MAX_GAP, "lost samples in a row that are bridged: the run "
-                      "goes on with its estimates, alarm and isolation memory; a longer hole "
-                      "restarts the run (fresh state); 0: every hole restarts", low=0,
-                      high=1000000)
-#: The per-channel WARN level of every node that detects.
-WARN_SHARE = Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its "
-                   "threshold", read_only=False, low=0.0, high=1.0)
-
-COMMON_PARAMS = (
-    Param("system", "three_tank", "plant file, or the name of a shipped plant"),
-    Param("gains", "three_tank_thresholds", "gain file (path or name in config/gains/); "
-          "loaded and its certificate re-verified at configure; settable at runtime (a bad "
-          "one is refused, the old one keeps running)", read_only=False),
-    Param("autostart", True, "configure and activate at start; a lifecycle manager's first "
-          "configure then takes over (deactivate, cleanup, configure as asked); false: wait "
-          "for lifecycle transitions"),
-    Param("hardware_id", "", "hardware_id of the /diagnostics statuses; empty: "
-          "<namespace>/<plant> (the plant alone in the root namespace)"),
-    Param("stale_timeout", 2.0, "s without input before the input channel turns STALE",
-          read_only=False, low=0.01, high=1.0e6),
-    Param("diagnostics_period", 1.0, "s between /diagnostics publications",
-          read_only=False, low=0.01, high=3600.0),
-    Param("log_throttle", 1.0, "s between two log lines about bad input (the others are "
-          "counted)", read_only=False, low=0.0, high=3600.0),
-    Param("stamp_horizon", STAMP_HORIZON, "samples above the next expected stamp beyond which a "
-          "stamp is held as a possible new run, not joined", low=1, high=2**53),
-    Param("restart_after", RESTART_AFTER, "s without progress before held stamps (a stream that "
-          "restarted lower, or jumped beyond the horizon) become a new run", low=0.001,
-          high=3600.0),
-    Param("qos_depth", DEFAULT_DEPTH, "history depth of the publishers", low=10,
-          high=1000000),
-    Param("max_pending", 100000, "samples buffered while waiting for inputs", low=10,
-          high=10000000),
-    Param("max_lag", MAX_LAG, "s a complete sample may wait behind a backlog before the "
-          "node sheds load: it skips to the newest complete sample (counted: shed_samples "
-          "on /diagnostics); at least gap_timeout; 0.0: never (every sample processed, "
-          "however late: flat-out replays are lossless)", low=0.0, high=3600.0),
-)
-
-#: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes
-#: that publish ``fd/fault`` (monitor, bias_estimator).
-FAULT_PARAMS = (
-    Param("fault_confirm", 3, "fault verdict: alarms of a channel within fault_window that "
-          "set its fault", low=1, high=100000),
-    Param("fault_window", 1.0, "fault verdict: s of plant time over which alarms are counted",
-          low=0.0, high=1.0e6),
-    Param("fault_clear_after", 5.0, "fault verdict: s of plant time without evidence (alarm, "
-          "isolation, significant estimate) after which a fault clears (or ~/reset)",
-          low=0.0, high=1.0e6),
-)
+__all__ = ["FdNode", "load_plant_and_gains"]
 
 #: s a plain sample waits for a later held input (``plant/u``) before it is paired with the
 #: latest one published before it.
@@ -159,72 +98,6 @@ _GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
 #: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
 _WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run",
                         "shed", "feedback_back"))
-
-#: Parameters that take effect when set (the others are read-only).
-RUNTIME_PARAMS = ("gains", "stale_timeout", "diagnostics_period", "log_throttle",
-                  "warn_share")
-
-
-@dataclass(frozen=True)
-class Input:
-    """One joined input of a node.
-
-    Attributes
-    ----------
-    name : str
-        Key in ``process``'s inputs.
-    topic : str
-        Relative topic name (resolved in the node's namespace).
-    labels : tuple of str, optional
-        Expected channel names (None: accept any, check ``size`` only).
-    size : int, optional
-    initial : object
-        For feedback inputs: the value at the node's first sample; ``None`` = required.
-    plain_ok : bool
-        Accept unstamped messages (a user's driver).
-    hold : bool
-        A plain message is held (sample-and-hold): each plain message of the other plain
-        inputs (``plant/y``) gets the latest held one published before it.
-    allow_nan : bool
-        NaN is a value (``fd/threshold_override``: no override).
-    stamp_offset : int
-        Joined at ``stamp + stamp_offset``: -1 for a feedback message (stamped k + 1) that
-        is needed at the sample it was decided at (k).
-    sequence : bool
-        ``fd/state_estimate`` of the entry node: its stamps are the samples this node
-        processes and its ``restart`` field flags a restart (downstream role of
-        :class:`~fd_monitor.wire.join.StampJoin`).
-    layout : Layout, optional
-        The topic's layout for the plant (:meth:`of`): labels and field index table, built
-        once; ``process`` reads the fields through it.
-    """
-
-    name: str
-    topic: str
-    labels: tuple[str, ...] | None = None
-    size: int | None = None
-    initial: Any = None
-    plain_ok: bool = False
-    hold: bool = False
-    allow_nan: bool = False
-    stamp_offset: int = 0
-    sequence: bool = False
-    layout: Layout | None = None
-
-    def __post_init__(self) -> None:
-        if self.sequence and self.layout is None:
-            raise ValueError(f"input {self.name}: a sequence input is read by field: give "
-                             f"its layout (Input.of)")
-
-    @classmethod
-    def of(cls, name: str, topic: Topic, source: Any, **kwargs: Any) -> Input:
-        """The input of a declared topic (:mod:`fd_monitor.wire.topics`) for a plant."""
-        return cls.laid_out(name, topic, topic.layout(source), **kwargs)
-
-    @classmethod
-    def laid_out(cls, name: str, topic: Topic, layout: Layout, **kwargs: Any) -> Input:
-        """The input of a declared topic with a given layout (a runtime's own labels)."""
-        return cls(name, topic.name, layout.labels, layout=layout, **kwargs)
 
 
 def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainFile]:

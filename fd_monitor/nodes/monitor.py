@@ -52,18 +52,18 @@ from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
 from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
-from fd_monitor.nodes.detector import DetectorNode, ResidualReport, companion_name
-from fd_monitor.nodes.diagnostics import OK
-from fd_monitor.nodes.fault import FaultReport
-from fd_monitor.nodes.fd_node import (
+from fd_monitor.nodes.chain_params import (
     COMMON_PARAMS,
     FAULT_PARAMS,
     GAP_TIMEOUT,
     MAX_GAP_PARAM,
     WARN_SHARE,
-    FdNode,
-    Input,
 )
+from fd_monitor.nodes.detector import DetectorNode, ResidualReport, companion_name
+from fd_monitor.nodes.diagnostics import OK
+from fd_monitor.nodes.fault import FaultReport
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
 from fd_monitor.nodes.observer import EstimateReport, ObserverNode
 from fd_monitor.nodes.params import Param
 from fd_monitor.nodes.process import run_node

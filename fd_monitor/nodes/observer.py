@@ -30,8 +30,10 @@ from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, Observer
 from fd_monitor.core.qb import QBObserver
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, GAP_TIMEOUT, MAX_GAP_PARAM
 from fd_monitor.nodes.diagnostics import OK, WARN, Diagnostics
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, GAP_TIMEOUT, MAX_GAP_PARAM, FdNode, Input
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
 from fd_monitor.nodes.process import run_node
 from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
