@@ -20,9 +20,10 @@ a new run, flagged ``restart`` to every node downstream; any other node asks the
 Each node declares its inputs (relative topic, expected labels, required or feedback with its
 initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray`` -> core step
 -> message -> publish. This base decodes and validates every message
-(:func:`~fd_monitor.wire.conversions.decode`), pairs plain (unstamped) messages by
-sample-and-hold (a plain ``plant/y`` gets the latest ``plant/u`` published before it, by
-the DDS source timestamps; no u yet: reported, sample not processed), joins inputs on the stamp
+(:func:`~fd_monitor.wire.conversions.decode`), pairs plain (unstamped) messages by the one
+hold rule (:mod:`fd_monitor.wire.hold`: a plain ``plant/y`` gets the latest ``plant/u``
+published before it, by the DDS source timestamps; no u yet: reported, sample not
+processed), joins inputs on the stamp
 through the input policy offline reading shares (:class:`~fd_monitor.wire.stream.InputStream`:
 per-topic order check, :class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond
 ``stamp_horizon``, a stream that restarts lower = a new run after ``restart_after`` s),
@@ -45,7 +46,6 @@ being changed by other work.
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any
@@ -79,6 +79,7 @@ from fd_monitor.nodes.params import Param, declare_parameters
 from fd_monitor.nodes.qos import DEFAULT_DEPTH, data_pub_qos, incompatible_text, pub_events
 from fd_monitor.nodes.serialized import SerializedArray
 from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
+from fd_monitor.wire.hold import HOLD_WAIT, HeldPairing
 from fd_monitor.wire.join import Sample, StampJoin
 from fd_monitor.wire.stream import (
     InputStream,
@@ -88,9 +89,6 @@ from fd_monitor.wire.topics import RESET, Topic
 
 __all__ = ["FdNode", "load_plant_and_gains"]
 
-#: s a plain sample waits for a later held input (``plant/u``) before it is paired with the
-#: latest one published before it.
-HOLD_WAIT = 0.1
 
 #: The ``ros graph`` status without a standing problem.
 _GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
@@ -407,9 +405,7 @@ class FdNode(LifecycleNode):
         self.join.reset()
         if self.adapter_input is not None:
             self.adapter_input.reset()
-        self._waiting.clear()
-        for hist in self._held.values():
-            hist.clear()
+        self._pairing.clear()
         self.reset()
         self.get_logger().info(f"reset ({why}): the next complete sample starts a new run")
 
@@ -520,9 +516,9 @@ class FdNode(LifecycleNode):
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
-        self._held: dict[str, deque[tuple[int, np.ndarray]]] = {
-            i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
-        self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
+        #: plain samples and the held inputs they are paired with (the one hold rule)
+        self._pairing = HeldPairing([i.name for i in inputs if i.hold], HOLD_WAIT,
+                                    DEFAULT_DEPTH)
         self._data_inputs = {}
         # an adapter file (nodes whose parameters have one): the robot's topics give u and y
         self.adapter_input = None
@@ -534,7 +530,7 @@ class FdNode(LifecycleNode):
             self._data_inputs[inp.name] = self.subscribe(inp.topic, cb, inp.plain_ok,
                                                          raw=True)
         self._open_loop: set[str] = set()
-        if self._held:
+        if self._pairing:
             self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
         # A hole, lost feedback or a new run must be declared even when no further message
         # arrives.
@@ -587,11 +583,11 @@ class FdNode(LifecycleNode):
             if d.stamp is None:
                 t = int(info["source_timestamp"]) if info is not None else time.time_ns()
                 if inp.hold:
-                    self._held[inp.name].append((t, d.values))
+                    self._pairing.hold(inp.name, t, d.values)
                 else:
                     d = stamper.stamp(d)
-                    self._waiting.append((t, time.monotonic(), inp, int(d.stamp or 0),
-                                          d.values))
+                    self._pairing.sample(t, time.monotonic(), (inp, int(d.stamp or 0),
+                                                               d.values))
                 self._pair_plain()
                 return
             if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
@@ -601,25 +597,13 @@ class FdNode(LifecycleNode):
         return cb
 
     def _pair_plain(self, now: float | None = None) -> None:
-        """Sample-and-hold: pair each plain sample with the latest held input (``plant/u``)
-        published before it (source timestamps). A sample waits until a later held input
-        arrived (every earlier one is then in) or for :data:`HOLD_WAIT` s."""
-        while self._waiting:
-            t, arrival, inp, k, values = self._waiting[0]
-            later = all(h and h[-1][0] > t for h in self._held.values())
-            if not later and (now is None or now - arrival < HOLD_WAIT):
-                return
-            self._waiting.popleft()
-            missing = []
-            for name, hist in self._held.items():
-                before = [v for tu, v in hist if tu <= t]
-                if before:
-                    self.on_input(name, k, before[-1])
-                else:
-                    missing.append(name)
-                # Keep the one held at t: the next samples may still need it.
-                while len(hist) > 1 and hist[1][0] <= t:
-                    hist.popleft()
+        """Pair each plain sample with the held inputs (``plant/u``) by the one hold rule
+        (:class:`~fd_monitor.wire.hold.HeldPairing`: the latest held value published at or
+        before it, by source timestamps) and join it; a sample with no held value before it
+        is reported and not processed."""
+        for (inp, k, values), held, missing in self._pairing.pairs(now):
+            for name, value in held.items():
+                self.on_input(str(name), k, value)
             if missing:
                 topics = [self.resolve_topic_name(i.topic) for i in self.inputs
                           if i.name in missing]
@@ -759,7 +743,7 @@ class FdNode(LifecycleNode):
             self.diag.touch("input")
 
     def _on_hold_timer(self) -> None:
-        if self.active and self._waiting:
+        if self.active and self._pairing.waiting:
             self._pair_plain(time.monotonic())
 
     def _on_gap_timer(self) -> None:
