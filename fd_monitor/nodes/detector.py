@@ -19,7 +19,7 @@ alarm on ``/fd/alarm``, as :func:`fd_monitor.analysis.offline.run_bag` computes 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from rclpy.qos import QoSProfile
@@ -32,11 +32,11 @@ from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
 from fd_monitor.nodes import agei, bias_estimator, observer
 from fd_monitor.nodes.chain_params import COMMON_PARAMS, WARN_SHARE
-from fd_monitor.nodes.diagnostics import ERROR, OK, WARN, Diagnostics
 from fd_monitor.nodes.fd_node import FdNode
 from fd_monitor.nodes.inputs import Input
 from fd_monitor.nodes.params import Param
 from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.reports import ResidualReport
 from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.conversions import decode
 from fd_monitor.wire.topics import (
@@ -49,7 +49,7 @@ from fd_monitor.wire.topics import (
     THRESHOLD_OVERRIDE,
 )
 
-__all__ = ["DetectorNode", "ResidualReport", "USAGE", "main"]
+__all__ = ["DetectorNode", "USAGE", "main"]
 
 PARAMS = (
     WARN_SHARE,
@@ -73,69 +73,7 @@ USAGE = NodeUsage(
                (DIAGNOSTICS, "one status per channel: residual, threshold, margin")))
 
 
-class ResidualHost(Protocol):
-    """What :class:`ResidualReport` needs of its node (a protocol: mypy checks each host)."""
-
-    diag: Diagnostics
-    params: Any
-    detector: Any
-    channels: list[str]
-    sigma_hat: Any
-    _alarmed: set[str]
-    _episode: int
-
-    def mode_name(self, mode: int) -> str: ...
-    def gain_values(self) -> dict[str, str]: ...
-    def get_logger(self) -> Any: ...
-    def _log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None: ...
-
-
-class ResidualReport:
-    """Per-channel /diagnostics and alarm log lines of a detecting node (detector, monitor).
-
-    Uses the node's ``channels`` (one ``residual <name>`` status each), ``diag``,
-    ``params.warn_share``, ``system``, ``detector``, ``sigma_hat`` (latest bias estimate),
-    ``_alarmed`` and ``_episode`` (:class:`ResidualHost`).
-    """
-
-    def _report(self: ResidualHost, k: int, mode: int, signal: Any, threshold: Any,
-                alarm: Any) -> None:
-        share = self.params.warn_share
-        qb = not isinstance(self.detector, ResidualDetector)
-        self._log_alarms(k, signal, threshold, alarm)
-        for i, ch in enumerate(self.channels):
-            r, R = float(signal[i]), float(threshold[i])
-            if alarm[i]:
-                level, msg = ERROR, "alarm: |residual| > threshold"
-            elif abs(r) > share * R:
-                level, msg = WARN, f"|residual| > {share:g} x threshold"
-            else:
-                level, msg = OK, "ok"
-            values = {"sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
-                      "mode": self.mode_name(mode), **self.gain_values()}
-            if not qb:
-                values["sigma_hat"] = float(self.sigma_hat[i])
-            self.diag.update(ch, level, msg, values)
-
-    def _log_alarms(self: ResidualHost, k: int, signal: Any, threshold: Any, alarm: Any
-                    ) -> None:
-        """One line when a channel's alarm starts, one when every alarm is over."""
-        now = {ch for i, ch in enumerate(self.channels) if alarm[i]}
-        log = self.get_logger()
-        if now and not self._alarmed:
-            self._episode += 1
-        for i, ch in enumerate(self.channels):
-            if ch in now and ch not in self._alarmed:
-                log.warning(f"alarm episode {self._episode}: {ch} at sample {k}: "
-                            f"|r| = {abs(float(signal[i])):.4g} > R = "
-                            f"{float(threshold[i]):.4g}")
-        if self._alarmed and not now:
-            log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
-                     f"within its threshold")
-        self._alarmed = now
-
-
-class DetectorNode(ResidualReport, FdNode):
+class DetectorNode(FdNode):
     """Residual detector node: thresholds (``thresholds``) or QB bounds (``qb``).
 
     Parameters
@@ -165,11 +103,12 @@ class DetectorNode(ResidualReport, FdNode):
         # the fields of the state estimate, resolved once
         self._i_est = (est.index["mode"], est.index["x_hat"], est.index["y_tilde"])
         self.sigma_hat = np.zeros(self.system.ny)
-        self._alarmed: set[str] = set()
-        self._episode = 0
         self.start_runtime()
         for ch in self.channels:
             self.diag.add(ch, self.params.stale_timeout)
+        self.residual_report = ResidualReport(self.diag, self.get_logger(), self.system,
+                                              self.channels, lambda: self.params.warn_share,
+                                              self.gain_values)
 
     def build_core(self, gains: Any) -> None:
         """A new detector for another gain file (runtime swap)."""
@@ -240,7 +179,9 @@ class DetectorNode(ResidualReport, FdNode):
         for topic, pub in self.pubs.items():
             lay = self._layouts[topic]
             self.publish_array(pub, lay.labels, k, lay.encode(pay))
-        self._report(k, mode, pay["residual"], pay["threshold"], pay["alarm"])
+        self.residual_report.report(k, mode, pay["residual"], pay["threshold"], pay["alarm"],
+                                    self.sigma_hat if isinstance(self.detector,
+                                                                 ResidualDetector) else None)
 
     def _step_thresholds(self, k: int, mode: int, x_hat: np.ndarray, y_t: np.ndarray,
                          inputs: dict[str, Any]) -> dict[str, Any]:

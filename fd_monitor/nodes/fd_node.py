@@ -464,13 +464,16 @@ class FdNode(LifecycleNode):
         """Build the runtime of the gain file's method (the one factory of the chain nodes)."""
         self.runtimes[self.gain_file.method](self)
 
-    def publisher(self, topic: Topic) -> Any:
-        """A data-path publisher of Float64MultiArray (a declared topic, relative)."""
+    def publisher(self, topic: Topic, qos: QoSProfile | None = None,
+                  cause: str | None = None) -> Any:
+        """A publisher of Float64MultiArray (a declared topic, relative): the data path's QoS,
+        or ``qos``; an incompatible-QoS event is a ``ros graph`` problem (of ``cause``,
+        default its line)."""
         name = self.resolve_topic_name(topic.name)
         pub = self.create_publisher(
-            Float64MultiArray, topic.name, self._qos,
+            Float64MultiArray, topic.name, qos if qos is not None else self._qos,
             **pub_events(lambda info: self._graph_note(
-                incompatible_text(name, "publisher", info))))
+                incompatible_text(name, "publisher", info), cause)))
         self._entities.append(pub)
         self._pubs.append(pub)
         return pub
@@ -806,12 +809,6 @@ class FdNode(LifecycleNode):
         if ser is None:
             ser = self._serialized[key] = SerializedArray(key)
         pub.publish(ser.encode(stamp, values))
-
-    def mode_name(self, mode: int) -> str:
-        """The plant's name of mode index ``mode`` (the index itself when it has none: a
-        switching signal outside the design)."""
-        modes = self.system.mode_names
-        return modes[mode] if 0 <= mode < len(modes) else str(mode)
 
     def gain_values(self) -> dict[str, str]:
         """Gain-file id and certificate status, for /diagnostics (per sample: cached)."""

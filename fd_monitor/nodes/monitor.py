@@ -51,7 +51,7 @@ from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
-from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
+from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
 from fd_monitor.nodes.chain_params import (
     COMMON_PARAMS,
     FAULT_PARAMS,
@@ -59,14 +59,15 @@ from fd_monitor.nodes.chain_params import (
     MAX_GAP_PARAM,
     WARN_SHARE,
 )
-from fd_monitor.nodes.detector import DetectorNode, ResidualReport, companion_name
+from fd_monitor.nodes.detector import DetectorNode, companion_name
 from fd_monitor.nodes.diagnostics import OK
-from fd_monitor.nodes.fault import FaultReport
+from fd_monitor.nodes.fault import FaultReport, fault_report
 from fd_monitor.nodes.fd_node import FdNode
 from fd_monitor.nodes.inputs import Input
-from fd_monitor.nodes.observer import EstimateReport, ObserverNode
+from fd_monitor.nodes.observer import ObserverNode
 from fd_monitor.nodes.params import Param
 from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.reports import BiasReport, EstimateReport, ResidualReport
 from fd_monitor.nodes.serialized import SerializedArray
 from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
@@ -140,7 +141,7 @@ USAGE = NodeUsage(
                 "thresholds: tracker, bias estimate")))
 
 
-class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNode):
+class MonitorNode(FdNode):
     """The fused node: one join, one registry runtime step per sample, the method's outputs
     (see the module docstring).
 
@@ -151,7 +152,10 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
     node_name : str
     """
 
+    #: the bias estimator's status name (bias_estimator's is ``estimate``)
     bias_channel = "bias estimate"
+    #: the fault verdict (at configure)
+    fault: FaultReport | None = None
 
     def __init__(self, system: System | None = None, gains: GainFile | None = None,
                  qos: QoSProfile | None = None, node_name: str = "monitor",
@@ -176,10 +180,6 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
         rt = self.runtime
         self.pubs = [self.publisher(t) for t in self.outputs]
         self.sigma_hat = [0.0] * s.ny
-        self._alarmed: set[str] = set()
-        self._episode = 0
-        self._was_outside = False
-        self._last_active, self._last_isolated = False, []
         stale = self.params.stale_timeout
         self.diag.add("estimate", stale)
         for ch in self.channels:
@@ -189,9 +189,15 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
             self.diag.add(self.bias_channel, stale, keep_on_stale=True)
         self._channels_all = ["estimate", *self.channels,
                               *(["tracker", self.bias_channel] if rt.CHAIN else [])]
+        log = self.get_logger()
+        self.estimate_report = EstimateReport(self.diag, log, s, self.gain_values)
+        self.residual_report = ResidualReport(self.diag, log, s, self.channels,
+                                              lambda: self.params.warn_share, self.gain_values)
+        self.bias_report = (BiasReport(self.diag, log, s.outputs, self.gain_values,
+                                       self.bias_channel) if rt.CHAIN else None)
         # the verdict: from alarms, and for the chain from the bias estimate and isolation
-        self.start_verdict(rt.channels, as_gains(s, self.gain_file).isolation_threshold
-                           if rt.CHAIN else None)
+        self.fault = fault_report(self, rt.channels, as_gains(s, self.gain_file)
+                                  .isolation_threshold if rt.CHAIN else None)
         self._last_key: Any = None
         self._next_report = 0.0
         self.start_inputs([
@@ -234,7 +240,8 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
         """Fresh runtime state (a new run: first sample, after a hole, ``~/reset``), as the
         offline run restarts it; no fault."""
         self.runtime.reset()
-        self.reset_verdict()
+        if self.fault is not None:
+            self.fault.reset()
 
     def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """Carry the runtime over a bridged gap (its memory kept), as the offline run
@@ -289,11 +296,13 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
                     data.extend(v.tolist())
             pub.publish(ser.encode(stamps[nxt], data))
         self._diagnose(k, out)
+        fault = self.fault
+        assert fault is not None                       # configured
         if out.core is not None and self.runtime.CHAIN:
             est = out.core.estimator
-            self.step_verdict(k, out.alarm, est.sigma_hat, est.isolated)
+            fault.step(k, out.alarm, est.sigma_hat, est.isolated)
         else:
-            self.step_verdict(k, out.alarm)
+            fault.step(k, out.alarm)
 
     def _diagnose(self, k: int, out: Any) -> None:
         """A full report when a status can change (alarms, mode, AGEI phase, estimator,
@@ -312,17 +321,19 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
         self._last_key, self._next_report = key, now + DIAG_REFRESH
         rt = self.runtime
         x_hat = out.estimates.get("x_hat", _NO_INPUT)
-        self.report_estimate(k, int(out.mode), x_hat, out.outside,
-                             rt.region_names or None)
+        self.estimate_report.report(k, int(out.mode), x_hat, out.outside,
+                                    rt.region_names or None)
         if core is not None:
             self.sigma_hat = core.estimator.sigma_hat
-        self._report(k, int(out.mode), out.residual, out.threshold, alarm)
+        self.residual_report.report(k, int(out.mode), out.residual, out.threshold, alarm,
+                                    self.sigma_hat if self.detector is not None else None)
         if core is not None:
             ag = core.agei
             self.diag.update("tracker", OK, f"phase {ag.phase}", {
                 "sample": k, "trigger": ag.trigger, "phase": ag.phase, "row": ag.row,
                 **self.gain_values()})
-            self.report_bias(k, core.estimator)
+            assert self.bias_report is not None        # a CHAIN runtime
+            self.bias_report.report(k, core.estimator)
 
 
 def make_chain(**kwargs: Any) -> list:
