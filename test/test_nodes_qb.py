@@ -25,8 +25,7 @@ QB = ["--ros-args", "-p", "system:=pwa_cascade", "-p", "gains:=pwa_cascade_qb"]
 def test_qb_observer_and_detector_equal_offline(tmp_path):
     off = run_bag(BAG, "pwa_cascade_qb")
     n = len(off.k)
-    procs = [Proc(["run", x, *QB, *(["-p", "layout:=chain"] if x == "detector" else [])])
-             for x in ("observer", "detector")]
+    procs = [Proc(["run", x, *QB]) for x in ("observer", "detector")]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
     # pwa_cascade has no inputs: the QB observer subscribes to /plant/y only.

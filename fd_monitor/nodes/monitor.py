@@ -1,5 +1,6 @@
 """``monitor``: one node, one join, one runtime step per sample, for every gain file (default),
-or the four chain nodes on one executor (``layout:=chain``, ``thresholds`` gain files).
+or the four chain nodes on one executor (``layout:=nodes``, ``thresholds`` gain files): the
+one composer of the in-process chain (:func:`make_chain`).
 
 **fused** (default): one lifecycle node joins ``plant/u``, ``plant/y`` and the side signals
 the runtime needs (``plant/rho``: the measured scheduling parameters of an LPV bank without a
@@ -25,9 +26,11 @@ plus ``input`` and ``ros graph``. One join and four or seven publications per sa
 of the chain's four joins and six subscriptions: what makes the live path keep up at kHz
 rates (README, "Measured").
 
-**chain**: the four nodes ``observer``, ``detector``, ``agei`` and ``bias_estimator`` on one
+**nodes**: the four nodes ``observer``, ``detector``, ``agei`` and ``bias_estimator`` on one
 executor in one process, each with its own name, parameters and diagnostics: the distributed
-form of the ``thresholds`` method in one process (bit-identical to the fused node).
+form of the ``thresholds`` method in one process (bit-identical to the fused node). The old
+name of this layout, ``chain``, is still accepted, with one deprecation warning naming
+``nodes`` (:data:`DEPRECATED_LAYOUTS`): it only changed its name.
 
 The executor is rclpy's EventsExecutor driven by a ``spin_once`` loop (its ``spin()`` does
 nothing in these wheels); see :func:`fd_monitor.nodes.process.run_node`.
@@ -59,7 +62,7 @@ from fd_monitor.nodes.chain_params import (
     MAX_GAP_PARAM,
     WARN_SHARE,
 )
-from fd_monitor.nodes.detector import DetectorNode, companion_name
+from fd_monitor.nodes.detector import DetectorNode
 from fd_monitor.nodes.diagnostics import OK
 from fd_monitor.nodes.fault import FaultReport, fault_report
 from fd_monitor.nodes.fd_node import FdNode
@@ -90,20 +93,25 @@ from fd_monitor.wire.topics import (
     side_topic,
 )
 
-__all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main", "peek_parameters"]
+__all__ = ["DEPRECATED_LAYOUTS", "LAYOUTS", "MonitorNode", "USAGE", "companion_name",
+           "layout_of", "make_chain", "make_nodes", "main", "peek_parameters"]
 
 #: u of a plant without inputs; x^ of a runtime without one.
 _NO_INPUT = np.zeros(0)
 
-LAYOUTS = ("fused", "chain")
+#: monitor's layouts: one fused node, or the chain's four nodes in one process.
+LAYOUTS = ("fused", "nodes")
+#: Old layout names, accepted with one deprecation warning naming the new one.
+DEPRECATED_LAYOUTS = {"chain": "nodes"}
 
 #: s between two full diagnostics reports of the fused node while nothing changes.
 DIAG_REFRESH = 0.1
 
 PARAMS = (
     Param("layout", "fused", "fused: one node (one join, one runtime step per sample); "
-          "chain (thresholds gain files): the four nodes observer, detector, agei, "
-          "bias_estimator on one executor (their own names, parameters and diagnostics)"),
+          "nodes (thresholds gain files): the four nodes observer, detector, agei, "
+          "bias_estimator on one executor (their own names, parameters and diagnostics); "
+          "chain: the old name of nodes (deprecated)"),
     GAP_TIMEOUT,
     MAX_GAP_PARAM,
     WARN_SHARE,
@@ -115,7 +123,7 @@ PARAMS = (
 
 USAGE = NodeUsage(
     "monitor", "monitor: one node, one runtime step per sample, for any gain file (the "
-    "registry's runtime, as analyze runs it); layout:=chain with a thresholds gain file: the "
+    "registry's runtime, as analyze runs it); layout:=nodes with a thresholds gain file: the "
     "four chain nodes in one process.", (*COMMON_PARAMS, *PARAMS),
     subscribes=((PLANT_U, "u_k (plants with inputs; stamped, or plain: stamped on arrival)"),
                 (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)"),
@@ -164,7 +172,7 @@ class MonitorNode(FdNode):
 
     def start(self) -> None:
         """Check the layout, configure and activate (autostart)."""
-        if self.params.layout not in LAYOUTS:
+        if self.params.layout not in (*LAYOUTS, *DEPRECATED_LAYOUTS):
             raise FdMonitorError(f"node {self.get_name()}: parameter layout: "
                                  f"{self.params.layout!r}: expected one of "
                                  f"{', '.join(LAYOUTS)}")
@@ -336,37 +344,65 @@ class MonitorNode(FdNode):
             self.bias_report.report(k, core.estimator)
 
 
+def companion_name(base: str, default: str, name: str) -> str:
+    """The name of node ``name`` beside the main node of a several-node executable: its own
+    name when the main one keeps its ``default`` name, else ``<base>_<name>`` (``-r
+    __node:=det1``: ``det1_observer``, ``det1_agei``, ...)."""
+    return name if base == default else f"{base}_{name}"
+
+
 def make_chain(**kwargs: Any) -> list:
-    """The four chain nodes on one executor (``kwargs`` go to every node, e.g. ``context``;
-    a ``node_name`` other than ``monitor`` names them ``<name>_observer``, ...).
+    """The four chain nodes on one executor: the one composer of the in-process chain
+    (``kwargs`` go to every node, e.g. ``context`` and ``parameter_overrides``; a
+    ``node_name`` other than ``monitor`` names them ``<name>_observer``, ...).
 
     The observer, the chain's entry, is created last: by the time it subscribes to
     ``plant/y`` (what a source waits for) the other nodes already subscribe to ``plant/*``
-    and to the observer's outputs, so none of them misses the first samples.
+    and to the observer's outputs, so none of them misses the first samples. A node that
+    fails to start destroys the ones made before it.
     """
     base = str(kwargs.pop("node_name", "monitor"))
+    nodes: list = []
+    try:
+        for cls, name in ((DetectorNode, "detector"), (AgeiNode, "agei"),
+                          (BiasEstimatorNode, "bias_estimator"), (ObserverNode, "observer")):
+            nodes.append(cls(**kwargs, node_name=companion_name(base, "monitor", name)))
+    except Exception:
+        for n in nodes:
+            n.destroy_node()
+        raise
+    return [nodes[-1], *nodes[:-1]]
 
-    def named(name: str) -> dict[str, Any]:
-        return {**kwargs, "node_name": companion_name(base, "monitor", name)}
-    det = DetectorNode(**named("detector"))
-    ag, est = AgeiNode(**named("agei")), BiasEstimatorNode(**named("bias_estimator"))
-    return [ObserverNode(**named("observer")), det, ag, est]
+
+def layout_of(value: str, node_name: str) -> str:
+    """``value`` of the ``layout`` parameter, an old name translated (one deprecation
+    warning naming the new one, on ``node_name``'s logger)."""
+    new = DEPRECATED_LAYOUTS.get(value)
+    if new is None:
+        return value
+    import rclpy.logging
+
+    rclpy.logging.get_logger(node_name).warning(
+        f"parameter layout: {value!r} is deprecated: use {new!r} (the same four chain nodes "
+        f"in one process; {value!r} will be refused in a later release)")
+    return new
 
 
 def make_nodes(**kwargs: Any) -> list:
-    """The fused monitor node, or with ``layout: chain`` and a gain file whose method has the
+    """The fused monitor node, or with ``layout: nodes`` and a gain file whose method has the
     chain (``thresholds``) the four chain nodes (:func:`make_chain`). ``kwargs`` go to every
     node (e.g. ``context``)."""
-    values = peek_parameters(str(kwargs.get("node_name", "monitor")),
-                             ("system", "gains", "layout"),
+    name = str(kwargs.get("node_name", "monitor"))
+    values = peek_parameters(name, ("system", "gains", "layout"),
                              **{k: v for k, v in kwargs.items() if k != "node_name"})
+    layout = layout_of(str(values["layout"]), name)
     method = None
     try:
         system = load_system(str(values["system"]))
         method = load_gains(str(values["gains"]), system, verify=False).method
     except FdMonitorError:
         pass                        # the fused node reports why, at configure
-    if values["layout"] != "chain" or method not in RUNTIMES or not runtime_class(method).CHAIN:
+    if layout != "nodes" or method not in RUNTIMES or not runtime_class(method).CHAIN:
         return [MonitorNode(**kwargs)]
     return make_chain(**{**kwargs, "parameter_overrides": [
         p for p in kwargs.get("parameter_overrides", []) if p.name != "layout"]})
@@ -390,7 +426,7 @@ def peek_parameters(node_name: str, names: Sequence[str], **kwargs: Any) -> dict
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the fused monitor node (or, with ``layout:=chain``, the four chain nodes)."""
+    """Run the fused monitor node (or, with ``layout:=nodes``, the four chain nodes)."""
     return run_node(make_nodes, args, prog="monitor", named=True,
                     usage=[USAGE, *(m.USAGE for m in (observer, detector, agei,
                                                       bias_estimator))])
