@@ -198,7 +198,7 @@ class DetectorNode(FdNode):
             d = decode(msg, self.resolve_topic_name(BIAS_ESTIMATE.name),
                        labels=self._bias.labels, require_stamp=True)
         except MessageError as exc:
-            self.bad_input(str(exc))
+            self.input_status.bad_input(str(exc))
             return
         self.sigma_hat = d.values[self._bias.index["sigma_hat"]]
 

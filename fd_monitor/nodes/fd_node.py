@@ -67,14 +67,12 @@ from fd_monitor.nodes.adapter_input import AdapterInput
 from fd_monitor.nodes.chain_params import COMMON_PARAMS, RUNTIME_PARAMS
 from fd_monitor.nodes.data_input import DataInput
 from fd_monitor.nodes.diagnostics import (
-    MAX_MESSAGE,
-    OK,
     WAITING,
-    WARN,
     Diagnostics,
     default_hardware_id,
 )
 from fd_monitor.nodes.inputs import Input
+from fd_monitor.nodes.node_status import GRAPH_OK, GraphStatus, InputStatus
 from fd_monitor.nodes.params import Param, declare_parameters
 from fd_monitor.nodes.qos import DEFAULT_DEPTH, data_pub_qos, incompatible_text, pub_events
 from fd_monitor.nodes.serialized import SerializedArray
@@ -88,14 +86,6 @@ from fd_monitor.wire.stream import (
 from fd_monitor.wire.topics import RESET, Topic
 
 __all__ = ["FdNode", "load_plant_and_gains"]
-
-
-#: The ``ros graph`` status without a standing problem.
-_GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
-
-#: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
-_WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run",
-                        "shed", "feedback_back"))
 
 
 def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainFile]:
@@ -167,6 +157,16 @@ class FdNode(LifecycleNode):
             self.start()
             self._autostarted = True
 
+    @property
+    def holes(self) -> int:
+        """Holes declared in the input so far (:class:`InputStatus`)."""
+        return int(self.input_status.holes)
+
+    @property
+    def bad_messages(self) -> int:
+        """Messages refused so far (:class:`InputStatus`)."""
+        return int(self.input_status.bad_messages)
+
     # -- lifecycle ------------------------------------------------------------------------------
 
     def start(self) -> None:
@@ -228,7 +228,7 @@ class FdNode(LifecycleNode):
         waits = ", ".join(self._waits_for())
         self.get_logger().info(f"active: waiting for {waits}")
         self.diag.set_waiting(WAITING, {"input": f"active: waiting for {waits}"})
-        self._graph_status()                   # a standing graph problem is still one
+        self.graph.report()                   # a standing graph problem is still one
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -326,26 +326,20 @@ class FdNode(LifecycleNode):
         self.diag.add("input", self.params.stale_timeout)
         # no input of its own: STALE with the input (an aggregator reads a stopped node as
         # STALE, not as the ERROR of a group with some STALE statuses)
-        self.diag.add("ros graph", follows="input", message=_GRAPH_OK)
-        self.bad_messages = 0
+        self.diag.add("ros graph", follows="input", message=GRAPH_OK)
         self.processed = 0
-        self.holes = 0
         self.inactive_dropped = 0
         #: True while :meth:`process` handles a restart sample (first, or first after a hole
         #: longer than max_gap), and a bridge sample (first after a shorter one).
         self.restarting = False
         self.bridging = False
-        # Reasons of the bad messages since the last /diagnostics publication, each once.
-        self._reasons: list[str] = []
-        #: standing ROS-graph problems, by cause (cleared when the cause goes away)
-        self._graph_notes: dict[str, str] = {}
-        #: inputs switched to best effort (handled: reported in the values, not a WARN)
-        self._best_effort: list[str] = []
-        self._last_bad = -float("inf")
-        self._last_log = -float("inf")
-        self._suppressed = 0
+        log = self.get_logger()
+        #: the ``input`` status (bad input, the input policy's warnings, counts)
+        self.input_status = InputStatus(self.diag, log, lambda: self.params.log_throttle,
+                                        lambda: self.processed)
+        #: the ``ros graph`` status (QoS, other publishers, a refused gain file)
+        self.graph = GraphStatus(self.diag, log)
         self._pubs: list[Any] = []
-        self.diag.on_publish.append(self._reasons.clear)
         self.setup()
         self._entities.append(self.create_timer(5.0, self._check_outputs))
         g = self.gain_file
@@ -444,10 +438,10 @@ class FdNode(LifecycleNode):
         except FdMonitorError as exc:
             reason = f"gains {source}: refused ({exc}); still running {old.path}"
             self.get_logger().error(reason)
-            self._graph_note(reason, "gains")
+            self.graph.note(reason, "gains")
             return reason
         self.gain_file = new
-        self._graph_clear("gains")
+        self.graph.clear("gains")
         self.join.reset()
         self.reset()
         self.get_logger().info(f"gain file swapped: {new.path} ({new.id}, certificate "
@@ -472,7 +466,7 @@ class FdNode(LifecycleNode):
         name = self.resolve_topic_name(topic.name)
         pub = self.create_publisher(
             Float64MultiArray, topic.name, qos if qos is not None else self._qos,
-            **pub_events(lambda info: self._graph_note(
+            **pub_events(lambda info: self.graph.note(
                 incompatible_text(name, "publisher", info), cause)))
         self._entities.append(pub)
         self._pubs.append(pub)
@@ -484,8 +478,8 @@ class FdNode(LifecycleNode):
         ``with_info`` the callback gets ``(msg, info)``; ``raw``: serialized messages."""
         name = self.resolve_topic_name(topic)
         sub = DataInput(self, Float64MultiArray, topic, callback,
-                        partial(self._graph_note, cause=f"qos {name}"), raw=raw,
-                        with_info=with_info, switched=partial(self._switched, name))
+                        partial(self.graph.note, cause=f"qos {name}"), raw=raw,
+                        with_info=with_info, switched=partial(self.graph.switched, name))
         self._entities.append(sub)
         return sub
 
@@ -516,8 +510,9 @@ class FdNode(LifecycleNode):
                               restart_after=self.params.restart_after,
                               feedback_source=self._feedback_source,
                               max_gap=max_gap, max_lag=self.params.max_lag or None)
+        self.input_status.join = self.join
         #: The input policy shared with offline reading (order check, join, release).
-        self.stream = InputStream(self.join, self._run, self._note)
+        self.stream = InputStream(self.join, self._run, self.input_status.note)
         self._stamper = ArrivalStamper()
         #: plain samples and the held inputs they are paired with (the one hold rule)
         self._pairing = HeldPairing([i.name for i in inputs if i.hold], HOLD_WAIT,
@@ -527,6 +522,7 @@ class FdNode(LifecycleNode):
         self.adapter_input = None
         if getattr(self.params, "adapter", ""):
             self.adapter_input = AdapterInput(self, self.params.adapter)
+            self.input_status.adapter_join = self.adapter_input.join
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
             cb = self._callback(inp)
@@ -578,7 +574,7 @@ class FdNode(LifecycleNode):
             try:
                 d = dec.decode(raw)
             except MessageError as exc:
-                self.bad_input(str(exc))
+                self.input_status.bad_input(str(exc))
                 k = readable_stamp(dec.message(raw)) if inp.initial is None else None
                 if k is not None:
                     stream.refused(k + inp.stamp_offset, time.monotonic())
@@ -596,7 +592,7 @@ class FdNode(LifecycleNode):
             if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
                               inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
                               bool(inp.sequence and d.values[i_bridge] > 0.5)):
-                self._input_ok()
+                self.input_status.ok()
         return cb
 
     def _pair_plain(self, now: float | None = None) -> None:
@@ -610,7 +606,7 @@ class FdNode(LifecycleNode):
             if missing:
                 topics = [self.resolve_topic_name(i.topic) for i in self.inputs
                           if i.name in missing]
-                self.bad_input(f"{self.resolve_topic_name(inp.topic)} sample {k}: no "
+                self.input_status.bad_input(f"{self.resolve_topic_name(inp.topic)} sample {k}: no "
                                f"{', '.join(topics)} received before it; sample not "
                                f"processed")
                 self.stream.refused(k, time.monotonic())
@@ -618,94 +614,6 @@ class FdNode(LifecycleNode):
             self.on_input(inp.name, k, values)
 
     # -- reporting ----------------------------------------------------------------------------
-
-    def bad_input(self, reason: str) -> None:
-        """Log a rejected message and report it on /diagnostics (WARN); keep running."""
-        self.bad_messages += 1
-        self._warn(reason)
-
-    def _warn(self, reason: str) -> None:
-        """Log ``reason`` (throttled) and report it on the ``input`` channel (WARN)."""
-        now = time.monotonic()
-        self._last_bad = now
-        if now - self._last_log >= self.params.log_throttle:
-            more = (f" (and {self._suppressed} more bad-input lines in the last "
-                    f"{now - self._last_log:.1f} s)" if self._suppressed else "")
-            self.get_logger().warning(reason + more)
-            self._last_log, self._suppressed = now, 0
-        else:
-            self._suppressed += 1
-        if reason not in self._reasons and len(self._reasons) < 10:
-            self._reasons.append(reason)
-        # every reason of this period when they fit in a status line, else the latest (all
-        # of them in the values)
-        message = "; ".join(self._reasons)
-        if len(message) > MAX_MESSAGE and len(self._reasons) > 1:
-            message = f"{reason} (and {len(self._reasons) - 1} more: see reasons)"
-        self.diag.update("input", WARN, message,
-                         {"reasons": "; ".join(self._reasons),
-                          "bad_messages": self.bad_messages, "holes": self.holes,
-                          "bridged": self.join.bridges, "restarted": self.join.restarts,
-                          "new_runs": self.join.new_runs, "processed": self.processed,
-                          **self._load_counts(), "last_warning": reason,
-                          **self._time_base()})
-
-    def _load_counts(self) -> dict[str, Any]:
-        """Load shed and lost feedback (wire/join.py), for the ``input`` status."""
-        j = self.join
-        return {"shed_samples": j.shed, "shed_episodes": j.shed_episodes,
-                "feedback_lost": j.feedback_losses,
-                "feedback_not_waited_for": ",".join(sorted(j.lost_feedback)) or "none"}
-
-    def _time_base(self) -> dict[str, Any]:
-        """The adapter's time-base counts (held samples, gaps, late/duplicate/decimated
-        messages) for the ``input`` status; empty without an adapter."""
-        if self.adapter_input is None:
-            return {}
-        c = self.adapter_input.join.counts()
-        out: dict[str, Any] = {"grid_samples": c["samples"]}
-        for key in ("held", "late", "duplicate", "stray", "decimated"):
-            for what, n in c.get(key, {}).items():
-                out[f"{key} {what}"] = n
-        for reason, per in c["gaps"].items():
-            for ch, n in per.items():
-                out[f"gap {reason} {ch}"] = n
-        return out
-
-    def _graph_note(self, line: str, cause: str | None = None) -> None:
-        """Log a ROS-graph problem (QoS, another publisher, a refused gain file) and report
-        it (WARN) until its ``cause`` (default: the line) is cleared."""
-        self.get_logger().warning(line)
-        self._graph_notes[cause or line] = line
-        self._graph_status()
-
-    def _graph_clear(self, cause: str) -> None:
-        """The problem of ``cause`` is gone (a valid gain file set, a switch done, the other
-        publisher left): the ``ros graph`` status goes back to OK when none is left."""
-        if self._graph_notes.pop(cause, None) is not None:
-            self._graph_status()
-
-    def _graph_status(self) -> None:
-        notes = list(self._graph_notes.values())
-        values: dict[str, Any] = ({"best_effort_inputs": ", ".join(self._best_effort)}
-                                  if self._best_effort else {})
-        if notes:
-            # all of them when they fit in a status line, else the latest (all in values)
-            message = "; ".join(notes)
-            if len(message) > MAX_MESSAGE and len(notes) > 1:
-                message = f"{notes[-1]} (and {len(notes) - 1} more: see problem 1, ...)"
-            values.update({f"problem {i + 1}": n for i, n in enumerate(notes)})
-            self.diag.update("ros graph", WARN, message, values)
-        else:
-            self.diag.update("ros graph", OK, _GRAPH_OK + (
-                " (some inputs switched to best effort)" if self._best_effort else ""), values)
-
-    def _switched(self, topic: str) -> None:
-        """A subscription met a best-effort publisher by switching: handled, not a WARN."""
-        self.get_logger().info(f"{topic}: subscription now best effort (meets every "
-                               f"publisher)")
-        self._best_effort.append(topic)
-        self._graph_clear(f"qos {topic}")
 
     def _check_outputs(self) -> None:
         """Warn while another node publishes on one of our output topics (a second
@@ -719,31 +627,16 @@ class FdNode(LifecycleNode):
             if others:
                 line = (f"{pub.topic_name}: also published by {', '.join(sorted(others))} "
                         f"(a second monitor on the same topics? its outputs mix with ours)")
-                if self._graph_notes.get(cause) != line:
-                    self._graph_note(line, cause)
+                if self.graph.notes.get(cause) != line:
+                    self.graph.note(line, cause)
             else:
-                self._graph_clear(cause)
+                self.graph.clear(cause)
 
     def on_input(self, name: str, stamp: int, values: np.ndarray,
                  restart: bool = False) -> None:
         """Join one decoded input; process every sample that became complete."""
         if self.stream.put(name, stamp, values, time.monotonic(), restart):
-            self._input_ok()
-
-    def _input_ok(self) -> None:
-        """An input was joined: the ``input`` channel (OK, or the WARN of recent bad input)."""
-        level = self.diag.level("input")
-        if level == WARN and time.monotonic() - self._last_bad < self.diag.period:
-            self.diag.touch("input")
-        elif level != OK or self.processed % 50 == 0:
-            self.diag.update("input", OK, "receiving", {
-                "bad_messages": self.bad_messages, "processed": self.processed,
-                "holes": self.holes, "bridged": self.join.bridges,
-                "restarted": self.join.restarts, "new_runs": self.join.new_runs,
-                "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for(),
-                **self._load_counts(), **self._time_base()})
-        else:
-            self.diag.touch("input")
+            self.input_status.ok()
 
     def _on_hold_timer(self) -> None:
         if self.active and self._pairing.waiting:
@@ -756,16 +649,6 @@ class FdNode(LifecycleNode):
     def _drain(self) -> None:
         """Process every sample the join releases now; report holes and restarts."""
         self.stream.release(time.monotonic())
-
-    def _note(self, kind: str, line: str, stamp: Any) -> None:
-        """A report of the input policy (:class:`~fd_monitor.wire.stream.InputStream`):
-        out of order, holes and new runs are warnings; the others are dropped messages."""
-        if kind == "hole":
-            self.holes += 1
-        if kind in _WARN_ONLY:
-            self._warn(line)
-        else:
-            self.bad_input(line)
 
     def _run(self, s: Sample) -> bool:
         """Process one released sample (reset first at a restart, bridge first at a bridge);
@@ -781,7 +664,7 @@ class FdNode(LifecycleNode):
         except ImplausibleError as exc:
             # Refused by the core (an implausible value): reported like a bad message and a
             # hole at k (core/plausibility.py).
-            self.bad_input(str(exc))
+            self.input_status.bad_input(str(exc))
             return False
         self.processed += 1
         return True

@@ -361,12 +361,20 @@ def make_chain(**kwargs: Any) -> list:
     and to the observer's outputs, so none of them misses the first samples. A node that
     fails to start destroys the ones made before it.
     """
+    from rclpy.parameter import Parameter
+
     base = str(kwargs.pop("node_name", "monitor"))
+    given = list(kwargs.pop("parameter_overrides", None) or [])
+    # The process's ``layout`` (``-p layout:=nodes`` reaches every node of it) is monitor's:
+    # the detector's own, deprecated one is left unset here.
+    unset = [Parameter("layout", value="")]
     nodes: list = []
     try:
         for cls, name in ((DetectorNode, "detector"), (AgeiNode, "agei"),
                           (BiasEstimatorNode, "bias_estimator"), (ObserverNode, "observer")):
-            nodes.append(cls(**kwargs, node_name=companion_name(base, "monitor", name)))
+            nodes.append(cls(**kwargs, node_name=companion_name(base, "monitor", name),
+                             parameter_overrides=[*given, *(unset if cls is DetectorNode
+                                                           else [])]))
     except Exception:
         for n in nodes:
             n.destroy_node()
