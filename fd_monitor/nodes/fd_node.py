@@ -45,22 +45,19 @@ being changed by other work.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any
 
-import numpy as np
 from lifecycle_msgs.msg import State, Transition
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import QoSProfile
-from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from std_msgs.msg import Empty, Float64MultiArray
 
 from fd_monitor.core.methods import load_gains
-from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
+from fd_monitor.model.errors import FdMonitorError, ImplausibleError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes.adapter_input import AdapterInput
@@ -71,18 +68,13 @@ from fd_monitor.nodes.diagnostics import (
     Diagnostics,
     default_hardware_id,
 )
+from fd_monitor.nodes.input_path import InputPath
 from fd_monitor.nodes.inputs import Input
 from fd_monitor.nodes.node_status import GRAPH_OK, GraphStatus, InputStatus
 from fd_monitor.nodes.params import Param, declare_parameters
-from fd_monitor.nodes.qos import DEFAULT_DEPTH, data_pub_qos, incompatible_text, pub_events
+from fd_monitor.nodes.qos import data_pub_qos, incompatible_text, pub_events
 from fd_monitor.nodes.serialized import SerializedArray
-from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
-from fd_monitor.wire.hold import HOLD_WAIT, HeldPairing
-from fd_monitor.wire.join import Sample, StampJoin
-from fd_monitor.wire.stream import (
-    InputStream,
-    TopicOrder,
-)
+from fd_monitor.wire.join import Sample
 from fd_monitor.wire.topics import RESET, Topic
 
 __all__ = ["FdNode", "load_plant_and_gains"]
@@ -376,15 +368,16 @@ class FdNode(LifecycleNode):
         if not self.configured:
             response.success, response.message = False, "not configured"
             return response
-        if self._reset_pub is not None:
-            topic = self._reset_pub.topic_name
-            entries = self._reset_pub.get_subscription_count()
+        reset_pub = self.input_path.reset_pub
+        if reset_pub is not None:
+            topic = reset_pub.topic_name
+            entries = reset_pub.get_subscription_count()
             if not entries:
                 response.success = False
                 response.message = (f"no chain entry (observer or monitor) subscribes to "
                                     f"{topic}: nothing reset")
                 return response
-            self._reset_pub.publish(Empty())
+            reset_pub.publish(Empty())
             self.get_logger().info(f"reset (service): asked the chain's entry on {topic}")
             response.success = True
             response.message = (f"reset: asked the chain's entry on {topic}; its next sample "
@@ -396,10 +389,7 @@ class FdNode(LifecycleNode):
 
     def _reset_run(self, why: str) -> None:
         """Forget the stream: the next complete sample starts a new run (``restart``)."""
-        self.join.reset()
-        if self.adapter_input is not None:
-            self.adapter_input.reset()
-        self._pairing.clear()
+        self.input_path.reset()
         self.reset()
         self.get_logger().info(f"reset ({why}): the next complete sample starts a new run")
 
@@ -484,134 +474,19 @@ class FdNode(LifecycleNode):
         return sub
 
     def start_inputs(self, inputs: Sequence[Input], gap_timeout: float | None = None) -> None:
-        """Subscribe to every input and set up the stamp join.
+        """Subscribe to every input and set up the stamp join (:class:`InputPath`).
 
         Without a ``sequence`` input the node is the chain's entry: it declares holes (a
         rejected message, or a later stamp complete for ``gap_timeout`` s), checked on
         message arrival and on a timer.
         """
         self.inputs = tuple(inputs)
-        seq = [i.name for i in inputs if i.sequence]
-        # One reset for the chain: the entry (no sequence input) listens on fd/reset, the
-        # other nodes' ~/reset asks it there.
-        self._reset_pub: Any = None
-        if seq:
-            self._reset_pub = self.create_publisher(Empty, RESET.name, 10)
-            self._entities.append(self._reset_pub)
-        else:
-            self._entities.append(self.create_subscription(Empty, RESET.name,
-                                                           self._on_reset_request, 10))
-        max_gap = int(getattr(self.params, "max_gap", 0))
-        self.join = StampJoin([i.name for i in inputs if i.initial is None],
-                              {i.name: i.initial for i in inputs if i.initial is not None},
-                              self.params.max_pending, sequence=seq[0] if seq else None,
-                              gap_timeout=None if seq else gap_timeout,
-                              horizon=self.params.stamp_horizon,
-                              restart_after=self.params.restart_after,
-                              feedback_source=self._feedback_source,
-                              max_gap=max_gap, max_lag=self.params.max_lag or None)
-        self.input_status.join = self.join
-        #: The input policy shared with offline reading (order check, join, release).
-        self.stream = InputStream(self.join, self._run, self.input_status.note)
-        self._stamper = ArrivalStamper()
-        #: plain samples and the held inputs they are paired with (the one hold rule)
-        self._pairing = HeldPairing([i.name for i in inputs if i.hold], HOLD_WAIT,
-                                    DEFAULT_DEPTH)
-        self._data_inputs = {}
-        # an adapter file (nodes whose parameters have one): the robot's topics give u and y
-        self.adapter_input = None
-        if getattr(self.params, "adapter", ""):
-            self.adapter_input = AdapterInput(self, self.params.adapter)
-            self.input_status.adapter_join = self.adapter_input.join
-            inputs = [i for i in inputs if i.name not in ("u", "y")]
-        for inp in inputs:
-            cb = self._callback(inp)
-            self._data_inputs[inp.name] = self.subscribe(inp.topic, cb, inp.plain_ok,
-                                                         raw=True)
-        self._open_loop: set[str] = set()
-        if self._pairing:
-            self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
-        # A hole, lost feedback or a new run must be declared even when no further message
-        # arrives.
-        period = min(0.25, max(0.01, min(gap_timeout or 1.0, self.params.restart_after) / 4))
-        self._entities.append(self.create_timer(period, self._on_gap_timer))
-
-    def _feedback_source(self, name: str) -> bool:
-        """Whether a publisher of feedback input ``name`` is matched (the join waits for its
-        feedback only then). A change is logged once: without the node that feeds it back
-        (e.g. no bias_estimator) this node runs open loop at full rate."""
-        there = self._data_inputs[name].sub.get_publisher_count() > 0
-        if there == (name in self._open_loop):
-            topic = self._data_inputs[name].sub.topic_name
-            if there:
-                self._open_loop.discard(name)
-                self.get_logger().info(f"{topic}: a publisher is here: waiting for its "
-                                       f"feedback again")
-            else:
-                self._open_loop.add(name)
-                self.get_logger().info(f"{topic}: no publisher: running without this "
-                                       f"feedback (its initial value) until one appears")
-        return there
-
-    def _callback(self, inp: Input) -> Callable[..., None]:
-        stamper = self._stamper
-        topic = self.resolve_topic_name(inp.topic)
-        order = TopicOrder(topic)
-        stream = self.stream
-        # the restart and bridge flags of the sequence input, by field (resolved once)
-        i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
-        i_bridge = inp.layout.index["bridge"] if inp.sequence and inp.layout else None
-        # serialized messages in, decoded without a message object (rclpy's deserializer
-        # only for what the CDR parser leaves: big-endian)
-        dec = RawDecoder(partial(deserialize_message, message_type=Float64MultiArray), topic,
-                         labels=inp.labels, size=inp.size, require_stamp=not inp.plain_ok,
-                         allow_nan=inp.allow_nan)
-
-        def cb(raw: bytes, info: Any = None) -> None:
-            if not self.active:
-                self.inactive_dropped += 1
-                return
-            try:
-                d = dec.decode(raw)
-            except MessageError as exc:
-                self.input_status.bad_input(str(exc))
-                k = readable_stamp(dec.message(raw)) if inp.initial is None else None
-                if k is not None:
-                    stream.refused(k + inp.stamp_offset, time.monotonic())
-                return
-            if d.stamp is None:
-                t = int(info["source_timestamp"]) if info is not None else time.time_ns()
-                if inp.hold:
-                    self._pairing.hold(inp.name, t, d.values)
-                else:
-                    d = stamper.stamp(d)
-                    self._pairing.sample(t, time.monotonic(), (inp, int(d.stamp or 0),
-                                                               d.values))
-                self._pair_plain()
-                return
-            if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
-                              inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
-                              bool(inp.sequence and d.values[i_bridge] > 0.5)):
-                self.input_status.ok()
-        return cb
-
-    def _pair_plain(self, now: float | None = None) -> None:
-        """Pair each plain sample with the held inputs (``plant/u``) by the one hold rule
-        (:class:`~fd_monitor.wire.hold.HeldPairing`: the latest held value published at or
-        before it, by source timestamps) and join it; a sample with no held value before it
-        is reported and not processed."""
-        for (inp, k, values), held, missing in self._pairing.pairs(now):
-            for name, value in held.items():
-                self.on_input(str(name), k, value)
-            if missing:
-                topics = [self.resolve_topic_name(i.topic) for i in self.inputs
-                          if i.name in missing]
-                self.input_status.bad_input(f"{self.resolve_topic_name(inp.topic)} sample {k}: no "
-                               f"{', '.join(topics)} received before it; sample not "
-                               f"processed")
-                self.stream.refused(k, time.monotonic())
-                continue
-            self.on_input(inp.name, k, values)
+        self.input_path = path = InputPath(self, inputs, gap_timeout)
+        #: the stamp join and the input policy over it (offline reading's)
+        self.join, self.stream = path.join, path.stream
+        self._data_inputs = path.data_inputs
+        #: The robot's topics giving u and y, when the node has an adapter file.
+        self.adapter_input = path.adapter
 
     # -- reporting ----------------------------------------------------------------------------
 
@@ -631,24 +506,6 @@ class FdNode(LifecycleNode):
                     self.graph.note(line, cause)
             else:
                 self.graph.clear(cause)
-
-    def on_input(self, name: str, stamp: int, values: np.ndarray,
-                 restart: bool = False) -> None:
-        """Join one decoded input; process every sample that became complete."""
-        if self.stream.put(name, stamp, values, time.monotonic(), restart):
-            self.input_status.ok()
-
-    def _on_hold_timer(self) -> None:
-        if self.active and self._pairing.waiting:
-            self._pair_plain(time.monotonic())
-
-    def _on_gap_timer(self) -> None:
-        if self.active and (self.join.pending or self.join.held):
-            self._drain()
-
-    def _drain(self) -> None:
-        """Process every sample the join releases now; report holes and restarts."""
-        self.stream.release(time.monotonic())
 
     def _run(self, s: Sample) -> bool:
         """Process one released sample (reset first at a restart, bridge first at a bridge);
