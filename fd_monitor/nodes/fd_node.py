@@ -17,30 +17,23 @@ reads ``plant/y``: observer or monitor) forgets the stream, so its next complete
 a new run, flagged ``restart`` to every node downstream; any other node asks the entry on
 ``fd/reset``.
 
-Each node declares its inputs (relative topic, expected labels, required or feedback with its
-initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray`` -> core step
--> message -> publish. This base decodes and validates every message
-(:func:`~fd_monitor.wire.conversions.decode`), pairs plain (unstamped) messages by the one
-hold rule (:mod:`fd_monitor.wire.hold`: a plain ``plant/y`` gets the latest ``plant/u``
-published before it, by the DDS source timestamps; no u yet: reported, sample not
-processed), joins inputs on the stamp
-through the input policy offline reading shares (:class:`~fd_monitor.wire.stream.InputStream`:
-per-topic order check, :class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond
-``stamp_horizon``, a stream that restarts lower = a new run after ``restart_after`` s),
-and reports on
-``/diagnostics``: an ``input`` channel (OK; WARN with the de-duplicated reasons of the bad
-messages; STALE when no input came for ``stale_timeout`` s), a ``ros graph`` channel
-(incompatible QoS, a second publisher on this node's output topics) plus the node's own
-channels. A bad message is logged (throttled: one line per ``log_throttle`` s with the count
-of the others), reported, and dropped before it reaches the join.
+Each node declares its inputs (:class:`~fd_monitor.nodes.inputs.Input`: relative topic,
+expected labels, required or feedback with its initial value) and implements
+``process(k, inputs)`` -- message -> ``np.asarray`` -> core step -> message -> publish. The
+node holds what it is made of: its input path (:class:`~fd_monitor.nodes.input_path.InputPath`:
+subscriptions, decoding, the one hold rule for plain messages, the stamp join of the input
+policy offline reading shares), its ``input`` and ``ros graph`` statuses
+(:mod:`fd_monitor.nodes.node_status`: bad messages logged, throttled, and reported; QoS
+problems and a second publisher on its outputs) and its reports
+(:mod:`fd_monitor.nodes.reports`, :mod:`fd_monitor.nodes.fault`).
 
 Feedback messages (``fd/bias_estimate``, ``fd/guard_event``, ``fd/threshold_override``) are
 stamped with the sample they are *for* (k + 1 when decided at k), so every join is on equal
 stamps.
 
-Why one module of ~760 lines: one lifecycle base class with its inputs and reports; issue 22
-item 2 (reports as small objects, one job per file) splits it, deferred while the nodes were
-being changed by other work.
+Why one module of ~540 lines: one lifecycle base class (transitions, the hand-over to a
+lifecycle manager, configure, ``~/reset``, runtime parameters, the gain-file swap); what it is
+made of lives in the modules named above.
 """
 
 from __future__ import annotations
@@ -333,7 +326,9 @@ class FdNode(LifecycleNode):
         self.graph = GraphStatus(self.diag, log)
         self._pubs: list[Any] = []
         self.setup()
-        self._entities.append(self.create_timer(5.0, self._check_outputs))
+        self._entities.append(self.create_timer(5.0, partial(
+            self.graph.check_outputs, self._pubs, (self.get_namespace(), self.get_name()),
+            self.get_publishers_info_by_topic)))
         g = self.gain_file
         self.get_logger().info(
             f"configured: plant {system.name}, gain file {g.path} ({g.id}, certificate "
@@ -489,23 +484,6 @@ class FdNode(LifecycleNode):
         self.adapter_input = path.adapter
 
     # -- reporting ----------------------------------------------------------------------------
-
-    def _check_outputs(self) -> None:
-        """Warn while another node publishes on one of our output topics (a second
-        monitor); the warning clears when it left."""
-        me = (self.get_namespace(), self.get_name())
-        for pub in self._pubs:
-            others = [f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                      for i in self.get_publishers_info_by_topic(pub.topic_name)
-                      if (i.node_namespace, i.node_name) != me]
-            cause = f"also {pub.topic_name}"
-            if others:
-                line = (f"{pub.topic_name}: also published by {', '.join(sorted(others))} "
-                        f"(a second monitor on the same topics? its outputs mix with ours)")
-                if self.graph.notes.get(cause) != line:
-                    self.graph.note(line, cause)
-            else:
-                self.graph.clear(cause)
 
     def _run(self, s: Sample) -> bool:
         """Process one released sample (reset first at a restart, bridge first at a bridge);

@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from rclpy.serialization import deserialize_message
@@ -38,9 +38,6 @@ from fd_monitor.wire.join import StampJoin
 from fd_monitor.wire.stream import InputStream, TopicOrder
 from fd_monitor.wire.topics import RESET
 
-if TYPE_CHECKING:
-    from fd_monitor.nodes.fd_node import FdNode
-
 __all__ = ["InputPath"]
 
 
@@ -54,13 +51,14 @@ class InputPath:
     Parameters
     ----------
     node : FdNode
-        Configured: ``params``, ``input_status``, its ``_run`` of a released sample.
+        Configured: ``params``, ``input_status``, its ``_run`` of a released sample (typed
+        Any: fd_node imports this module, and the layers test refuses import cycles).
     inputs : sequence of Input
     gap_timeout : float, optional
         s (the entry only).
     """
 
-    def __init__(self, node: FdNode, inputs: Sequence[Input],
+    def __init__(self, node: Any, inputs: Sequence[Input],
                  gap_timeout: float | None = None) -> None:
         self.node = node
         self.inputs = tuple(inputs)

@@ -15,7 +15,7 @@ from its ``diag``, logger and parameters.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from fd_monitor.nodes.diagnostics import MAX_MESSAGE, OK, WARN, Diagnostics
@@ -182,6 +182,24 @@ class GraphStatus:
         self.logger.info(f"{topic}: subscription now best effort (meets every publisher)")
         self.best_effort.append(topic)
         self.clear(f"qos {topic}")
+
+    def check_outputs(self, pubs: Sequence[Any], me: tuple[str, str],
+                      publishers_of: Callable[[str], Sequence[Any]]) -> None:
+        """Warn while another node publishes on one of our output topics ``pubs`` (a second
+        monitor); the warning clears when it left. ``me``: (namespace, name) of our node;
+        ``publishers_of``: the node's ``get_publishers_info_by_topic``."""
+        for pub in pubs:
+            others = [f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                      for i in publishers_of(pub.topic_name)
+                      if (i.node_namespace, i.node_name) != me]
+            cause = f"also {pub.topic_name}"
+            if others:
+                line = (f"{pub.topic_name}: also published by {', '.join(sorted(others))} "
+                        f"(a second monitor on the same topics? its outputs mix with ours)")
+                if self.notes.get(cause) != line:
+                    self.note(line, cause)
+            else:
+                self.clear(cause)
 
     def report(self) -> None:
         """Publish the status as it stands (also after activation)."""
