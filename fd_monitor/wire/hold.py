@@ -56,6 +56,10 @@ class ZeroOrderHold:
     def put(self, t: Any, value: Any) -> None:
         """Value ``value`` from time ``t`` on (in any order; ties: this one wins)."""
         times = self._times
+        if self.depth == 1 and times:          # the newest only (the time base's slots)
+            if t >= times[0]:
+                times[0], self._items[0] = t, value
+            return
         if not times or t >= times[-1]:
             times.append(t)
             self._items.append(value)
