@@ -58,10 +58,8 @@ class Proc:
             # the fused node (any gain file), or the four chain nodes (thresholds only)
             gains = [a.split(":=", 1)[1] for a in self.args if a.startswith("gains:=")]
             thresholds = not gains or "thresholds" in gains[-1]
-            return chain if thresholds and "layout:=chain" in self.args else ["monitor"]
-        if exe == "detector" and "layout:=chain" not in self.args:
-            qb = any("_qb" in a for a in self.args)
-            return ["detector", "observer"] if qb else chain
+            four = "layout:=nodes" in self.args or "layout:=chain" in self.args
+            return chain if thresholds and four else ["monitor"]
         return [exe]
 
     def wait(self, timeout: float) -> int:
