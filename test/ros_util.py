@@ -207,6 +207,9 @@ def _destroy_nodes_of(ctx: Any) -> None:
                 pass
 
 
+POLL = 0.02  # s between two looks at a spin_until condition
+
+
 def spin_until(executor: Any, cond: Callable[[], bool], timeout: float,
                procs: Sequence[Proc] = ()) -> bool:
     """Spin ``executor`` until ``cond()`` holds (True) or ``timeout`` s pass (False).
@@ -214,13 +217,20 @@ def spin_until(executor: Any, cond: Callable[[], bool], timeout: float,
     Stops early (False) when one of ``procs`` exited with a non-zero status.
     """
     deadline = time.monotonic() + timeout
+    if cond():
+        return True
+    checked = time.monotonic()
     while time.monotonic() < deadline:
-        if cond():
-            return True
         executor.spin_once(timeout_sec=0.05)
-        for p in procs:
-            if p.p.poll() not in (None, 0):
-                return cond()
+        # ``cond`` at most every POLL s, not after every callback: with a stream coming in,
+        # a condition that looks over everything received made the wait quadratic.
+        if time.monotonic() - checked >= POLL:
+            if cond():
+                return True
+            checked = time.monotonic()
+            for p in procs:
+                if p.p.poll() not in (None, 0):
+                    return cond()
     return cond()
 
 
@@ -247,6 +257,8 @@ class Collector:
         self.node = Node(name, context=context)
         self.msgs: dict[str, list[Any]] = {t: [] for t in topics}
         self.diagnostics: list[Any] = []
+        self._decoded: dict[str, list[Any]] = {}
+        self._statuses: dict[str, tuple[int, list[Any]]] = {}
         for t in topics:
             self.node.create_subscription(Float64MultiArray, t,
                                           lambda m, t=t: self.msgs[t].append(m),
@@ -256,14 +268,25 @@ class Collector:
                                           self.diagnostics.append, diagnostics_qos())
 
     def decoded(self, topic: str) -> list[Any]:
-        """Decoded messages of a topic, in arrival order."""
+        """Decoded messages of a topic, in arrival order.
+
+        Decoded once each (tests poll this in ``spin_until`` loops: decoding everything at
+        every poll made a long wait quadratic in the messages received).
+        """
         from fd_monitor.wire.conversions import decode
 
-        return [decode(m, topic) for m in self.msgs[topic]]
+        done = self._decoded.setdefault(topic, [])
+        msgs = self.msgs[topic]
+        done.extend(decode(m, topic) for m in msgs[len(done):])
+        return list(done)
 
     def statuses(self, name_part: str = "") -> list[Any]:
-        """Every DiagnosticStatus received whose name contains ``name_part``."""
-        return [s for a in self.diagnostics for s in a.status if name_part in s.name]
+        """Every DiagnosticStatus received whose name contains ``name_part`` (filtered once
+        per array and name part, for the same reason as :meth:`decoded`)."""
+        seen, got = self._statuses.setdefault(name_part, (0, []))
+        got.extend(s for a in self.diagnostics[seen:] for s in a.status if name_part in s.name)
+        self._statuses[name_part] = (len(self.diagnostics), got)
+        return list(got)
 
 
 def status_text(status: Any) -> str:

@@ -36,8 +36,9 @@ def test_demo_json_on_a_short_scenario(tmp_path):
     doc["duration"], doc["faults"][0]["time"] = 80.0, 40.0
     sc = tmp_path / "short.yaml"
     sc.write_text(yaml.safe_dump(doc))
-    r = run_cli(["demo", "--json", "--scenario", str(sc), "--output", str(tmp_path / "out")],
-                timeout=180)
+    # --timeout: the demo's own wait, for a loaded machine (CI, a second test worker)
+    r = run_cli(["demo", "--json", "--scenario", str(sc), "--output", str(tmp_path / "out"),
+                 "--timeout", "170"], timeout=180)
     assert r.returncode == 0, r.stderr[-3000:] + logs(tmp_path / "out" / "logs")
     out = json.loads(r.stdout)
     check(out, 40.0)
@@ -47,7 +48,8 @@ def test_demo_json_on_a_short_scenario(tmp_path):
 
 @pytest.mark.slow
 def test_demo_default_json(tmp_path):
-    r = run_cli(["demo", "--json", "--output", str(tmp_path / "out")], timeout=300)
+    r = run_cli(["demo", "--json", "--output", str(tmp_path / "out"), "--timeout", "280"],
+                timeout=300)
     assert r.returncode == 0, r.stderr[-3000:] + logs(tmp_path / "out" / "logs")
     check(json.loads(r.stdout), 200.0)
 
