@@ -124,23 +124,37 @@ def test_layout_nodes_gives_the_four_nodes_and_a_bad_layout_is_refused(capfd):
             make_nodes(context=ctx, parameter_overrides=[Parameter("layout", value="star")])
 
 
-def test_detector_is_one_node_and_its_old_layouts_say_so(capfd):
+def test_detector_is_one_node_and_its_old_layouts_say_so(capfd, monkeypatch):
     """The detector executable is the detector node alone: ``layout: chain`` (what it was)
-    is accepted with ONE deprecation warning; ``standalone`` (the whole chain, now
+    is accepted with ONE deprecation warning; without an observer it says once that it
+    needs one and that ``monitor`` is the whole chain; ``standalone`` (the whole chain, now
     ``monitor``'s) is refused in one line naming ``monitor -p layout:=nodes``."""
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from fd_monitor.model.errors import FdMonitorError
+    from fd_monitor.nodes import detector
     from fd_monitor.nodes.detector import DetectorNode
 
+    monkeypatch.setattr(detector, "ENTRY_HINT", 0.2)   # s (5 s in a real process)
     with ros_context() as ctx:
         capfd.readouterr()
         det = DetectorNode(context=ctx, parameter_overrides=[Parameter("layout",
                                                                        value="chain")])
         assert det.active
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(det)
+        seen: list[str] = []
+
+        def hinted() -> bool:
+            seen.append(capfd.readouterr().err)
+            return "no publisher of /fd/state_estimate" in "".join(seen)
+        assert spin_until(ex, hinted, 10.0)
+        ex.shutdown()
         det.destroy_node()
-        err = capfd.readouterr().err
+        err = "".join(seen) + capfd.readouterr().err
         assert err.count("is deprecated") == 1 and "layout: 'chain' is deprecated" in err
+        assert err.count("no publisher of /fd/state_estimate") == 1 and "run `monitor`" in err
         with pytest.raises(FdMonitorError) as exc:
             DetectorNode(context=ctx, parameter_overrides=[Parameter("layout",
                                                                      value="standalone")])
