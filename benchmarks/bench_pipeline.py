@@ -7,10 +7,10 @@ All over DDS on loopback (isolated ROS_DOMAIN_ID), in one run, side by side:
 * **monitor (fused)**: ``python -m fd_monitor run monitor`` (one node, one join, one
   ``Monitor.step`` per sample); the driver publishes /plant/u and /plant/y (the demo scenario,
   consecutive stamps across rates), this process subscribes to /fd/alarm.
-* **chain (4 processes)**: observer, detector (``layout:=chain``), agei, bias_estimator as
+* **chain (4 processes)**: observer, detector, agei, bias_estimator as
   four processes, same driver and receiver.
 * optionally (``--layouts ... monitor_chain``) the four nodes in one process
-  (``monitor --ros-args -p layout:=chain``).
+  (``monitor --ros-args -p layout:=nodes``).
 
 For each rate the driver (its own process, paced by sleeping until each sample is due: no
 core spent busy-waiting, no GIL shared with the receiver) sends ``rate x seconds`` samples and
@@ -63,7 +63,8 @@ DRIVER = r"""
 import json, sys, time
 import rclpy
 from std_msgs.msg import Float64MultiArray
-from fd_monitor.nodes.common import data_pub_qos, use_dds_profile
+from fd_monitor.nodes.pacing import use_dds_profile
+from fd_monitor.nodes.qos import data_pub_qos
 from fd_monitor.wire.conversions import to_msg
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 use_dds_profile(); rclpy.init()
@@ -113,16 +114,14 @@ for line in sys.stdin:
 LAYOUTS = {
     "raw": ("raw rclpy (2 processes)", []),
     "fused": ("monitor, fused (1 node)", [["monitor"]]),
-    "chain": ("chain (4 processes)", [["observer"], ["detector", "--ros-args", "-p",
-                                                      "layout:=chain"],
-                                      ["agei"], ["bias_estimator"]]),
-    "monitor_chain": ("monitor, layout:=chain (1 process)",
-                      [["monitor", "--ros-args", "-p", "layout:=chain"]]),
+    "chain": ("chain (4 processes)", [["observer"], ["detector"], ["agei"], ["bias_estimator"]]),
+    "monitor_chain": ("monitor, layout:=nodes (1 process)",
+                      [["monitor", "--ros-args", "-p", "layout:=nodes"]]),
 }
 
 
 def env() -> dict[str, str]:
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     use_dds_profile()
     e = dict(os.environ)
@@ -161,7 +160,7 @@ class Receiver:
         from rclpy.executors import SingleThreadedExecutor
         from std_msgs.msg import Float64MultiArray
 
-        from fd_monitor.nodes.common import data_sub_qos
+        from fd_monitor.nodes.qos import data_sub_qos
 
         self.node = rclpy.create_node(f"bench_rx_{topic.strip('/').replace('/', '_')}")
         self.arrivals: dict[int, float] = {}

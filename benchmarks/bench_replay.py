@@ -46,7 +46,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 def _env() -> dict[str, str]:
     sys.path.insert(0, str(REPO))
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

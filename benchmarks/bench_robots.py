@@ -44,7 +44,8 @@ DRIVER = r"""
 import json, sys, time
 import rclpy
 from std_msgs.msg import Float64MultiArray
-from fd_monitor.nodes.common import data_pub_qos, use_dds_profile
+from fd_monitor.nodes.pacing import use_dds_profile
+from fd_monitor.nodes.qos import data_pub_qos
 from fd_monitor.wire.conversions import to_msg
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 from fd_monitor.core.simulator import simulate
@@ -84,7 +85,9 @@ print(json.dumps({"sent": sent}), flush=True)
 BARE = r"""
 import rclpy
 from std_msgs.msg import Float64MultiArray
-from fd_monitor.nodes.common import _events_executor, data_sub_qos, use_dds_profile
+from fd_monitor.nodes.pacing import use_dds_profile
+from fd_monitor.nodes.process import _events_executor
+from fd_monitor.nodes.qos import data_sub_qos
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 use_dds_profile(); rclpy.init()
 n = rclpy.create_node("bare", namespace="/robot0")
@@ -101,7 +104,7 @@ except BaseException:
 
 def env() -> dict[str, str]:
     """An isolated ROS environment (random domain, loopback discovery)."""
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     use_dds_profile()
     e = dict(os.environ)
@@ -146,7 +149,8 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
     import rclpy
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import _events_executor, data_sub_qos
+    from fd_monitor.nodes.process import _events_executor
+    from fd_monitor.nodes.qos import data_sub_qos
     from fd_monitor.wire.topics import ALARM
 
     if floor:

@@ -17,7 +17,7 @@ from launch_ros.actions import Node
 #: config/launch/ beside launch/ (the source tree and share/fd_monitor/ alike)
 PARAMS = Path(__file__).resolve().parent.parent / "config" / "launch" / "chain.yaml"
 
-#: The chain's nodes, each its own executable (the detector with layout: chain).
+#: The chain's nodes, each its own executable.
 NODES = ("observer", "detector", "agei", "bias_estimator")
 
 

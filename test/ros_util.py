@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 def fd_env() -> dict[str, str]:
     """The environment for child processes (conftest's DDS isolation, the DDS profile)."""
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     use_dds_profile()
     env = dict(os.environ)
@@ -58,10 +58,8 @@ class Proc:
             # the fused node (any gain file), or the four chain nodes (thresholds only)
             gains = [a.split(":=", 1)[1] for a in self.args if a.startswith("gains:=")]
             thresholds = not gains or "thresholds" in gains[-1]
-            return chain if thresholds and "layout:=chain" in self.args else ["monitor"]
-        if exe == "detector" and "layout:=chain" not in self.args:
-            qb = any("_qb" in a for a in self.args)
-            return ["detector", "observer"] if qb else chain
+            four = "layout:=nodes" in self.args or "layout:=chain" in self.args
+            return chain if thresholds and four else ["monitor"]
         return [exe]
 
     def wait(self, timeout: float) -> int:
@@ -178,7 +176,7 @@ def wait_graph(topics: Sequence[str], timeout: float, nodes: Sequence[str] = (),
 def ros_context(args: Sequence[str] | None = None) -> Iterator[Any]:
     """An initialised rclpy Context of its own (with command-line ``args``, e.g.
     ``--ros-args --params-file F``), shut down at the end."""
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     use_dds_profile()
     import rclpy
@@ -254,7 +252,7 @@ class Collector:
         from rclpy.node import Node
         from std_msgs.msg import Float64MultiArray
 
-        from fd_monitor.nodes.common import data_sub_qos, diagnostics_qos
+        from fd_monitor.nodes.qos import data_sub_qos, diagnostics_qos
 
         self.node = Node(name, context=context)
         self.msgs: dict[str, list[Any]] = {t: [] for t in topics}

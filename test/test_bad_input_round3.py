@@ -523,7 +523,7 @@ def test_node_warns_once_on_undeclared_and_refuses_bad_choice(capfd):
     from rclpy.parameter import Parameter
 
     from fd_monitor.model.errors import FdMonitorError
-    from fd_monitor.nodes.common import Param, declare_parameters
+    from fd_monitor.nodes.params import Param, declare_parameters
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx)

@@ -27,7 +27,7 @@ def clean_env(monkeypatch):
 
 
 def test_nodes_and_pacing_sources_get_their_profiles(clean_env):
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     nodes = use_dds_profile()
     assert Path(nodes).name == "fastdds.xml" and heartbeat_s(nodes) == pytest.approx(0.02)
@@ -42,7 +42,7 @@ def test_nodes_and_pacing_sources_get_their_profiles(clean_env):
 
 
 def test_a_users_profile_is_kept(clean_env, tmp_path):
-    from fd_monitor.nodes.common import use_dds_profile
+    from fd_monitor.nodes.pacing import use_dds_profile
 
     mine = tmp_path / "mine.xml"
     mine.write_text((next(iter(config_dirs())) / "fastdds.xml").read_text())

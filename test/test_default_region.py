@@ -17,7 +17,7 @@ from fd_monitor.core.simulator import simulate
 from fd_monitor.model.scenario import parse_scenario
 from fd_monitor.model.system import load_system
 from fd_monitor.model.yaml_io import read_yaml
-from fd_monitor.nodes.fd_node import COMMON_PARAMS
+from fd_monitor.nodes.chain_params import COMMON_PARAMS
 
 CONFIG = Path(__file__).parents[1] / "config"
 

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.ros
 def test_a_warn_cleared_before_the_next_publication_is_published_first():
     from rclpy.node import Node
 
-    from fd_monitor.nodes.common import OK, WARN, Diagnostics
+    from fd_monitor.nodes.diagnostics import OK, WARN, Diagnostics
 
     now = [0.0]
     with ros_context() as ctx:

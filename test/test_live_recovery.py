@@ -11,10 +11,10 @@ doc/howto/overload-and-recovery.md states, waited for on conditions with deadlin
 * overload: a burst far faster than the chain: it sheds load (counted, on /diagnostics) and a
   sample published after the burst is processed within ``max_lag`` + 1 s (before: the
   backlog drained at the chain's pace, 84 s for 10 s of 10 kHz input);
-* the label attack: 1 MB labels, each one new, into a ``monitor`` and a standalone
-  ``detector`` process: refused in one line each, counted, and their resident memory stays
-  bounded: 50 more such labels add less than 16 MB (before: +2.9 GB for 300 of them, kept);
-  good input processed after.
+* the label attack: 1 MB labels, each one new, into a ``monitor`` and a ``monitor -p
+  layout:=nodes`` process (the chain's four nodes): refused in one line each, counted, and
+  their resident memory stays bounded: 50 more such labels add less than 16 MB (before:
+  +2.9 GB for 300 of them, kept); good input processed after.
 """
 
 from __future__ import annotations
@@ -159,12 +159,12 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
 
 
 def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
-    """4,000 samples unpaced into the four chain nodes (one executor, as the standalone
-    detector): more than max_lag (1 s here) behind, the observer skips to the newest sample
+    """4,000 samples unpaced into the four chain nodes (one executor, as ``monitor -p
+    layout:=nodes``): more than max_lag (1 s here) behind, the observer skips to the newest sample
     (counted: shed on /diagnostics); a sample published after the burst is processed within
     max_lag + 2 s."""
-    from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.nodes.qos import data_pub_qos
 
     u, y = nominal_run(4200)
     burst = 4000      # below Fast DDS's KEEP_ALL reader limit (5,000): no DDS loss here
@@ -206,8 +206,8 @@ def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
 
 
 def test_label_attack_is_refused_with_bounded_memory_and_good_input_goes_on():
-    """100 messages with a distinct ~1 MB label each into ``monitor`` and the standalone
-    ``detector`` (separate processes): every one refused (label too long), counted on
+    """100 messages with a distinct ~1 MB label each into ``monitor`` and ``monitor -p
+    layout:=nodes`` (separate processes): every one refused (label too long), counted on
     /diagnostics; VmRSS of each process: the second 50 add less than 16 MB, all 100 less
     than 64 MB (the receive buffers of 1 MB messages; the old caches kept 2 MB or more per
     label and node); good input after it gives residuals again."""
@@ -215,15 +215,15 @@ def test_label_attack_is_refused_with_bounded_memory_and_good_input_goes_on():
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-    from fd_monitor.nodes.common import data_pub_qos
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     u, y = nominal_run(120)
     spaces = ("/lm", "/ld")
     procs = [Proc(["run", "monitor", "--ros-args", "-r", "__ns:=/lm", "-p",
                    "diagnostics_period:=0.2"]),
-             Proc(["run", "detector", "--ros-args", "-r", "__ns:=/ld", "-p",
-                   "diagnostics_period:=0.2"])]
+             Proc(["run", "monitor", "--ros-args", "-r", "__ns:=/ld", "-p",
+                   "diagnostics_period:=0.2", "-p", "layout:=nodes"])]
     n_bad = 100
     try:
         with ros_context() as ctx:

@@ -32,8 +32,8 @@ def test_burst_degrades_to_holes_then_a_new_publisher_is_processed():
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     u = np.array([1.0e-4, 1.0e-4, 0.0])

@@ -25,8 +25,9 @@ def test_bad_messages_are_reported_and_change_nothing():
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import ERROR, STALE, WARN, data_pub_qos
+    from fd_monitor.nodes.diagnostics import ERROR, STALE, WARN
     from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     _, u, y, want = biased_h1_run(K)  # a large bias on h1 from sample 40: alarms in the run

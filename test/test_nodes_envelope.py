@@ -18,8 +18,9 @@ def test_observer_warns_outside_certified_region():
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.common import OK, WARN, data_pub_qos
+    from fd_monitor.nodes.diagnostics import OK, WARN
     from fd_monitor.nodes.observer import ObserverNode
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     system = load_system("three_tank")

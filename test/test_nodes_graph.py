@@ -44,7 +44,7 @@ class Rig:
         from rclpy.node import Node
         from std_msgs.msg import Float64MultiArray
 
-        from fd_monitor.nodes.common import data_pub_qos
+        from fd_monitor.nodes.qos import data_pub_qos
 
         self.nodes = list(nodes)
         self.col = Collector(ctx, [f"{ns}/{t}" for t in topics], diagnostics=True,
@@ -83,20 +83,20 @@ def params(**kw):
     return [Parameter(k, value=v) for k, v in kw.items()]
 
 
-def test_default_and_best_effort_publishers_feed_the_standalone_detector():
+def test_default_and_best_effort_publishers_feed_the_in_process_chain():
     """A reliable/volatile publisher (ROS default) and a best-effort one (sensor data) both
-    reach the standalone detector and give its alarms; the switch is reported on
+    reach the chain's four nodes in one process and give its alarms; the switch is reported on
     /diagnostics naming the topic and the policy; the estimator's fault stays visible after
     the input stops."""
     from rclpy.qos import qos_profile_sensor_data
 
-    from fd_monitor.nodes.common import ERROR, STALE, WARN
-    from fd_monitor.nodes.detector import make_nodes
+    from fd_monitor.nodes.diagnostics import ERROR, STALE, WARN
+    from fd_monitor.nodes.monitor import make_chain
 
     u, y = data()
     want = expected(u, y)
     with ros_context() as ctx:
-        rig = Rig(ctx, make_nodes(context=ctx, parameter_overrides=params(
+        rig = Rig(ctx, make_chain(context=ctx, parameter_overrides=params(
             stale_timeout=0.5, diagnostics_period=0.2)))
         assert {n.get_name() for n in rig.nodes} == {"detector", "observer", "agei",
                                                      "bias_estimator"}
@@ -118,7 +118,7 @@ def test_default_and_best_effort_publishers_feed_the_standalone_detector():
         rig.close()
 
     with ros_context() as ctx:
-        rig = Rig(ctx, make_nodes(context=ctx), driver_qos=qos_profile_sensor_data)
+        rig = Rig(ctx, make_chain(context=ctx), driver_qos=qos_profile_sensor_data)
 
         def switched():
             return any("/plant/y: QoS incompatible" in s.message and "RELIABILITY" in s.message
@@ -246,7 +246,7 @@ def test_stray_stamp_does_not_blind_the_monitor():
 def test_runtime_parameters_and_gain_swap():
     from rclpy.parameter import Parameter
 
-    from fd_monitor.nodes.common import WARN
+    from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.monitor import make_chain
 
     u, y = data()
@@ -278,7 +278,7 @@ def test_runtime_parameters_and_gain_swap():
 def test_plain_y_without_u_is_reported_not_processed():
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import WARN
+    from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.observer import ObserverNode
 
     with ros_context() as ctx:

@@ -254,7 +254,7 @@ def test_entry_behind_by_more_than_max_lag_sheds_to_the_newest_sample():
     """A node that cannot keep up (the next sample waits behind a backlog for more than
     max_lag s) skips to the newest complete sample: the skipped stamps are a hole (a restart
     beyond max_gap, a bridge within), counted in ``shed``; nothing stalls (issue 26: the
-    standalone detector took 84 s to drain 10 s of 10 kHz input)."""
+    in-process chain took 84 s to drain 10 s of 10 kHz input)."""
     j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=0.5, max_lag=2.0, max_gap=3)
     feed(j, 0)
     assert release(j) == [(0, True, None, FB0)]
@@ -301,7 +301,7 @@ def test_max_lag_is_at_least_the_feedback_timeout_and_offline_never_sheds():
 
 def test_downstream_skips_a_stamp_whose_inputs_were_published_before_it_subscribed():
     """A downstream node that subscribed after the source started (a robot driver already
-    publishing, the standalone detector's bias estimator created last) gets est_0 but never
+    publishing, the in-process chain's bias estimator created last) gets est_0 but never
     u_0: once a later sequence stamp has every input, 0 is dead and the node restarts there
     instead of waiting for u_0 forever."""
     j = StampJoin(["u", "est"], {"fb": FB0}, sequence="est")

@@ -35,8 +35,9 @@ def test_fused_monitor_bad_input_reported_outputs_equal_monitor():
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import ERROR, WARN, data_pub_qos
+    from fd_monitor.nodes.diagnostics import ERROR, WARN
     from fd_monitor.nodes.monitor import MonitorNode, make_nodes
+    from fd_monitor.nodes.qos import data_pub_qos
 
     _, u, y, want = biased_h1_run(K)  # a large bias on h1 from sample 40: alarms in the run
 
@@ -98,34 +99,81 @@ def test_fused_monitor_bad_input_reported_outputs_equal_monitor():
             n.destroy_node()
 
 
-def test_layout_chain_gives_the_four_nodes_and_a_bad_layout_is_refused():
+def test_layout_nodes_gives_the_four_nodes_and_a_bad_layout_is_refused(capfd):
+    """``layout: nodes`` makes the chain's four nodes; its old name ``chain`` makes the same
+    four with ONE deprecation warning naming ``nodes``; an unknown layout is refused."""
     from rclpy.parameter import Parameter
 
     from fd_monitor.model.errors import FdMonitorError
     from fd_monitor.nodes.monitor import make_nodes
 
     with ros_context() as ctx:
-        nodes = make_nodes(context=ctx, parameter_overrides=[Parameter("layout",
-                                                                       value="chain")])
-        assert [n.get_name() for n in nodes] == ["observer", "detector", "agei",
-                                                 "bias_estimator"]
-        for n in nodes:
-            n.destroy_node()
+        for layout in ("nodes", "chain"):
+            capfd.readouterr()
+            nodes = make_nodes(context=ctx, parameter_overrides=[Parameter("layout",
+                                                                           value=layout)])
+            assert [n.get_name() for n in nodes] == ["observer", "detector", "agei",
+                                                     "bias_estimator"]
+            for n in nodes:
+                n.destroy_node()
+            err = capfd.readouterr().err
+            assert err.count("is deprecated") == (layout == "chain"), err
+            if layout == "chain":
+                assert "parameter layout: 'chain' is deprecated: use 'nodes'" in err
         with pytest.raises(FdMonitorError, match="parameter layout: 'star'"):
             make_nodes(context=ctx, parameter_overrides=[Parameter("layout", value="star")])
+
+
+def test_detector_is_one_node_and_its_old_layouts_say_so(capfd, monkeypatch):
+    """The detector executable is the detector node alone: ``layout: chain`` (what it was)
+    is accepted with ONE deprecation warning; without an observer it says once that it
+    needs one and that ``monitor`` is the whole chain; ``standalone`` (the whole chain, now
+    ``monitor``'s) is refused in one line naming ``monitor -p layout:=nodes``."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from fd_monitor.model.errors import FdMonitorError
+    from fd_monitor.nodes import detector
+    from fd_monitor.nodes.detector import DetectorNode
+
+    monkeypatch.setattr(detector, "ENTRY_HINT", 0.2)   # s (5 s in a real process)
+    with ros_context() as ctx:
+        capfd.readouterr()
+        det = DetectorNode(context=ctx, parameter_overrides=[Parameter("layout",
+                                                                       value="chain")])
+        assert det.active
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(det)
+        seen: list[str] = []
+
+        def hinted() -> bool:
+            seen.append(capfd.readouterr().err)
+            return "no publisher of /fd/state_estimate" in "".join(seen)
+        assert spin_until(ex, hinted, 10.0)
+        ex.shutdown()
+        det.destroy_node()
+        err = "".join(seen) + capfd.readouterr().err
+        assert err.count("is deprecated") == 1 and "layout: 'chain' is deprecated" in err
+        assert err.count("no publisher of /fd/state_estimate") == 1 and "run `monitor`" in err
+        with pytest.raises(FdMonitorError) as exc:
+            DetectorNode(context=ctx, parameter_overrides=[Parameter("layout",
+                                                                     value="standalone")])
+        line = str(exc.value)
+        assert "\n" not in line and "'standalone' was removed" in line
+        assert "monitor -p layout:=nodes" in line
 
 
 def test_other_methods_run_in_the_one_fused_node():
     """A qb gain file (any method) runs in the same fused MonitorNode, with the registry's
     runtime (test_nodes_runtime.py checks its outputs against the offline run), also with
-    layout:=chain (the four-node chain is the thresholds method's)."""
+    layout:=nodes (the four-node chain is the thresholds method's)."""
     from rclpy.parameter import Parameter
 
     from fd_monitor.nodes.monitor import MonitorNode, make_nodes
     from fd_monitor.wire.topics import RUNTIME_OUTPUTS
 
     with ros_context() as ctx:
-        for layout in ("fused", "chain"):
+        for layout in ("fused", "nodes"):
             nodes = make_nodes(context=ctx, parameter_overrides=[
                 Parameter("system", value="pwa_cascade"),
                 Parameter("gains", value="pwa_cascade_qb"), Parameter("layout", value=layout)])

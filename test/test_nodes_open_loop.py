@@ -21,8 +21,8 @@ def test_observer_alone_runs_every_sample_without_waiting_for_feedback():
     from fd_monitor.core.methods import load_gains
     from fd_monitor.core.monitor import Monitor
     from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.observer import ObserverNode
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     system = load_system("three_tank")

@@ -56,7 +56,7 @@ def test_plant_sim_in_process_paced_with_diagnostics():
     from rclpy.parameter import Parameter
 
     from fd_monitor.core.simulator import PlantSimulator
-    from fd_monitor.nodes.common import OK
+    from fd_monitor.nodes.diagnostics import OK
     from fd_monitor.nodes.plant_sim import PlantSimNode
 
     sc = load_scenario("three_tank_bias_h1")

@@ -25,8 +25,7 @@ QB = ["--ros-args", "-p", "system:=pwa_cascade", "-p", "gains:=pwa_cascade_qb"]
 def test_qb_observer_and_detector_equal_offline(tmp_path):
     off = run_bag(BAG, "pwa_cascade_qb")
     n = len(off.k)
-    procs = [Proc(["run", x, *QB, *(["-p", "layout:=chain"] if x == "detector" else [])])
-             for x in ("observer", "detector")]
+    procs = [Proc(["run", x, *QB]) for x in ("observer", "detector")]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
     # pwa_cascade has no inputs: the QB observer subscribes to /plant/y only.
@@ -56,8 +55,9 @@ def test_qb_observer_warns_outside_a_stated_envelope(tmp_path):
     from fd_monitor.core.methods import load_gains
     from fd_monitor.model.gains import write_gain_doc
     from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.common import WARN, data_pub_qos
+    from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.observer import ObserverNode
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.conversions import to_msg
 
     system = load_system("pwa_cascade")

@@ -43,7 +43,7 @@ class Bench:
         from rclpy.node import Node
         from std_msgs.msg import Float64MultiArray
 
-        from fd_monitor.nodes.common import data_pub_qos
+        from fd_monitor.nodes.qos import data_pub_qos
 
         self.nodes = list(nodes)
         self.col = Collector(ctx, list(topics), diagnostics=True, name="manners_collector")
@@ -107,7 +107,7 @@ def test_aggregator_reads_an_idle_an_active_an_alarmed_and_a_stopped_monitor():
     """Two fused monitors (namespaces /a and /b): idle OK 'waiting for input'; active OK;
     /b alarmed ERROR; /a stopped after healthy input: STALE as a whole (not ERROR).
     hardware_id: <namespace>/<plant>, or the parameter."""
-    from fd_monitor.nodes.common import OK, STALE
+    from fd_monitor.nodes.diagnostics import OK, STALE
     from fd_monitor.nodes.monitor import MonitorNode
 
     OKi, ERRi, STALEi = 0, 2, 3
@@ -157,7 +157,7 @@ def test_aggregator_reads_an_idle_an_active_an_alarmed_and_a_stopped_monitor():
         bench.close()
 
 
-def test_standalone_detector_reset_resets_the_whole_chain_and_the_verdict():
+def test_detector_reset_resets_the_whole_chain_and_the_verdict():
     """/detector/reset (not the observer's) starts a new run of the whole chain: the bias
     estimator leaves its latched state and the fault verdict clears; fd/fault is latched
     (a subscriber that comes later gets the verdict in force)."""
@@ -165,15 +165,15 @@ def test_standalone_detector_reset_resets_the_whole_chain_and_the_verdict():
     from std_msgs.msg import Float64MultiArray
     from std_srvs.srv import Trigger
 
-    from fd_monitor.nodes.common import ERROR, OK
-    from fd_monitor.nodes.detector import make_nodes
+    from fd_monitor.nodes.diagnostics import ERROR, OK
     from fd_monitor.nodes.fault import fault_qos
+    from fd_monitor.nodes.monitor import make_chain
     from fd_monitor.wire.conversions import decode
 
     u, y = bias_data(80, 0.05)
     with ros_context() as ctx:
         # no hole or new run declared on a loaded machine: only the reset restarts the run
-        nodes = make_nodes(context=ctx, parameter_overrides=params(gap_timeout=30.0,
+        nodes = make_chain(context=ctx, parameter_overrides=params(gap_timeout=30.0,
                                                                    restart_after=30.0))
         obs = next(n for n in nodes if n.get_name() == "observer")
         bench = Bench(ctx, nodes, topics=["/fd/bias_estimate", "/fd/fault"])
@@ -221,7 +221,7 @@ def test_lifecycle_manager_takes_over_inactive_status_and_warns_that_clear():
     from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
 
-    from fd_monitor.nodes.common import MAX_MESSAGE, OK, STALE, WARN
+    from fd_monitor.nodes.diagnostics import MAX_MESSAGE, OK, STALE, WARN
     from fd_monitor.nodes.monitor import MonitorNode
 
     with ros_context() as ctx:
@@ -264,21 +264,23 @@ def test_lifecycle_manager_takes_over_inactive_status_and_warns_that_clear():
         bench.close()
 
 
-def test_renamed_detectors_coexist_and_log_their_shutdown(tmp_path):
-    """Two ``detector`` processes renamed as launch_ros does (-r __node:=det1 / det2): eight
-    distinct nodes in one domain, no rcl 'Publisher already registered'; SIGINT: each node
-    logs its shutdown transition. A lifecycle manager takes the autostarted det1 over."""
+def test_renamed_chains_coexist_and_log_their_shutdown(tmp_path):
+    """Two ``monitor -p layout:=nodes`` processes (the chain's four nodes) renamed as
+    launch_ros does (-r __node:=det1 / det2): eight distinct nodes in one domain, no rcl
+    'Publisher already registered'; SIGINT: each node logs its shutdown transition. A
+    lifecycle manager takes the autostarted det1_detector over."""
     from lifecycle_msgs.msg import State, Transition
     from lifecycle_msgs.srv import ChangeState, GetState
     from rclpy.node import Node
 
     with ros_context() as ctx, \
-            Proc(["run", "detector", "--ros-args", "-r", "__node:=det1"]) as p1, \
-            Proc(["run", "detector", "--ros-args", "-r", "__node:=det2",
-                  "-p", "autostart:=false"]) as p2:
+            Proc(["run", "monitor", "--ros-args", "-r", "__node:=det1",
+                  "-p", "layout:=nodes"]) as p1, \
+            Proc(["run", "monitor", "--ros-args", "-r", "__node:=det2",
+                  "-p", "layout:=nodes", "-p", "autostart:=false"]) as p2:
         probe = Node("names_probe", context=ctx)
         want = {f"{d}{s}" for d in ("det1", "det2")
-                for s in ("", "_observer", "_agei", "_bias_estimator")}
+                for s in ("_detector", "_observer", "_agei", "_bias_estimator")}
 
         def names():
             return {n for n, _ in probe.get_node_names_and_namespaces()}
@@ -297,10 +299,10 @@ def test_renamed_detectors_coexist_and_log_their_shutdown(tmp_path):
                           (Transition.TRANSITION_ACTIVATE, State.PRIMARY_STATE_ACTIVE)):
             req = ChangeState.Request()
             req.transition.id = tid
-            assert call(ex, probe, ChangeState, "/det1/change_state", req).success, tid
-            got = call(ex, probe, GetState, "/det1/get_state", GetState.Request())
+            assert call(ex, probe, ChangeState, "/det1_detector/change_state", req).success, tid
+            got = call(ex, probe, GetState, "/det1_detector/get_state", GetState.Request())
             assert got.current_state.id == want
-        assert "[det1]: lifecycle manager: configure asked" in p1.output()
+        assert "[det1_detector]: lifecycle manager: configure asked" in p1.output()
         for p in (p1, p2):
             p.signal(signal.SIGINT)
             assert p.wait(30.0) == 0, p.output()[-3000:]
@@ -308,7 +310,7 @@ def test_renamed_detectors_coexist_and_log_their_shutdown(tmp_path):
             out = p.output()
             assert "Publisher already registered" not in out, out[-3000:]
             assert "Failed to publish log message to rosout" not in out, out[-3000:]
-            for node in (d, f"{d}_observer", f"{d}_bias_estimator"):
+            for node in (f"{d}_detector", f"{d}_observer", f"{d}_bias_estimator"):
                 assert f"[{node}.lifecycle]: shut down (from {state})" in out, out[-3000:]
         ex.shutdown()
         probe.destroy_node()
@@ -329,7 +331,7 @@ def test_monitor_chain_takes_its_names_from_the_given_name():
 
     with ros_context() as ctx:
         nodes = make_nodes(context=ctx, node_name="m1",
-                           parameter_overrides=params(layout="chain"))
+                           parameter_overrides=params(layout="nodes"))
         assert [n.get_name() for n in nodes] == ["m1_observer", "m1_detector", "m1_agei",
                                                  "m1_bias_estimator"]
         fused = make_nodes(context=ctx, node_name="m2")
@@ -349,7 +351,7 @@ def test_fused_monitor_publishes_the_2cm_verdict_until_reset():
     from fd_monitor.core.thresholds import as_gains
     from fd_monitor.core.verdict import FaultVerdict, VerdictRule
     from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.common import ERROR
+    from fd_monitor.nodes.diagnostics import ERROR
     from fd_monitor.nodes.monitor import MonitorNode
 
     n = 300

@@ -24,8 +24,8 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     from fd_monitor.analysis.library import load_library
     from fd_monitor.core.methods import load_gains
     from fd_monitor.model.system import load_system
-    from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.monitor import MonitorNode
+    from fd_monitor.nodes.qos import data_pub_qos
     from fd_monitor.wire.bags import bag_topics, read_bag
     from fd_monitor.wire.conversions import to_msg
 

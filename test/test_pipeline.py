@@ -43,15 +43,14 @@ def offline(u, y):
     return [m.step(k, u[k], y[k]) for k in range(len(u))]
 
 
-@pytest.mark.parametrize("layout", ["four_processes", "monitor_chain", "monitor_fused"])
+@pytest.mark.parametrize("layout", ["four_processes", "monitor_nodes", "monitor_fused"])
 def test_distributed_chain_equals_offline_monitor(tmp_path, layout):
     bag = tmp_path / "sim"
     simulate_to_bag(short_scenario(tmp_path), bag, seed=7)
     nodes = (["observer", "detector", "agei", "bias_estimator"] if layout == "four_processes"
              else ["monitor"])
-    chain = ["--ros-args", "-p", "layout:=chain"]
-    procs = [Proc(["run", n, *(chain if n == "detector" or layout == "monitor_chain"
-                               else [])]) for n in nodes]
+    four = ["--ros-args", "-p", "layout:=nodes"] if layout == "monitor_nodes" else []
+    procs = [Proc(["run", n, *four]) for n in nodes]
     until = [a for t in FD_TOPICS for a in ("--until", f"{t}={K}")]
     rec = Proc(["record", "/plant/u", "/plant/y", *FD_TOPICS, "-o", str(tmp_path / "rec"),
                 *until])

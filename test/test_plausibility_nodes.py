@@ -23,8 +23,9 @@ def test_live_chain_refuses_1e300_and_recovers():
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.nodes.common import WARN, data_pub_qos
+    from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.monitor import make_chain
+    from fd_monitor.nodes.qos import data_pub_qos
 
     traj = simulate(load_scenario("three_tank_nominal"), 1, K)
     u, y = traj.u[0], traj.y[0].copy()

@@ -74,9 +74,8 @@ def test_live_nodes_match_expected(tmp_path, name, layout):
     nodes = ["monitor"] if layout == "monitor" else ["observer", "detector", "agei",
                                                      "bias_estimator"]
     # Every bad-input line logged (not throttled): the log is compared with the offline
-    # reader's errors; the detector runs alone (chain layout) beside the other processes.
-    procs = [Proc(["run", x, "--ros-args", "-p", "log_throttle:=0.0",
-                   *(["-p", "layout:=chain"] if x == "detector" else [])]) for x in nodes]
+    # reader's errors; the detector runs alone beside the other processes.
+    procs = [Proc(["run", x, "--ros-args", "-p", "log_throttle:=0.0"]) for x in nodes]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
     # /plant/u and /plant/y subscribers: the observer and the bias estimator (the fused
@@ -163,8 +162,7 @@ def test_live_bridges_keep_the_isolation(tmp_path, layout):
     n = len(offline.k)
     nodes = ["monitor"] if layout == "monitor" else ["observer", "detector", "agei",
                                                      "bias_estimator"]
-    procs = [Proc(["run", x, "--ros-args", "-p", "log_throttle:=0.0",
-                   *(["-p", "layout:=chain"] if x == "detector" else [])]) for x in nodes]
+    procs = [Proc(["run", x, "--ros-args", "-p", "log_throttle:=0.0"]) for x in nodes]
     until = [a for t in TOPICS for a in ("--until", f"{t}={n}")]
     rec = Proc(["record", *TOPICS, "-o", str(tmp_path / "rec"), *until])
     replay_through(procs, rec, bag, ["/plant/u", "/plant/y"],

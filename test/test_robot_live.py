@@ -32,7 +32,7 @@ def test_monitor_reads_joint_states_and_detects_the_actuator_fault(tmp_path):
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
 
-    from fd_monitor.nodes.common import data_pub_qos
+    from fd_monitor.nodes.qos import data_pub_qos
 
     monitor = Proc(["run", "monitor", "--ros-args", "-p", f"system:={PLANT}", "-p",
                     f"gains:={GAINS}", "-p", "adapter:=dc_motor", "-p",
@@ -108,8 +108,8 @@ def test_best_effort_driver_and_a_topic_of_another_type():
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray, String
 
-    from fd_monitor.nodes.common import data_pub_qos
     from fd_monitor.nodes.monitor import make_nodes
+    from fd_monitor.nodes.qos import data_pub_qos
 
     with ros_context() as ctx, ros_context() as ctx2:
         (node,) = make_nodes(context=ctx, parameter_overrides=[

@@ -121,8 +121,8 @@ def _gains(out: Path, env: dict[str, str]) -> Path:
 
 
 def _env(out: Path) -> dict[str, str]:
-    from fd_monitor.nodes.common import use_dds_profile  # noqa: F401  (ROS present?)
     from fd_monitor.nodes.domain import isolate_env
+    from fd_monitor.nodes.pacing import use_dds_profile  # noqa: F401  (ROS present?)
 
     # Its own domain: a foreign node in it would feed the chain or count as a subscriber.
     env = dict(isolate_env(dict(os.environ)))
@@ -201,13 +201,12 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     try:
         for n in FD_NODES:
-            # The distributed layout: the detector alone, fed by the observer process. The
+            # The distributed layout: four processes, the detector fed by the observer. The
             # run is flat out and lossless by design: a history that holds the whole run and
             # 5 s for late feedback keep a CPU-starved machine from turning delay into loss.
             procs.start(n, ["run", n, "--ros-args", "-p", f"gains:={gains}",
                             "-p", f"qos_depth:={min(1_000_000, max(1000, K + 100))}",
-                            "-p", "gap_timeout:=5.0", "-p", "restart_after:=5.0",
-                            *(["-p", "layout:=chain"] if n == "detector" else [])])
+                            "-p", "gap_timeout:=5.0", "-p", "restart_after:=5.0"])
         until = [a for t in TOPICS for a in ("--until", f"{t}={K}")]
         rec = procs.start("record", ["record", *TOPICS, DIAGNOSTICS.absolute, "-o", str(bag),
                                      *until])

@@ -60,7 +60,7 @@ def _pairs(items: Sequence[str], what: str) -> dict[str, str]:
 def run(args: argparse.Namespace) -> int:
     """Record until a stop condition; print per-topic counts."""
     from fd_monitor.nodes.bag_nodes import KNOWN_TYPES, RecorderNode
-    from fd_monitor.nodes.common import run_node
+    from fd_monitor.nodes.process import run_node
     from fd_monitor.wire.bags import FLUSH_SECONDS, BagWriter
 
     types = dict(KNOWN_TYPES)

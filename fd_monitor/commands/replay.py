@@ -52,7 +52,7 @@ def _remap(text: str) -> tuple[str, str]:
 def run(args: argparse.Namespace) -> int:
     """Replay; print how many messages were published."""
     from fd_monitor.nodes.bag_nodes import ReplayNode
-    from fd_monitor.nodes.common import run_node
+    from fd_monitor.nodes.process import run_node
     remap = dict(args.remap)
     from fd_monitor.analysis.integrity import bag_integrity
 

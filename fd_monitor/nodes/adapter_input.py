@@ -7,7 +7,7 @@ events of the one time base (:class:`fd_monitor.wire.adapters.AdapterJoin` on
 input policy as ``u`` and ``y`` with :func:`~fd_monitor.wire.adapters.feed` -- the function
 the offline reader calls -- so everything after it (gaps, new runs, the runtime step,
 diagnostics) is the node's usual path. Subscriptions
-meet reliable and best-effort volatile publishers (:class:`~fd_monitor.nodes.common.DataInput`).
+meet reliable and best-effort volatile publishers (:class:`~fd_monitor.nodes.data_input.DataInput`).
 A message the adapter cannot read (unknown joint, missing field, NaN, another type) is one
 line, logged (throttled) and reported WARN on the node's ``input`` channel; the node keeps
 going. A mapped topic published with another type is reported on ``ros graph``.
@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.nodes.bag_nodes import message_class
-from fd_monitor.nodes.common import DataInput, Param, pub_events
+from fd_monitor.nodes.data_input import DataInput
+from fd_monitor.nodes.params import Param
+from fd_monitor.nodes.qos import pub_events
 from fd_monitor.wire.adapters import HOLD_WAIT, Adapter, AdapterJoin, encode, feed, load_adapter
 
 __all__ = ["ADAPTER_PARAM", "AdapterInput", "RobotPublishers"]
@@ -55,8 +57,7 @@ class AdapterInput:
     Parameters
     ----------
     node : FdNode
-        Configured: ``system``, ``on_input``, ``bad_input``, ``_graph_note``, ``_switched``,
-        ``_entities``.
+        Configured: ``system``, ``stream``, ``input_status``, ``graph``, ``_entities``.
     source : str
         The adapter file.
     hold_wait : float
@@ -77,8 +78,8 @@ class AdapterInput:
             node._entities.append(DataInput(
                 node, cls, topic, lambda msg, info=None, topic=topic: self._on_msg(topic, msg,
                                                                                    info),
-                partial(node._graph_note, cause=f"qos {name}"), with_info=True,
-                switched=partial(node._switched, name)))
+                partial(node.graph.note, cause=f"qos {name}"), with_info=True,
+                switched=partial(node.graph.switched, name)))
         node._entities.append(node.create_timer(hold_wait / 2, self._release))
         node._entities.append(node.create_timer(GRAPH_CHECK, self._check_types))
         self._type_notes: set[str] = set()
@@ -109,9 +110,9 @@ class AdapterInput:
         for e in self.join.events():
             joined = feed(node.stream, e, now, bool(self.nu)) or joined
         if joined:
-            node._input_ok()
+            node.input_status.ok()
         for _kind, line in self.join.take_errors():
-            node.bad_input(line)
+            node.input_status.bad_input(line)
 
     def reset(self) -> None:
         """Forget the stream (``~/reset``): sample indices start again at 0."""
@@ -128,7 +129,7 @@ class AdapterInput:
                         f"{self.adapter.source} maps it as {ty}: those messages cannot arrive")
                 if line not in self._type_notes:
                     self._type_notes.add(line)
-                    node._graph_note(line)
+                    node.graph.note(line)
 
 
 class RobotPublishers:

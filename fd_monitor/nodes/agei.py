@@ -18,8 +18,13 @@ from fd_monitor.core.agei import Agei
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
-from fd_monitor.nodes.common import OK, NodeUsage, Param, run_node
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FdNode, Input
+from fd_monitor.nodes.chain_params import COMMON_PARAMS
+from fd_monitor.nodes.diagnostics import OK
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
+from fd_monitor.nodes.params import Param
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
     DIAGNOSTICS,
     GUARD_EVENT,

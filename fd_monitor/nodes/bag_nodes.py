@@ -17,10 +17,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.task import Future
 
 from fd_monitor.model.errors import BagError
-from fd_monitor.nodes.common import (
+from fd_monitor.nodes.data_input import DataInput
+from fd_monitor.nodes.pacing import AckPacer
+from fd_monitor.nodes.qos import (
     DEFAULT_DEPTH,
-    AckPacer,
-    DataInput,
     data_pub_qos,
     diagnostics_qos,
     pub_events,

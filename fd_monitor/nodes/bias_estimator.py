@@ -11,7 +11,7 @@ flags, ``active``, ``k_detect`` (-1 before detection).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 from rclpy.qos import QoSProfile
 
@@ -19,9 +19,13 @@ from fd_monitor.core.bias_estimator import BiasEstimator
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
-from fd_monitor.nodes.common import OK, WARN, Diagnostics, NodeUsage, run_node
-from fd_monitor.nodes.fault import FaultReport
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, FAULT_PARAMS, FdNode, Input
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, FAULT_PARAMS
+from fd_monitor.nodes.fault import FaultReport, fault_report
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.reports import BiasReport
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
     ALARM,
     BIAS_ESTIMATE,
@@ -33,7 +37,7 @@ from fd_monitor.wire.topics import (
     STATE_ESTIMATE,
 )
 
-__all__ = ["BiasEstimatorNode", "BiasReport", "USAGE", "main"]
+__all__ = ["BiasEstimatorNode", "USAGE", "main"]
 
 PARAMS: tuple = FAULT_PARAMS
 
@@ -51,51 +55,7 @@ USAGE = NodeUsage(
                (DIAGNOSTICS, "input, estimate and fault status")))
 
 
-class BiasHost(Protocol):
-    """What :class:`BiasReport` needs of its node (a protocol: mypy checks each host)."""
-
-    diag: Diagnostics
-    system: System
-    bias_channel: str
-    _last_active: bool
-    _last_isolated: list[str]
-
-    def gain_values(self) -> dict[str, str]: ...
-    def get_logger(self) -> Any: ...
-
-
-class BiasReport:
-    """Log lines (detection, isolation) and the /diagnostics status ``bias_channel`` of a
-    node running the bias estimator (bias_estimator, monitor). Uses the node's ``diag``,
-    ``system``, ``_last_active`` and ``_last_isolated`` (:class:`BiasHost`)."""
-
-    bias_channel = "estimate"
-
-    def report_bias(self: BiasHost, k: int, out: Any) -> None:
-        """Report the estimator's output at k (a BiasOutput)."""
-        s = self.system
-        isolated = [o for o, f in zip(s.outputs, out.isolated) if f]
-        log = self.get_logger()
-        if out.active and not self._last_active:
-            log.info(f"fault detected at sample {int(out.k_detect)}: estimating the sensor "
-                     f"bias")
-        if isolated != self._last_isolated:
-            est = ", ".join(f"{o} = {float(v):.4g}" for o, v in zip(s.outputs, out.sigma_hat))
-            log.info(f"sample {k}: isolated {', '.join(isolated) or 'nothing'} "
-                     f"(sigma_hat {est})")
-        self._last_active, self._last_isolated = bool(out.active), isolated
-        if out.active:
-            level, msg = WARN, (f"bias on {', '.join(isolated)}" if isolated
-                                else "estimating (fault detected)")
-        else:
-            level, msg = OK, "no fault detected"
-        self.diag.update(self.bias_channel, level, msg, {
-            "sample": k, "active": bool(out.active), "k_detect": int(out.k_detect),
-            "sigma_hat": out.sigma_hat, "isolated": ",".join(isolated) or "none",
-            **self.gain_values()})
-
-
-class BiasEstimatorNode(FaultReport, BiasReport, FdNode):
+class BiasEstimatorNode(FdNode):
     """Bias estimator node.
 
     Parameters
@@ -112,8 +72,8 @@ class BiasEstimatorNode(FaultReport, BiasReport, FdNode):
                  gains: GainFile | None = None, qos: QoSProfile | None = None,
                  node_name: str = "bias_estimator", **kwargs: Any) -> None:
         self._estimator_arg = estimator
-        self._last_active = False
-        self._last_isolated: list[str] = []
+        self.bias_report: BiasReport | None = None
+        self.fault: FaultReport | None = None
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
 
     def setup(self) -> None:
@@ -138,7 +98,10 @@ class BiasEstimatorNode(FaultReport, BiasReport, FdNode):
         self._bias = BIAS_ESTIMATE.layout(s)
         # A fault found stays visible (with its estimate) when the input stops.
         self.diag.add("estimate", self.params.stale_timeout, keep_on_stale=True)
-        self.start_verdict(s.outputs, as_gains(s, self.gain_file).isolation_threshold)
+        self.bias_report = BiasReport(self.diag, self.get_logger(), s.outputs,
+                                      self.gain_values)
+        self.fault = fault_report(self, s.outputs,
+                                  as_gains(s, self.gain_file).isolation_threshold)
         inputs = [
             Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
             Input.of("y", PLANT_Y, s, plain_ok=True),
@@ -154,8 +117,10 @@ class BiasEstimatorNode(FaultReport, BiasReport, FdNode):
     def reset(self) -> None:
         """Back to inactive, sigma^ = 0 (Monitor.reset)."""
         self.estimator.reset()
-        self._last_active, self._last_isolated = False, []
-        self.reset_verdict()
+        if self.bias_report is not None:
+            self.bias_report.reset()
+        if self.fault is not None:
+            self.fault.reset()
 
     def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """sigma^, K_d and isolation kept over a bridged gap, the state predicted through it
@@ -170,8 +135,9 @@ class BiasEstimatorNode(FaultReport, BiasReport, FdNode):
                                   bool(inputs["guard"][i_uncertain] > 0.5))
         lay = self._bias
         self.publish_array(self.pub, lay.labels, k + 1, lay.encode(out.payload()))
-        self.report_bias(k, out)
-        self.step_verdict(k, inputs["alarm"][i_alarm] > 0.5, out.sigma_hat, out.isolated)
+        assert self.bias_report is not None and self.fault is not None   # configured
+        self.bias_report.report(k, out)
+        self.fault.step(k, inputs["alarm"][i_alarm] > 0.5, out.sigma_hat, out.isolated)
 
 
 def main(args: Sequence[str] | None = None) -> int:

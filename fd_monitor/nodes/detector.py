@@ -1,5 +1,10 @@
 """``detector``: filtered residuals, thresholds and alarms (Heracleous et al., eq. 8-18).
 
+The detector node alone: one node of the four-process chain, fed ``fd/state_estimate`` by
+an ``observer``. To detect on ``plant/u`` and ``plant/y`` alone run ``monitor`` (the whole
+chain as one node; ``-p layout:=nodes``: its four nodes in one process): a detector started
+without an observer says so once, :data:`ENTRY_HINT` s after it activated.
+
 Joins, per sample k: ``/fd/state_estimate`` (q^_k, x^_k, y~_k) and
 ``/fd/threshold_override`` (AGEI's override decided at k - 1, stamped k; NaN = none).
 Publishes (stamp k) ``/fd/residual`` (``r:<out>``, ``w:<out>``), ``/fd/threshold``
@@ -19,7 +24,7 @@ alarm on ``/fd/alarm``, as :func:`fd_monitor.analysis.offline.run_bag` computes 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from rclpy.qos import QoSProfile
@@ -30,17 +35,13 @@ from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
-from fd_monitor.nodes import agei, bias_estimator, observer
-from fd_monitor.nodes.common import (
-    ERROR,
-    OK,
-    WARN,
-    Diagnostics,
-    NodeUsage,
-    Param,
-    run_node,
-)
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, WARN_SHARE, FdNode, Input
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, WARN_SHARE
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
+from fd_monitor.nodes.params import Param
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.reports import ResidualReport
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.conversions import decode
 from fd_monitor.wire.topics import (
     ALARM,
@@ -52,17 +53,26 @@ from fd_monitor.wire.topics import (
     THRESHOLD_OVERRIDE,
 )
 
-__all__ = ["DetectorNode", "ResidualReport", "USAGE", "main"]
+__all__ = ["DetectorNode", "USAGE", "main"]
+
+#: ``layout`` is no longer the detector's to choose: the detector executable is the detector
+#: node alone, and the in-process chain is ``monitor``'s (``layout: nodes``). The parameter
+#: stays declared for its old values: ``chain`` (the detector alone: what it is now) is
+#: accepted with one deprecation warning; ``standalone`` (the whole chain in this process) is
+#: refused in one line naming ``monitor`` -- a detector alone, fed only plant/u and plant/y,
+#: would wait for fd/state_estimate for ever instead of detecting.
+LAYOUT = Param("layout", "", "deprecated, leave it unset: the detector is always the detector "
+               "node alone (fed fd/state_estimate by an observer); chain is accepted with a "
+               "warning, standalone refused (the whole chain in one process is monitor, "
+               "-p layout:=nodes for its four nodes)", choices=("", "chain", "standalone"))
 
 PARAMS = (
     WARN_SHARE,
-    Param("layout", "standalone", "standalone: the detector executable also runs observer, "
-          "agei and bias_estimator in its process (fed plant/u and plant/y it detects on its "
-          "own); chain: the detector alone, fed fd/state_estimate by an observer process",
-          choices=("standalone", "chain")),
+    LAYOUT,
 )
 
-LAYOUTS = ("standalone", "chain")
+#: s after activation before a detector without an observer says so (once).
+ENTRY_HINT = 5.0
 
 USAGE = NodeUsage(
     "detector", "detector: filtered residuals, thresholds and alarms (QB bounds for a qb "
@@ -76,69 +86,7 @@ USAGE = NodeUsage(
                (DIAGNOSTICS, "one status per channel: residual, threshold, margin")))
 
 
-class ResidualHost(Protocol):
-    """What :class:`ResidualReport` needs of its node (a protocol: mypy checks each host)."""
-
-    diag: Diagnostics
-    params: Any
-    detector: Any
-    channels: list[str]
-    sigma_hat: Any
-    _alarmed: set[str]
-    _episode: int
-
-    def mode_name(self, mode: int) -> str: ...
-    def gain_values(self) -> dict[str, str]: ...
-    def get_logger(self) -> Any: ...
-    def _log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None: ...
-
-
-class ResidualReport:
-    """Per-channel /diagnostics and alarm log lines of a detecting node (detector, monitor).
-
-    Uses the node's ``channels`` (one ``residual <name>`` status each), ``diag``,
-    ``params.warn_share``, ``system``, ``detector``, ``sigma_hat`` (latest bias estimate),
-    ``_alarmed`` and ``_episode`` (:class:`ResidualHost`).
-    """
-
-    def _report(self: ResidualHost, k: int, mode: int, signal: Any, threshold: Any,
-                alarm: Any) -> None:
-        share = self.params.warn_share
-        qb = not isinstance(self.detector, ResidualDetector)
-        self._log_alarms(k, signal, threshold, alarm)
-        for i, ch in enumerate(self.channels):
-            r, R = float(signal[i]), float(threshold[i])
-            if alarm[i]:
-                level, msg = ERROR, "alarm: |residual| > threshold"
-            elif abs(r) > share * R:
-                level, msg = WARN, f"|residual| > {share:g} x threshold"
-            else:
-                level, msg = OK, "ok"
-            values = {"sample": k, "residual": r, "threshold": R, "margin": R - abs(r),
-                      "mode": self.mode_name(mode), **self.gain_values()}
-            if not qb:
-                values["sigma_hat"] = float(self.sigma_hat[i])
-            self.diag.update(ch, level, msg, values)
-
-    def _log_alarms(self: ResidualHost, k: int, signal: Any, threshold: Any, alarm: Any
-                    ) -> None:
-        """One line when a channel's alarm starts, one when every alarm is over."""
-        now = {ch for i, ch in enumerate(self.channels) if alarm[i]}
-        log = self.get_logger()
-        if now and not self._alarmed:
-            self._episode += 1
-        for i, ch in enumerate(self.channels):
-            if ch in now and ch not in self._alarmed:
-                log.warning(f"alarm episode {self._episode}: {ch} at sample {k}: "
-                            f"|r| = {abs(float(signal[i])):.4g} > R = "
-                            f"{float(threshold[i]):.4g}")
-        if self._alarmed and not now:
-            log.info(f"alarm episode {self._episode} over at sample {k}: every residual "
-                     f"within its threshold")
-        self._alarmed = now
-
-
-class DetectorNode(ResidualReport, FdNode):
+class DetectorNode(FdNode):
     """Residual detector node: thresholds (``thresholds``) or QB bounds (``qb``).
 
     Parameters
@@ -155,10 +103,31 @@ class DetectorNode(ResidualReport, FdNode):
                  gains: GainFile | None = None, qos: QoSProfile | None = None,
                  node_name: str = "detector", **kwargs: Any) -> None:
         self._detector_arg = detector
+        self._layout_checked = False
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
-        if self.params.layout not in LAYOUTS:
-            raise FdMonitorError(f"node {node_name}: parameter layout: {self.params.layout!r}"
-                                 f": expected one of {', '.join(LAYOUTS)}")
+        self._check_layout()
+
+    def start(self) -> None:
+        """Check the (deprecated) layout, configure and activate (autostart)."""
+        self._check_layout()
+        super().start()
+
+    def _check_layout(self) -> None:
+        """Refuse ``layout: standalone`` (one line), warn once about ``layout: chain``."""
+        if self._layout_checked:
+            return
+        self._layout_checked = True
+        layout = self.params.layout
+        if layout == "standalone":
+            raise FdMonitorError(
+                f"node {self.get_name()}: parameter layout: 'standalone' was removed: the "
+                f"detector executable runs the detector node alone; for the whole chain in "
+                f"one process run `monitor` (one node) or `monitor -p layout:=nodes` (its four "
+                f"nodes)")
+        if layout == "chain":
+            self.get_logger().warning(
+                "parameter layout: 'chain' is deprecated and has no effect: the detector is "
+                "always the detector node alone (what layout: chain was); remove it")
 
     def setup(self) -> None:
         """Publishers, detector and inputs (at configure)."""
@@ -168,11 +137,24 @@ class DetectorNode(ResidualReport, FdNode):
         # the fields of the state estimate, resolved once
         self._i_est = (est.index["mode"], est.index["x_hat"], est.index["y_tilde"])
         self.sigma_hat = np.zeros(self.system.ny)
-        self._alarmed: set[str] = set()
-        self._episode = 0
         self.start_runtime()
         for ch in self.channels:
             self.diag.add(ch, self.params.stale_timeout)
+        self.residual_report = ResidualReport(self.diag, self.get_logger(), self.system,
+                                              self.channels, lambda: self.params.warn_share,
+                                              self.gain_values)
+        self._hint = self.create_timer(ENTRY_HINT, self._hint_entry)
+        self._entities.append(self._hint)
+
+    def _hint_entry(self) -> None:
+        """Once: say so when nothing publishes the state estimate (a detector started alone
+        beside a robot, expecting the whole chain)."""
+        self._hint.cancel()
+        if self.active and not self.count_publishers(STATE_ESTIMATE.name):
+            self.get_logger().warning(
+                f"no publisher of {self.resolve_topic_name(STATE_ESTIMATE.name)}: the detector "
+                f"needs an observer (the four-process chain); to detect on plant/u and "
+                f"plant/y alone run `monitor` (the whole chain)")
 
     def build_core(self, gains: Any) -> None:
         """A new detector for another gain file (runtime swap)."""
@@ -216,7 +198,7 @@ class DetectorNode(ResidualReport, FdNode):
             d = decode(msg, self.resolve_topic_name(BIAS_ESTIMATE.name),
                        labels=self._bias.labels, require_stamp=True)
         except MessageError as exc:
-            self.bad_input(str(exc))
+            self.input_status.bad_input(str(exc))
             return
         self.sigma_hat = d.values[self._bias.index["sigma_hat"]]
 
@@ -243,7 +225,9 @@ class DetectorNode(ResidualReport, FdNode):
         for topic, pub in self.pubs.items():
             lay = self._layouts[topic]
             self.publish_array(pub, lay.labels, k, lay.encode(pay))
-        self._report(k, mode, pay["residual"], pay["threshold"], pay["alarm"])
+        self.residual_report.report(k, mode, pay["residual"], pay["threshold"], pay["alarm"],
+                                    self.sigma_hat if isinstance(self.detector,
+                                                                 ResidualDetector) else None)
 
     def _step_thresholds(self, k: int, mode: int, x_hat: np.ndarray, y_t: np.ndarray,
                          inputs: dict[str, Any]) -> dict[str, Any]:
@@ -257,55 +241,9 @@ class DetectorNode(ResidualReport, FdNode):
         return {"residual": sig, "threshold": thr, "alarm": sig > thr}
 
 
-def companion_name(base: str, default: str, name: str) -> str:
-    """The name of node ``name`` beside the main node of a several-node executable: its own
-    name when the main one keeps its ``default`` name, else ``<base>_<name>`` (``-r
-    __node:=det1``: ``det1_observer``, ``det1_agei``, ...)."""
-    return name if base == default else f"{base}_{name}"
-
-
-def make_nodes(**kwargs: Any) -> list:
-    """The detector node, and with ``layout: standalone`` the rest of the chain beside it.
-
-    The other nodes get the detector's ``system`` and ``gains`` (one plant, one gain file);
-    a qb gain file runs observer + detector only. ``kwargs`` go to every node; a
-    ``node_name`` names the detector, the others get names derived from it
-    (:func:`companion_name`).
-    """
-    from rclpy.parameter import Parameter
-
-    base = str(kwargs.get("node_name", "detector"))
-    det = DetectorNode(**kwargs)
-    if det.params.layout != "standalone":
-        return [det]
-
-    gains = str(det.gain_file.path) if det.configured else det.params.gains
-    same = [Parameter("system", value=det.params.system), Parameter("gains", value=gains),
-            Parameter("autostart", value=det.params.autostart)]
-    extra = {**kwargs, "parameter_overrides": [*kwargs.get("parameter_overrides", []), *same]}
-    # The observer (the chain's entry) last: the others then subscribe before a source
-    # waiting for plant/y subscribers starts, and before the first estimate goes out.
-    classes = ([agei.AgeiNode, bias_estimator.BiasEstimatorNode]
-               if not det.configured or det.gain_file.method == "thresholds" else [])
-    classes.append(observer.ObserverNode)
-    extra.pop("node_name", None)
-    names = {agei.AgeiNode: "agei", bias_estimator.BiasEstimatorNode: "bias_estimator",
-             observer.ObserverNode: "observer"}
-    nodes = [det]
-    try:
-        for cls in classes:
-            nodes.append(cls(node_name=companion_name(base, "detector", names[cls]), **extra))
-    except Exception:
-        for n in nodes:
-            n.destroy_node()
-        raise
-    return nodes
-
-
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the detector (standalone: with observer, agei, bias_estimator in-process)."""
-    return run_node(make_nodes, args, prog="detector", named=True,
-                    usage=[USAGE, *(m.USAGE for m in (observer, agei, bias_estimator))])
+    """Run the detector node (alone: the in-process chain is ``monitor -p layout:=nodes``)."""
+    return run_node(DetectorNode, args, prog="detector", usage=[USAGE])
 
 
 if __name__ == "__main__":

@@ -13,18 +13,17 @@ stale, when the input stops).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64MultiArray
 
 from fd_monitor.core.verdict import FaultVerdict, VerdictOutput, VerdictRule
-from fd_monitor.model.system import System
-from fd_monitor.nodes.common import ERROR, OK, Diagnostics, incompatible_text, pub_events
+from fd_monitor.nodes.diagnostics import ERROR, OK, Diagnostics
+from fd_monitor.nodes.serialized import SerializedArray
 from fd_monitor.wire.topics import FAULT, Layout, fault_layout
 
-__all__ = ["FaultHost", "FaultReport", "fault_qos"]
+__all__ = ["FaultReport", "fault_qos", "fault_report"]
 
 
 def fault_qos() -> QoSProfile:
@@ -34,102 +33,93 @@ def fault_qos() -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-class FaultHost(Protocol):
-    """What :class:`FaultReport` needs of its node (a protocol: mypy checks each host)."""
-
-    params: Any
-    system: System
-    diag: Diagnostics
-    fault_status: str
-    verdict: FaultVerdict
-    _fault_names: list[str]
-    _fault_layout: Layout
-    _fault_pub: Any
-    _faulty_before: list[str]
-    _entities: list[Any]
-    _pubs: list[Any]
-
-    def _graph_note(self, line: str, cause: str | None = None) -> None: ...
-    def publish_array(self, pub: Any, labels: Sequence[str], stamp: int,
-                      values: Any) -> None: ...
-    def get_logger(self) -> Any: ...
-    def fault_text(self, out: VerdictOutput) -> str: ...
-
-
 class FaultReport:
-    """The fault verdict of a chain node (a mixin of :class:`~fd_monitor.nodes.fd_node.FdNode`
-    subclasses; :class:`FaultHost`)."""
+    """The fault verdict of a node: stepped per sample, published on ``fd/fault`` and
+    reported as the ``fault`` status when it changes (held by the node: monitor,
+    bias_estimator).
 
-    fault_status = "fault"
-    verdict: FaultVerdict
-    _fault_names: list[str]
-    _fault_layout: Layout
-    _fault_pub: Any
-    _faulty_before: list[str]
+    Parameters
+    ----------
+    pub : rclpy.publisher.Publisher
+        ``fd/fault`` (:func:`fault_qos`).
+    diag : Diagnostics
+        The ``fault`` channel is added to it.
+    logger : rclpy logger
+    rule : VerdictRule
+        From the node's ``fault_*`` parameters (:meth:`VerdictRule.in_seconds`).
+    channels : sequence of str
+        The verdict's channels.
+    significance : array_like, optional
+        (m,) |estimate| that counts as evidence; None without an estimator.
+    stale_timeout : float, optional
+        s without a sample before the status is marked stale (it keeps its level).
+    """
 
-    def start_verdict(self: FaultHost, channels: Sequence[str],
-                      significance: Any = None) -> None:
-        """Build the verdict for ``channels`` (at configure; ``significance``: (m,) |estimate|
-        that counts as evidence, None without an estimator), its publisher and status."""
-        p = self.params
-        rule = VerdictRule.in_seconds(self.system.sample_time, p.fault_confirm,
-                                      p.fault_window, p.fault_clear_after)
+    status = "fault"
+
+    def __init__(self, pub: Any, diag: Diagnostics, logger: Any, rule: VerdictRule,
+                 channels: Sequence[str], significance: Any = None,
+                 stale_timeout: float | None = None) -> None:
+        self.pub, self.diag, self.logger = pub, diag, logger
         self.verdict = FaultVerdict(len(channels), rule, significance)
-        self._fault_names = list(channels)
-        self._fault_layout = fault_layout(channels)
-        node: Any = self                        # an rclpy Node
-        name = node.resolve_topic_name(FAULT.name)
-        self._fault_pub = node.create_publisher(
-            Float64MultiArray, FAULT.name, fault_qos(),
-            **pub_events(lambda info: self._graph_note(
-                incompatible_text(name, "publisher", info), f"qos {name}")))
-        self._entities.append(self._fault_pub)
-        self._pubs.append(self._fault_pub)
-        self.diag.add(self.fault_status, self.params.stale_timeout, keep_on_stale=True)
-
-    def reset_verdict(self: FaultHost) -> None:
-        """No fault (a new run)."""
-        verdict = getattr(self, "verdict", None)
-        if verdict is not None:
-            verdict.reset()
+        self.names = list(channels)
+        self.layout: Layout = fault_layout(channels)
+        self._ser = SerializedArray(self.layout.labels)
         self._faulty_before: list[str] = []
+        diag.add(self.status, stale_timeout, keep_on_stale=True)
 
-    def step_verdict(self: FaultHost, k: int, alarm: Any, estimate: Any = None,
-                     isolated: Any = None) -> VerdictOutput:
+    def reset(self) -> None:
+        """No fault (a new run)."""
+        self.verdict.reset()
+        self._faulty_before = []
+
+    def step(self, k: int, alarm: Any, estimate: Any = None,
+             isolated: Any = None) -> VerdictOutput:
         """Step the verdict with sample ``k``; publish and report it when it changed."""
         out = self.verdict.step(k, alarm, estimate, isolated)
         if not out.changed:
-            self.diag.touch(self.fault_status)
+            self.diag.touch(self.status)
             return out
-        lay = self._fault_layout
-        self.publish_array(self._fault_pub, lay.labels, k, lay.encode(out.payload()))
-        faulty = out.faulty(self._fault_names)
+        self.pub.publish(self._ser.encode(k, self.layout.encode(out.payload())))
+        faulty = out.faulty(self.names)
         values: dict[str, Any] = {"sample": k}
-        for i, c in enumerate(self._fault_names):
+        for i, c in enumerate(self.names):
             values[f"{c} fault"] = bool(out.fault[i])
             values[f"{c} since"] = int(out.since[i])
             values[f"{c} isolated"] = bool(out.isolated[i])
             if not np.isnan(out.estimate[i]):
                 values[f"{c} estimate"] = float(out.estimate[i])
-        if faulty != getattr(self, "_faulty_before", []):
-            log = self.get_logger()
+        if faulty != self._faulty_before:
             if faulty:
-                log.warning(f"fault verdict at sample {k}: {self.fault_text(out)}")
+                self.logger.warning(f"fault verdict at sample {k}: {self.text(out)}")
             else:
-                log.info(f"fault verdict at sample {k}: no fault (evidence gone for "
-                         f"{self.verdict.rule.clear_after} samples)")
+                self.logger.info(f"fault verdict at sample {k}: no fault (evidence gone for "
+                                 f"{self.verdict.rule.clear_after} samples)")
         self._faulty_before = faulty
         if faulty:
-            self.diag.update(self.fault_status, ERROR, self.fault_text(out), values)
+            self.diag.update(self.status, ERROR, self.text(out), values)
         else:
-            self.diag.update(self.fault_status, OK, "no fault", values)
+            self.diag.update(self.status, OK, "no fault", values)
         return out
 
-    def fault_text(self: FaultHost, out: VerdictOutput) -> str:
+    def text(self, out: VerdictOutput) -> str:
         """``fault on h1 (since sample 42, isolated)`` for every channel at fault."""
         parts = []
-        for i, c in enumerate(self._fault_names):
+        for i, c in enumerate(self.names):
             if out.fault[i]:
                 iso = ", isolated" if out.isolated[i] else ""
                 parts.append(f"{c} (since sample {int(out.since[i])}{iso})")
         return "fault on " + ", ".join(parts)
+
+
+def fault_report(node: Any, channels: Sequence[str], significance: Any = None) -> FaultReport:
+    """The :class:`FaultReport` of a configured chain node (an
+    :class:`~fd_monitor.nodes.fd_node.FdNode`): its rule from the node's ``fault_*``
+    parameters and plant sample time, its ``fd/fault`` publisher made by the node (so the
+    node's second-publisher check and cleanup cover it)."""
+    p = node.params
+    rule = VerdictRule.in_seconds(node.system.sample_time, p.fault_confirm, p.fault_window,
+                                  p.fault_clear_after)
+    pub = node.publisher(FAULT, fault_qos(), cause=f"qos {node.resolve_topic_name(FAULT.name)}")
+    return FaultReport(pub, node.diag, node.get_logger(), rule, channels, significance,
+                       p.stale_timeout)

@@ -17,218 +17,60 @@ reads ``plant/y``: observer or monitor) forgets the stream, so its next complete
 a new run, flagged ``restart`` to every node downstream; any other node asks the entry on
 ``fd/reset``.
 
-Each node declares its inputs (relative topic, expected labels, required or feedback with its
-initial value) and implements ``process(k, inputs)`` — message -> ``np.asarray`` -> core step
--> message -> publish. This base decodes and validates every message
-(:func:`~fd_monitor.wire.conversions.decode`), pairs plain (unstamped) messages by
-sample-and-hold (a plain ``plant/y`` gets the latest ``plant/u`` published before it, by
-the DDS source timestamps; no u yet: reported, sample not processed), joins inputs on the stamp
-through the input policy offline reading shares (:class:`~fd_monitor.wire.stream.InputStream`:
-per-topic order check, :class:`~fd_monitor.wire.join.StampJoin`: holes, stray stamps beyond
-``stamp_horizon``, a stream that restarts lower = a new run after ``restart_after`` s),
-and reports on
-``/diagnostics``: an ``input`` channel (OK; WARN with the de-duplicated reasons of the bad
-messages; STALE when no input came for ``stale_timeout`` s), a ``ros graph`` channel
-(incompatible QoS, a second publisher on this node's output topics) plus the node's own
-channels. A bad message is logged (throttled: one line per ``log_throttle`` s with the count
-of the others), reported, and dropped before it reaches the join.
+Each node declares its inputs (:class:`~fd_monitor.nodes.inputs.Input`: relative topic,
+expected labels, required or feedback with its initial value) and implements
+``process(k, inputs)`` -- message -> ``np.asarray`` -> core step -> message -> publish. The
+node holds what it is made of: its input path (:class:`~fd_monitor.nodes.input_path.InputPath`:
+subscriptions, decoding, the one hold rule for plain messages, the stamp join of the input
+policy offline reading shares), its ``input`` and ``ros graph`` statuses
+(:mod:`fd_monitor.nodes.node_status`: bad messages logged, throttled, and reported; QoS
+problems and a second publisher on its outputs) and its reports
+(:mod:`fd_monitor.nodes.reports`, :mod:`fd_monitor.nodes.fault`).
 
 Feedback messages (``fd/bias_estimate``, ``fd/guard_event``, ``fd/threshold_override``) are
 stamped with the sample they are *for* (k + 1 when decided at k), so every join is on equal
 stamps.
 
-Why one module of ~760 lines: one lifecycle base class with its inputs and reports; issue 22
-item 2 (reports as small objects, one job per file) splits it, deferred while the nodes were
-being changed by other work.
+Why one module of ~540 lines: one lifecycle base class (transitions, the hand-over to a
+lifecycle manager, configure, ``~/reset``, runtime parameters, the gain-file swap); what it is
+made of lives in the modules named above.
 """
 
 from __future__ import annotations
 
-import time
-from collections import deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
-import numpy as np
 from lifecycle_msgs.msg import State, Transition
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import QoSProfile
-from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from std_msgs.msg import Empty, Float64MultiArray
 
 from fd_monitor.core.methods import load_gains
-from fd_monitor.model.errors import FdMonitorError, ImplausibleError, MessageError
+from fd_monitor.model.errors import FdMonitorError, ImplausibleError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes.adapter_input import AdapterInput
-from fd_monitor.nodes.common import (
-    DEFAULT_DEPTH,
-    MAX_MESSAGE,
-    OK,
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, RUNTIME_PARAMS
+from fd_monitor.nodes.data_input import DataInput
+from fd_monitor.nodes.diagnostics import (
     WAITING,
-    WARN,
-    DataInput,
     Diagnostics,
-    Param,
-    SerializedArray,
-    data_pub_qos,
-    declare_parameters,
     default_hardware_id,
-    incompatible_text,
-    pub_events,
 )
-from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
-from fd_monitor.wire.join import Sample, StampJoin
-from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
-from fd_monitor.wire.stream import (
-    MAX_GAP,
-    MAX_LAG,
-    RESTART_AFTER,
-    STAMP_HORIZON,
-    InputStream,
-    TopicOrder,
-)
-from fd_monitor.wire.topics import RESET, Layout, Topic
+from fd_monitor.nodes.input_path import InputPath
+from fd_monitor.nodes.inputs import Input
+from fd_monitor.nodes.node_status import GRAPH_OK, GraphStatus, InputStatus
+from fd_monitor.nodes.params import Param, declare_parameters
+from fd_monitor.nodes.qos import data_pub_qos, incompatible_text, pub_events
+from fd_monitor.nodes.serialized import SerializedArray
+from fd_monitor.wire.join import Sample
+from fd_monitor.wire.topics import RESET, Topic
 
-__all__ = ["COMMON_PARAMS", "FAULT_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode",
-           "Input", "load_plant_and_gains"]
-
-#: The join's hole timeout, of every node that joins plant/u and plant/y.
-GAP_TIMEOUT = Param("gap_timeout", GAP_TIMEOUT_S, "s a later sample must have been complete "
-                    "before a missing one is declared lost (a hole: restart at the next valid "
-                    "sample); absorbs out-of-order publication", low=0.001, high=3600.0)
-#: The longest hole bridged, of every node that joins plant/u and plant/y.
-MAX_GAP_PARAM = Param("max_gap", MAX_GAP, "lost samples in a row that are bridged: the run "
-                      "goes on with its estimates, alarm and isolation memory; a longer hole "
-                      "restarts the run (fresh state); 0: every hole restarts", low=0,
-                      high=1000000)
-#: The per-channel WARN level of every node that detects.
-WARN_SHARE = Param("warn_share", 0.8, "WARN when |residual| exceeds this share of its "
-                   "threshold", read_only=False, low=0.0, high=1.0)
-
-COMMON_PARAMS = (
-    Param("system", "three_tank", "plant file, or the name of a shipped plant"),
-    Param("gains", "three_tank_thresholds", "gain file (path or name in config/gains/); "
-          "loaded and its certificate re-verified at configure; settable at runtime (a bad "
-          "one is refused, the old one keeps running)", read_only=False),
-    Param("autostart", True, "configure and activate at start; a lifecycle manager's first "
-          "configure then takes over (deactivate, cleanup, configure as asked); false: wait "
-          "for lifecycle transitions"),
-    Param("hardware_id", "", "hardware_id of the /diagnostics statuses; empty: "
-          "<namespace>/<plant> (the plant alone in the root namespace)"),
-    Param("stale_timeout", 2.0, "s without input before the input channel turns STALE",
-          read_only=False, low=0.01, high=1.0e6),
-    Param("diagnostics_period", 1.0, "s between /diagnostics publications",
-          read_only=False, low=0.01, high=3600.0),
-    Param("log_throttle", 1.0, "s between two log lines about bad input (the others are "
-          "counted)", read_only=False, low=0.0, high=3600.0),
-    Param("stamp_horizon", STAMP_HORIZON, "samples above the next expected stamp beyond which a "
-          "stamp is held as a possible new run, not joined", low=1, high=2**53),
-    Param("restart_after", RESTART_AFTER, "s without progress before held stamps (a stream that "
-          "restarted lower, or jumped beyond the horizon) become a new run", low=0.001,
-          high=3600.0),
-    Param("qos_depth", DEFAULT_DEPTH, "history depth of the publishers", low=10,
-          high=1000000),
-    Param("max_pending", 100000, "samples buffered while waiting for inputs", low=10,
-          high=10000000),
-    Param("max_lag", MAX_LAG, "s a complete sample may wait behind a backlog before the "
-          "node sheds load: it skips to the newest complete sample (counted: shed_samples "
-          "on /diagnostics); at least gap_timeout; 0.0: never (every sample processed, "
-          "however late: flat-out replays are lossless)", low=0.0, high=3600.0),
-)
-
-#: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes
-#: that publish ``fd/fault`` (monitor, bias_estimator).
-FAULT_PARAMS = (
-    Param("fault_confirm", 3, "fault verdict: alarms of a channel within fault_window that "
-          "set its fault", low=1, high=100000),
-    Param("fault_window", 1.0, "fault verdict: s of plant time over which alarms are counted",
-          low=0.0, high=1.0e6),
-    Param("fault_clear_after", 5.0, "fault verdict: s of plant time without evidence (alarm, "
-          "isolation, significant estimate) after which a fault clears (or ~/reset)",
-          low=0.0, high=1.0e6),
-)
-
-#: s a plain sample waits for a later held input (``plant/u``) before it is paired with the
-#: latest one published before it.
-HOLD_WAIT = 0.1
-
-#: The ``ros graph`` status without a standing problem.
-_GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
-
-#: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
-_WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run",
-                        "shed", "feedback_back"))
-
-#: Parameters that take effect when set (the others are read-only).
-RUNTIME_PARAMS = ("gains", "stale_timeout", "diagnostics_period", "log_throttle",
-                  "warn_share")
-
-
-@dataclass(frozen=True)
-class Input:
-    """One joined input of a node.
-
-    Attributes
-    ----------
-    name : str
-        Key in ``process``'s inputs.
-    topic : str
-        Relative topic name (resolved in the node's namespace).
-    labels : tuple of str, optional
-        Expected channel names (None: accept any, check ``size`` only).
-    size : int, optional
-    initial : object
-        For feedback inputs: the value at the node's first sample; ``None`` = required.
-    plain_ok : bool
-        Accept unstamped messages (a user's driver).
-    hold : bool
-        A plain message is held (sample-and-hold): each plain message of the other plain
-        inputs (``plant/y``) gets the latest held one published before it.
-    allow_nan : bool
-        NaN is a value (``fd/threshold_override``: no override).
-    stamp_offset : int
-        Joined at ``stamp + stamp_offset``: -1 for a feedback message (stamped k + 1) that
-        is needed at the sample it was decided at (k).
-    sequence : bool
-        ``fd/state_estimate`` of the entry node: its stamps are the samples this node
-        processes and its ``restart`` field flags a restart (downstream role of
-        :class:`~fd_monitor.wire.join.StampJoin`).
-    layout : Layout, optional
-        The topic's layout for the plant (:meth:`of`): labels and field index table, built
-        once; ``process`` reads the fields through it.
-    """
-
-    name: str
-    topic: str
-    labels: tuple[str, ...] | None = None
-    size: int | None = None
-    initial: Any = None
-    plain_ok: bool = False
-    hold: bool = False
-    allow_nan: bool = False
-    stamp_offset: int = 0
-    sequence: bool = False
-    layout: Layout | None = None
-
-    def __post_init__(self) -> None:
-        if self.sequence and self.layout is None:
-            raise ValueError(f"input {self.name}: a sequence input is read by field: give "
-                             f"its layout (Input.of)")
-
-    @classmethod
-    def of(cls, name: str, topic: Topic, source: Any, **kwargs: Any) -> Input:
-        """The input of a declared topic (:mod:`fd_monitor.wire.topics`) for a plant."""
-        return cls.laid_out(name, topic, topic.layout(source), **kwargs)
-
-    @classmethod
-    def laid_out(cls, name: str, topic: Topic, layout: Layout, **kwargs: Any) -> Input:
-        """The input of a declared topic with a given layout (a runtime's own labels)."""
-        return cls(name, topic.name, layout.labels, layout=layout, **kwargs)
+__all__ = ["FdNode", "load_plant_and_gains"]
 
 
 def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainFile]:
@@ -260,7 +102,7 @@ class FdNode(LifecycleNode):
 
     inputs: Sequence[Input] = ()
     #: ``run_node`` runs the node on rclpy's EventsExecutor (plain inputs still get their
-    #: source timestamps: :func:`~fd_monitor.nodes.common.with_message_info`).
+    #: source timestamps: :func:`~fd_monitor.nodes.data_input.with_message_info`).
     events_executor = True
     #: Gain-file method (a name of :data:`fd_monitor.core.methods.METHODS`) -> the function
     #: building the node's runtime for it, called with the node (:meth:`start_runtime`).
@@ -299,6 +141,16 @@ class FdNode(LifecycleNode):
         if self.params.autostart:
             self.start()
             self._autostarted = True
+
+    @property
+    def holes(self) -> int:
+        """Holes declared in the input so far (:class:`InputStatus`)."""
+        return int(self.input_status.holes)
+
+    @property
+    def bad_messages(self) -> int:
+        """Messages refused so far (:class:`InputStatus`)."""
+        return int(self.input_status.bad_messages)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -361,7 +213,7 @@ class FdNode(LifecycleNode):
         waits = ", ".join(self._waits_for())
         self.get_logger().info(f"active: waiting for {waits}")
         self.diag.set_waiting(WAITING, {"input": f"active: waiting for {waits}"})
-        self._graph_status()                   # a standing graph problem is still one
+        self.graph.report()                   # a standing graph problem is still one
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -411,7 +263,7 @@ class FdNode(LifecycleNode):
 
         When the context is gone already (SIGINT, SIGTERM) no transition can be announced and
         the node's rosout publisher is dead: the log line is left in ``final_log`` (logger
-        name, text) for :func:`~fd_monitor.nodes.common.run_node` to write once the node is
+        name, text) for :func:`~fd_monitor.nodes.process.run_node` to write once the node is
         destroyed (console and log file only).
         """
         state_id, label = self._state_machine.current_state
@@ -459,28 +311,24 @@ class FdNode(LifecycleNode):
         self.diag.add("input", self.params.stale_timeout)
         # no input of its own: STALE with the input (an aggregator reads a stopped node as
         # STALE, not as the ERROR of a group with some STALE statuses)
-        self.diag.add("ros graph", follows="input", message=_GRAPH_OK)
-        self.bad_messages = 0
+        self.diag.add("ros graph", follows="input", message=GRAPH_OK)
         self.processed = 0
-        self.holes = 0
         self.inactive_dropped = 0
         #: True while :meth:`process` handles a restart sample (first, or first after a hole
         #: longer than max_gap), and a bridge sample (first after a shorter one).
         self.restarting = False
         self.bridging = False
-        # Reasons of the bad messages since the last /diagnostics publication, each once.
-        self._reasons: list[str] = []
-        #: standing ROS-graph problems, by cause (cleared when the cause goes away)
-        self._graph_notes: dict[str, str] = {}
-        #: inputs switched to best effort (handled: reported in the values, not a WARN)
-        self._best_effort: list[str] = []
-        self._last_bad = -float("inf")
-        self._last_log = -float("inf")
-        self._suppressed = 0
+        log = self.get_logger()
+        #: the ``input`` status (bad input, the input policy's warnings, counts)
+        self.input_status = InputStatus(self.diag, log, lambda: self.params.log_throttle,
+                                        lambda: self.processed)
+        #: the ``ros graph`` status (QoS, other publishers, a refused gain file)
+        self.graph = GraphStatus(self.diag, log)
         self._pubs: list[Any] = []
-        self.diag.on_publish.append(self._reasons.clear)
         self.setup()
-        self._entities.append(self.create_timer(5.0, self._check_outputs))
+        self._entities.append(self.create_timer(5.0, partial(
+            self.graph.check_outputs, self._pubs, (self.get_namespace(), self.get_name()),
+            self.get_publishers_info_by_topic)))
         g = self.gain_file
         self.get_logger().info(
             f"configured: plant {system.name}, gain file {g.path} ({g.id}, certificate "
@@ -515,15 +363,16 @@ class FdNode(LifecycleNode):
         if not self.configured:
             response.success, response.message = False, "not configured"
             return response
-        if self._reset_pub is not None:
-            topic = self._reset_pub.topic_name
-            entries = self._reset_pub.get_subscription_count()
+        reset_pub = self.input_path.reset_pub
+        if reset_pub is not None:
+            topic = reset_pub.topic_name
+            entries = reset_pub.get_subscription_count()
             if not entries:
                 response.success = False
                 response.message = (f"no chain entry (observer or monitor) subscribes to "
                                     f"{topic}: nothing reset")
                 return response
-            self._reset_pub.publish(Empty())
+            reset_pub.publish(Empty())
             self.get_logger().info(f"reset (service): asked the chain's entry on {topic}")
             response.success = True
             response.message = (f"reset: asked the chain's entry on {topic}; its next sample "
@@ -535,12 +384,7 @@ class FdNode(LifecycleNode):
 
     def _reset_run(self, why: str) -> None:
         """Forget the stream: the next complete sample starts a new run (``restart``)."""
-        self.join.reset()
-        if self.adapter_input is not None:
-            self.adapter_input.reset()
-        self._waiting.clear()
-        for hist in self._held.values():
-            hist.clear()
+        self.input_path.reset()
         self.reset()
         self.get_logger().info(f"reset ({why}): the next complete sample starts a new run")
 
@@ -579,10 +423,10 @@ class FdNode(LifecycleNode):
         except FdMonitorError as exc:
             reason = f"gains {source}: refused ({exc}); still running {old.path}"
             self.get_logger().error(reason)
-            self._graph_note(reason, "gains")
+            self.graph.note(reason, "gains")
             return reason
         self.gain_file = new
-        self._graph_clear("gains")
+        self.graph.clear("gains")
         self.join.reset()
         self.reset()
         self.get_logger().info(f"gain file swapped: {new.path} ({new.id}, certificate "
@@ -599,13 +443,16 @@ class FdNode(LifecycleNode):
         """Build the runtime of the gain file's method (the one factory of the chain nodes)."""
         self.runtimes[self.gain_file.method](self)
 
-    def publisher(self, topic: Topic) -> Any:
-        """A data-path publisher of Float64MultiArray (a declared topic, relative)."""
+    def publisher(self, topic: Topic, qos: QoSProfile | None = None,
+                  cause: str | None = None) -> Any:
+        """A publisher of Float64MultiArray (a declared topic, relative): the data path's QoS,
+        or ``qos``; an incompatible-QoS event is a ``ros graph`` problem (of ``cause``,
+        default its line)."""
         name = self.resolve_topic_name(topic.name)
         pub = self.create_publisher(
-            Float64MultiArray, topic.name, self._qos,
-            **pub_events(lambda info: self._graph_note(
-                incompatible_text(name, "publisher", info))))
+            Float64MultiArray, topic.name, qos if qos is not None else self._qos,
+            **pub_events(lambda info: self.graph.note(
+                incompatible_text(name, "publisher", info), cause)))
         self._entities.append(pub)
         self._pubs.append(pub)
         return pub
@@ -616,300 +463,27 @@ class FdNode(LifecycleNode):
         ``with_info`` the callback gets ``(msg, info)``; ``raw``: serialized messages."""
         name = self.resolve_topic_name(topic)
         sub = DataInput(self, Float64MultiArray, topic, callback,
-                        partial(self._graph_note, cause=f"qos {name}"), raw=raw,
-                        with_info=with_info, switched=partial(self._switched, name))
+                        partial(self.graph.note, cause=f"qos {name}"), raw=raw,
+                        with_info=with_info, switched=partial(self.graph.switched, name))
         self._entities.append(sub)
         return sub
 
     def start_inputs(self, inputs: Sequence[Input], gap_timeout: float | None = None) -> None:
-        """Subscribe to every input and set up the stamp join.
+        """Subscribe to every input and set up the stamp join (:class:`InputPath`).
 
         Without a ``sequence`` input the node is the chain's entry: it declares holes (a
         rejected message, or a later stamp complete for ``gap_timeout`` s), checked on
         message arrival and on a timer.
         """
         self.inputs = tuple(inputs)
-        seq = [i.name for i in inputs if i.sequence]
-        # One reset for the chain: the entry (no sequence input) listens on fd/reset, the
-        # other nodes' ~/reset asks it there.
-        self._reset_pub: Any = None
-        if seq:
-            self._reset_pub = self.create_publisher(Empty, RESET.name, 10)
-            self._entities.append(self._reset_pub)
-        else:
-            self._entities.append(self.create_subscription(Empty, RESET.name,
-                                                           self._on_reset_request, 10))
-        max_gap = int(getattr(self.params, "max_gap", 0))
-        self.join = StampJoin([i.name for i in inputs if i.initial is None],
-                              {i.name: i.initial for i in inputs if i.initial is not None},
-                              self.params.max_pending, sequence=seq[0] if seq else None,
-                              gap_timeout=None if seq else gap_timeout,
-                              horizon=self.params.stamp_horizon,
-                              restart_after=self.params.restart_after,
-                              feedback_source=self._feedback_source,
-                              max_gap=max_gap, max_lag=self.params.max_lag or None)
-        #: The input policy shared with offline reading (order check, join, release).
-        self.stream = InputStream(self.join, self._run, self._note)
-        self._stamper = ArrivalStamper()
-        self._held: dict[str, deque[tuple[int, np.ndarray]]] = {
-            i.name: deque(maxlen=DEFAULT_DEPTH) for i in inputs if i.hold}
-        self._waiting: deque[tuple[int, float, Input, int, np.ndarray]] = deque()
-        self._data_inputs = {}
-        # an adapter file (nodes whose parameters have one): the robot's topics give u and y
-        self.adapter_input = None
-        if getattr(self.params, "adapter", ""):
-            self.adapter_input = AdapterInput(self, self.params.adapter)
-            inputs = [i for i in inputs if i.name not in ("u", "y")]
-        for inp in inputs:
-            cb = self._callback(inp)
-            self._data_inputs[inp.name] = self.subscribe(inp.topic, cb, inp.plain_ok,
-                                                         raw=True)
-        self._open_loop: set[str] = set()
-        if self._held:
-            self._entities.append(self.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
-        # A hole, lost feedback or a new run must be declared even when no further message
-        # arrives.
-        period = min(0.25, max(0.01, min(gap_timeout or 1.0, self.params.restart_after) / 4))
-        self._entities.append(self.create_timer(period, self._on_gap_timer))
-
-    def _feedback_source(self, name: str) -> bool:
-        """Whether a publisher of feedback input ``name`` is matched (the join waits for its
-        feedback only then). A change is logged once: without the node that feeds it back
-        (e.g. no bias_estimator) this node runs open loop at full rate."""
-        there = self._data_inputs[name].sub.get_publisher_count() > 0
-        if there == (name in self._open_loop):
-            topic = self._data_inputs[name].sub.topic_name
-            if there:
-                self._open_loop.discard(name)
-                self.get_logger().info(f"{topic}: a publisher is here: waiting for its "
-                                       f"feedback again")
-            else:
-                self._open_loop.add(name)
-                self.get_logger().info(f"{topic}: no publisher: running without this "
-                                       f"feedback (its initial value) until one appears")
-        return there
-
-    def _callback(self, inp: Input) -> Callable[..., None]:
-        stamper = self._stamper
-        topic = self.resolve_topic_name(inp.topic)
-        order = TopicOrder(topic)
-        stream = self.stream
-        # the restart and bridge flags of the sequence input, by field (resolved once)
-        i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
-        i_bridge = inp.layout.index["bridge"] if inp.sequence and inp.layout else None
-        # serialized messages in, decoded without a message object (rclpy's deserializer
-        # only for what the CDR parser leaves: big-endian)
-        dec = RawDecoder(partial(deserialize_message, message_type=Float64MultiArray), topic,
-                         labels=inp.labels, size=inp.size, require_stamp=not inp.plain_ok,
-                         allow_nan=inp.allow_nan)
-
-        def cb(raw: bytes, info: Any = None) -> None:
-            if not self.active:
-                self.inactive_dropped += 1
-                return
-            try:
-                d = dec.decode(raw)
-            except MessageError as exc:
-                self.bad_input(str(exc))
-                k = readable_stamp(dec.message(raw)) if inp.initial is None else None
-                if k is not None:
-                    stream.refused(k + inp.stamp_offset, time.monotonic())
-                return
-            if d.stamp is None:
-                t = int(info["source_timestamp"]) if info is not None else time.time_ns()
-                if inp.hold:
-                    self._held[inp.name].append((t, d.values))
-                else:
-                    d = stamper.stamp(d)
-                    self._waiting.append((t, time.monotonic(), inp, int(d.stamp or 0),
-                                          d.values))
-                self._pair_plain()
-                return
-            if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
-                              inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
-                              bool(inp.sequence and d.values[i_bridge] > 0.5)):
-                self._input_ok()
-        return cb
-
-    def _pair_plain(self, now: float | None = None) -> None:
-        """Sample-and-hold: pair each plain sample with the latest held input (``plant/u``)
-        published before it (source timestamps). A sample waits until a later held input
-        arrived (every earlier one is then in) or for :data:`HOLD_WAIT` s."""
-        while self._waiting:
-            t, arrival, inp, k, values = self._waiting[0]
-            later = all(h and h[-1][0] > t for h in self._held.values())
-            if not later and (now is None or now - arrival < HOLD_WAIT):
-                return
-            self._waiting.popleft()
-            missing = []
-            for name, hist in self._held.items():
-                before = [v for tu, v in hist if tu <= t]
-                if before:
-                    self.on_input(name, k, before[-1])
-                else:
-                    missing.append(name)
-                # Keep the one held at t: the next samples may still need it.
-                while len(hist) > 1 and hist[1][0] <= t:
-                    hist.popleft()
-            if missing:
-                topics = [self.resolve_topic_name(i.topic) for i in self.inputs
-                          if i.name in missing]
-                self.bad_input(f"{self.resolve_topic_name(inp.topic)} sample {k}: no "
-                               f"{', '.join(topics)} received before it; sample not "
-                               f"processed")
-                self.stream.refused(k, time.monotonic())
-                continue
-            self.on_input(inp.name, k, values)
+        self.input_path = path = InputPath(self, inputs, gap_timeout)
+        #: the stamp join and the input policy over it (offline reading's)
+        self.join, self.stream = path.join, path.stream
+        self._data_inputs = path.data_inputs
+        #: The robot's topics giving u and y, when the node has an adapter file.
+        self.adapter_input = path.adapter
 
     # -- reporting ----------------------------------------------------------------------------
-
-    def bad_input(self, reason: str) -> None:
-        """Log a rejected message and report it on /diagnostics (WARN); keep running."""
-        self.bad_messages += 1
-        self._warn(reason)
-
-    def _warn(self, reason: str) -> None:
-        """Log ``reason`` (throttled) and report it on the ``input`` channel (WARN)."""
-        now = time.monotonic()
-        self._last_bad = now
-        if now - self._last_log >= self.params.log_throttle:
-            more = (f" (and {self._suppressed} more bad-input lines in the last "
-                    f"{now - self._last_log:.1f} s)" if self._suppressed else "")
-            self.get_logger().warning(reason + more)
-            self._last_log, self._suppressed = now, 0
-        else:
-            self._suppressed += 1
-        if reason not in self._reasons and len(self._reasons) < 10:
-            self._reasons.append(reason)
-        # every reason of this period when they fit in a status line, else the latest (all
-        # of them in the values)
-        message = "; ".join(self._reasons)
-        if len(message) > MAX_MESSAGE and len(self._reasons) > 1:
-            message = f"{reason} (and {len(self._reasons) - 1} more: see reasons)"
-        self.diag.update("input", WARN, message,
-                         {"reasons": "; ".join(self._reasons),
-                          "bad_messages": self.bad_messages, "holes": self.holes,
-                          "bridged": self.join.bridges, "restarted": self.join.restarts,
-                          "new_runs": self.join.new_runs, "processed": self.processed,
-                          **self._load_counts(), "last_warning": reason,
-                          **self._time_base()})
-
-    def _load_counts(self) -> dict[str, Any]:
-        """Load shed and lost feedback (wire/join.py), for the ``input`` status."""
-        j = self.join
-        return {"shed_samples": j.shed, "shed_episodes": j.shed_episodes,
-                "feedback_lost": j.feedback_losses,
-                "feedback_not_waited_for": ",".join(sorted(j.lost_feedback)) or "none"}
-
-    def _time_base(self) -> dict[str, Any]:
-        """The adapter's time-base counts (held samples, gaps, late/duplicate/decimated
-        messages) for the ``input`` status; empty without an adapter."""
-        if self.adapter_input is None:
-            return {}
-        c = self.adapter_input.join.counts()
-        out: dict[str, Any] = {"grid_samples": c["samples"]}
-        for key in ("held", "late", "duplicate", "stray", "decimated"):
-            for what, n in c.get(key, {}).items():
-                out[f"{key} {what}"] = n
-        for reason, per in c["gaps"].items():
-            for ch, n in per.items():
-                out[f"gap {reason} {ch}"] = n
-        return out
-
-    def _graph_note(self, line: str, cause: str | None = None) -> None:
-        """Log a ROS-graph problem (QoS, another publisher, a refused gain file) and report
-        it (WARN) until its ``cause`` (default: the line) is cleared."""
-        self.get_logger().warning(line)
-        self._graph_notes[cause or line] = line
-        self._graph_status()
-
-    def _graph_clear(self, cause: str) -> None:
-        """The problem of ``cause`` is gone (a valid gain file set, a switch done, the other
-        publisher left): the ``ros graph`` status goes back to OK when none is left."""
-        if self._graph_notes.pop(cause, None) is not None:
-            self._graph_status()
-
-    def _graph_status(self) -> None:
-        notes = list(self._graph_notes.values())
-        values: dict[str, Any] = ({"best_effort_inputs": ", ".join(self._best_effort)}
-                                  if self._best_effort else {})
-        if notes:
-            # all of them when they fit in a status line, else the latest (all in values)
-            message = "; ".join(notes)
-            if len(message) > MAX_MESSAGE and len(notes) > 1:
-                message = f"{notes[-1]} (and {len(notes) - 1} more: see problem 1, ...)"
-            values.update({f"problem {i + 1}": n for i, n in enumerate(notes)})
-            self.diag.update("ros graph", WARN, message, values)
-        else:
-            self.diag.update("ros graph", OK, _GRAPH_OK + (
-                " (some inputs switched to best effort)" if self._best_effort else ""), values)
-
-    def _switched(self, topic: str) -> None:
-        """A subscription met a best-effort publisher by switching: handled, not a WARN."""
-        self.get_logger().info(f"{topic}: subscription now best effort (meets every "
-                               f"publisher)")
-        self._best_effort.append(topic)
-        self._graph_clear(f"qos {topic}")
-
-    def _check_outputs(self) -> None:
-        """Warn while another node publishes on one of our output topics (a second
-        monitor); the warning clears when it left."""
-        me = (self.get_namespace(), self.get_name())
-        for pub in self._pubs:
-            others = [f"{i.node_namespace.rstrip('/')}/{i.node_name}"
-                      for i in self.get_publishers_info_by_topic(pub.topic_name)
-                      if (i.node_namespace, i.node_name) != me]
-            cause = f"also {pub.topic_name}"
-            if others:
-                line = (f"{pub.topic_name}: also published by {', '.join(sorted(others))} "
-                        f"(a second monitor on the same topics? its outputs mix with ours)")
-                if self._graph_notes.get(cause) != line:
-                    self._graph_note(line, cause)
-            else:
-                self._graph_clear(cause)
-
-    def on_input(self, name: str, stamp: int, values: np.ndarray,
-                 restart: bool = False) -> None:
-        """Join one decoded input; process every sample that became complete."""
-        if self.stream.put(name, stamp, values, time.monotonic(), restart):
-            self._input_ok()
-
-    def _input_ok(self) -> None:
-        """An input was joined: the ``input`` channel (OK, or the WARN of recent bad input)."""
-        level = self.diag.level("input")
-        if level == WARN and time.monotonic() - self._last_bad < self.diag.period:
-            self.diag.touch("input")
-        elif level != OK or self.processed % 50 == 0:
-            self.diag.update("input", OK, "receiving", {
-                "bad_messages": self.bad_messages, "processed": self.processed,
-                "holes": self.holes, "bridged": self.join.bridges,
-                "restarted": self.join.restarts, "new_runs": self.join.new_runs,
-                "next_sample": self.join.k_next, "waiting_for": self.join.waiting_for(),
-                **self._load_counts(), **self._time_base()})
-        else:
-            self.diag.touch("input")
-
-    def _on_hold_timer(self) -> None:
-        if self.active and self._waiting:
-            self._pair_plain(time.monotonic())
-
-    def _on_gap_timer(self) -> None:
-        if self.active and (self.join.pending or self.join.held):
-            self._drain()
-
-    def _drain(self) -> None:
-        """Process every sample the join releases now; report holes and restarts."""
-        self.stream.release(time.monotonic())
-
-    def _note(self, kind: str, line: str, stamp: Any) -> None:
-        """A report of the input policy (:class:`~fd_monitor.wire.stream.InputStream`):
-        out of order, holes and new runs are warnings; the others are dropped messages."""
-        if kind == "hole":
-            self.holes += 1
-        if kind in _WARN_ONLY:
-            self._warn(line)
-        else:
-            self.bad_input(line)
 
     def _run(self, s: Sample) -> bool:
         """Process one released sample (reset first at a restart, bridge first at a bridge);
@@ -925,7 +499,7 @@ class FdNode(LifecycleNode):
         except ImplausibleError as exc:
             # Refused by the core (an implausible value): reported like a bad message and a
             # hole at k (core/plausibility.py).
-            self.bad_input(str(exc))
+            self.input_status.bad_input(str(exc))
             return False
         self.processed += 1
         return True
@@ -947,18 +521,12 @@ class FdNode(LifecycleNode):
 
     def publish_array(self, pub: Any, labels: Sequence[str], stamp: int, values: Any) -> None:
         """Publish one stamped, labelled message (serialized directly:
-        :class:`~fd_monitor.nodes.common.SerializedArray`, one per layout)."""
+        :class:`~fd_monitor.nodes.serialized.SerializedArray`, one per layout)."""
         key = tuple(labels)
         ser = self._serialized.get(key)
         if ser is None:
             ser = self._serialized[key] = SerializedArray(key)
         pub.publish(ser.encode(stamp, values))
-
-    def mode_name(self, mode: int) -> str:
-        """The plant's name of mode index ``mode`` (the index itself when it has none: a
-        switching signal outside the design)."""
-        modes = self.system.mode_names
-        return modes[mode] if 0 <= mode < len(modes) else str(mode)
 
     def gain_values(self) -> dict[str, str]:
         """Gain-file id and certificate status, for /diagnostics (per sample: cached)."""

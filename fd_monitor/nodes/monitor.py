@@ -1,5 +1,6 @@
 """``monitor``: one node, one join, one runtime step per sample, for every gain file (default),
-or the four chain nodes on one executor (``layout:=chain``, ``thresholds`` gain files).
+or the four chain nodes on one executor (``layout:=nodes``, ``thresholds`` gain files): the
+one composer of the in-process chain (:func:`make_chain`).
 
 **fused** (default): one lifecycle node joins ``plant/u``, ``plant/y`` and the side signals
 the runtime needs (``plant/rho``: the measured scheduling parameters of an LPV bank without a
@@ -25,12 +26,14 @@ plus ``input`` and ``ros graph``. One join and four or seven publications per sa
 of the chain's four joins and six subscriptions: what makes the live path keep up at kHz
 rates (README, "Measured").
 
-**chain**: the four nodes ``observer``, ``detector``, ``agei`` and ``bias_estimator`` on one
+**nodes**: the four nodes ``observer``, ``detector``, ``agei`` and ``bias_estimator`` on one
 executor in one process, each with its own name, parameters and diagnostics: the distributed
-form of the ``thresholds`` method in one process (bit-identical to the fused node).
+form of the ``thresholds`` method in one process (bit-identical to the fused node). The old
+name of this layout, ``chain``, is still accepted, with one deprecation warning naming
+``nodes`` (:data:`DEPRECATED_LAYOUTS`): it only changed its name.
 
 The executor is rclpy's EventsExecutor driven by a ``spin_once`` loop (its ``spin()`` does
-nothing in these wheels); see :func:`fd_monitor.nodes.common.run_node`.
+nothing in these wheels); see :func:`fd_monitor.nodes.process.run_node`.
 """
 
 from __future__ import annotations
@@ -51,20 +54,25 @@ from fd_monitor.model.system import System, load_system
 from fd_monitor.nodes import agei, bias_estimator, detector, observer
 from fd_monitor.nodes.adapter_input import ADAPTER_PARAM
 from fd_monitor.nodes.agei import AgeiNode
-from fd_monitor.nodes.bias_estimator import BiasEstimatorNode, BiasReport
-from fd_monitor.nodes.common import OK, NodeUsage, Param, SerializedArray, run_node
-from fd_monitor.nodes.detector import DetectorNode, ResidualReport, companion_name
-from fd_monitor.nodes.fault import FaultReport
-from fd_monitor.nodes.fd_node import (
+from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
+from fd_monitor.nodes.chain_params import (
     COMMON_PARAMS,
     FAULT_PARAMS,
     GAP_TIMEOUT,
     MAX_GAP_PARAM,
     WARN_SHARE,
-    FdNode,
-    Input,
 )
-from fd_monitor.nodes.observer import EstimateReport, ObserverNode
+from fd_monitor.nodes.detector import DetectorNode
+from fd_monitor.nodes.diagnostics import OK
+from fd_monitor.nodes.fault import FaultReport, fault_report
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
+from fd_monitor.nodes.observer import ObserverNode
+from fd_monitor.nodes.params import Param
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.reports import BiasReport, EstimateReport, ResidualReport
+from fd_monitor.nodes.serialized import SerializedArray
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
     ALARM,
     BIAS_ESTIMATE,
@@ -85,20 +93,25 @@ from fd_monitor.wire.topics import (
     side_topic,
 )
 
-__all__ = ["MonitorNode", "USAGE", "make_chain", "make_nodes", "main", "peek_parameters"]
+__all__ = ["DEPRECATED_LAYOUTS", "LAYOUTS", "MonitorNode", "USAGE", "companion_name",
+           "layout_of", "make_chain", "make_nodes", "main", "peek_parameters"]
 
 #: u of a plant without inputs; x^ of a runtime without one.
 _NO_INPUT = np.zeros(0)
 
-LAYOUTS = ("fused", "chain")
+#: monitor's layouts: one fused node, or the chain's four nodes in one process.
+LAYOUTS = ("fused", "nodes")
+#: Old layout names, accepted with one deprecation warning naming the new one.
+DEPRECATED_LAYOUTS = {"chain": "nodes"}
 
 #: s between two full diagnostics reports of the fused node while nothing changes.
 DIAG_REFRESH = 0.1
 
 PARAMS = (
     Param("layout", "fused", "fused: one node (one join, one runtime step per sample); "
-          "chain (thresholds gain files): the four nodes observer, detector, agei, "
-          "bias_estimator on one executor (their own names, parameters and diagnostics)"),
+          "nodes (thresholds gain files): the four nodes observer, detector, agei, "
+          "bias_estimator on one executor (their own names, parameters and diagnostics); "
+          "chain: the old name of nodes (deprecated)"),
     GAP_TIMEOUT,
     MAX_GAP_PARAM,
     WARN_SHARE,
@@ -110,7 +123,7 @@ PARAMS = (
 
 USAGE = NodeUsage(
     "monitor", "monitor: one node, one runtime step per sample, for any gain file (the "
-    "registry's runtime, as analyze runs it); layout:=chain with a thresholds gain file: the "
+    "registry's runtime, as analyze runs it); layout:=nodes with a thresholds gain file: the "
     "four chain nodes in one process.", (*COMMON_PARAMS, *PARAMS),
     subscribes=((PLANT_U, "u_k (plants with inputs; stamped, or plain: stamped on arrival)"),
                 (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)"),
@@ -136,7 +149,7 @@ USAGE = NodeUsage(
                 "thresholds: tracker, bias estimate")))
 
 
-class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNode):
+class MonitorNode(FdNode):
     """The fused node: one join, one registry runtime step per sample, the method's outputs
     (see the module docstring).
 
@@ -147,7 +160,10 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
     node_name : str
     """
 
+    #: the bias estimator's status name (bias_estimator's is ``estimate``)
     bias_channel = "bias estimate"
+    #: the fault verdict (at configure)
+    fault: FaultReport | None = None
 
     def __init__(self, system: System | None = None, gains: GainFile | None = None,
                  qos: QoSProfile | None = None, node_name: str = "monitor",
@@ -156,7 +172,7 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
 
     def start(self) -> None:
         """Check the layout, configure and activate (autostart)."""
-        if self.params.layout not in LAYOUTS:
+        if self.params.layout not in (*LAYOUTS, *DEPRECATED_LAYOUTS):
             raise FdMonitorError(f"node {self.get_name()}: parameter layout: "
                                  f"{self.params.layout!r}: expected one of "
                                  f"{', '.join(LAYOUTS)}")
@@ -172,10 +188,6 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
         rt = self.runtime
         self.pubs = [self.publisher(t) for t in self.outputs]
         self.sigma_hat = [0.0] * s.ny
-        self._alarmed: set[str] = set()
-        self._episode = 0
-        self._was_outside = False
-        self._last_active, self._last_isolated = False, []
         stale = self.params.stale_timeout
         self.diag.add("estimate", stale)
         for ch in self.channels:
@@ -185,9 +197,15 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
             self.diag.add(self.bias_channel, stale, keep_on_stale=True)
         self._channels_all = ["estimate", *self.channels,
                               *(["tracker", self.bias_channel] if rt.CHAIN else [])]
+        log = self.get_logger()
+        self.estimate_report = EstimateReport(self.diag, log, s, self.gain_values)
+        self.residual_report = ResidualReport(self.diag, log, s, self.channels,
+                                              lambda: self.params.warn_share, self.gain_values)
+        self.bias_report = (BiasReport(self.diag, log, s.outputs, self.gain_values,
+                                       self.bias_channel) if rt.CHAIN else None)
         # the verdict: from alarms, and for the chain from the bias estimate and isolation
-        self.start_verdict(rt.channels, as_gains(s, self.gain_file).isolation_threshold
-                           if rt.CHAIN else None)
+        self.fault = fault_report(self, rt.channels, as_gains(s, self.gain_file)
+                                  .isolation_threshold if rt.CHAIN else None)
         self._last_key: Any = None
         self._next_report = 0.0
         self.start_inputs([
@@ -230,7 +248,8 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
         """Fresh runtime state (a new run: first sample, after a hole, ``~/reset``), as the
         offline run restarts it; no fault."""
         self.runtime.reset()
-        self.reset_verdict()
+        if self.fault is not None:
+            self.fault.reset()
 
     def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """Carry the runtime over a bridged gap (its memory kept), as the offline run
@@ -285,11 +304,13 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
                     data.extend(v.tolist())
             pub.publish(ser.encode(stamps[nxt], data))
         self._diagnose(k, out)
+        fault = self.fault
+        assert fault is not None                       # configured
         if out.core is not None and self.runtime.CHAIN:
             est = out.core.estimator
-            self.step_verdict(k, out.alarm, est.sigma_hat, est.isolated)
+            fault.step(k, out.alarm, est.sigma_hat, est.isolated)
         else:
-            self.step_verdict(k, out.alarm)
+            fault.step(k, out.alarm)
 
     def _diagnose(self, k: int, out: Any) -> None:
         """A full report when a status can change (alarms, mode, AGEI phase, estimator,
@@ -308,50 +329,88 @@ class MonitorNode(FaultReport, EstimateReport, ResidualReport, BiasReport, FdNod
         self._last_key, self._next_report = key, now + DIAG_REFRESH
         rt = self.runtime
         x_hat = out.estimates.get("x_hat", _NO_INPUT)
-        self.report_estimate(k, int(out.mode), x_hat, out.outside,
-                             rt.region_names or None)
+        self.estimate_report.report(k, int(out.mode), x_hat, out.outside,
+                                    rt.region_names or None)
         if core is not None:
             self.sigma_hat = core.estimator.sigma_hat
-        self._report(k, int(out.mode), out.residual, out.threshold, alarm)
+        self.residual_report.report(k, int(out.mode), out.residual, out.threshold, alarm,
+                                    self.sigma_hat if self.detector is not None else None)
         if core is not None:
             ag = core.agei
             self.diag.update("tracker", OK, f"phase {ag.phase}", {
                 "sample": k, "trigger": ag.trigger, "phase": ag.phase, "row": ag.row,
                 **self.gain_values()})
-            self.report_bias(k, core.estimator)
+            assert self.bias_report is not None        # a CHAIN runtime
+            self.bias_report.report(k, core.estimator)
+
+
+def companion_name(base: str, default: str, name: str) -> str:
+    """The name of node ``name`` beside the main node of a several-node executable: its own
+    name when the main one keeps its ``default`` name, else ``<base>_<name>`` (``-r
+    __node:=det1``: ``det1_observer``, ``det1_agei``, ...)."""
+    return name if base == default else f"{base}_{name}"
 
 
 def make_chain(**kwargs: Any) -> list:
-    """The four chain nodes on one executor (``kwargs`` go to every node, e.g. ``context``;
-    a ``node_name`` other than ``monitor`` names them ``<name>_observer``, ...).
+    """The four chain nodes on one executor: the one composer of the in-process chain
+    (``kwargs`` go to every node, e.g. ``context`` and ``parameter_overrides``; a
+    ``node_name`` other than ``monitor`` names them ``<name>_observer``, ...).
 
     The observer, the chain's entry, is created last: by the time it subscribes to
     ``plant/y`` (what a source waits for) the other nodes already subscribe to ``plant/*``
-    and to the observer's outputs, so none of them misses the first samples.
+    and to the observer's outputs, so none of them misses the first samples. A node that
+    fails to start destroys the ones made before it.
     """
-    base = str(kwargs.pop("node_name", "monitor"))
+    from rclpy.parameter import Parameter
 
-    def named(name: str) -> dict[str, Any]:
-        return {**kwargs, "node_name": companion_name(base, "monitor", name)}
-    det = DetectorNode(**named("detector"))
-    ag, est = AgeiNode(**named("agei")), BiasEstimatorNode(**named("bias_estimator"))
-    return [ObserverNode(**named("observer")), det, ag, est]
+    base = str(kwargs.pop("node_name", "monitor"))
+    given = list(kwargs.pop("parameter_overrides", None) or [])
+    # The process's ``layout`` (``-p layout:=nodes`` reaches every node of it) is monitor's:
+    # the detector's own, deprecated one is left unset here.
+    unset = [Parameter("layout", value="")]
+    nodes: list = []
+    try:
+        for cls, name in ((DetectorNode, "detector"), (AgeiNode, "agei"),
+                          (BiasEstimatorNode, "bias_estimator"), (ObserverNode, "observer")):
+            nodes.append(cls(**kwargs, node_name=companion_name(base, "monitor", name),
+                             parameter_overrides=[*given, *(unset if cls is DetectorNode
+                                                           else [])]))
+    except Exception:
+        for n in nodes:
+            n.destroy_node()
+        raise
+    return [nodes[-1], *nodes[:-1]]
+
+
+def layout_of(value: str, node_name: str) -> str:
+    """``value`` of the ``layout`` parameter, an old name translated (one deprecation
+    warning naming the new one, on ``node_name``'s logger)."""
+    new = DEPRECATED_LAYOUTS.get(value)
+    if new is None:
+        return value
+    import rclpy.logging
+
+    rclpy.logging.get_logger(node_name).warning(
+        f"parameter layout: {value!r} is deprecated: use {new!r} (the same four chain nodes "
+        f"in one process; {value!r} will be refused in a later release)")
+    return new
 
 
 def make_nodes(**kwargs: Any) -> list:
-    """The fused monitor node, or with ``layout: chain`` and a gain file whose method has the
+    """The fused monitor node, or with ``layout: nodes`` and a gain file whose method has the
     chain (``thresholds``) the four chain nodes (:func:`make_chain`). ``kwargs`` go to every
     node (e.g. ``context``)."""
-    values = peek_parameters(str(kwargs.get("node_name", "monitor")),
-                             ("system", "gains", "layout"),
+    name = str(kwargs.get("node_name", "monitor"))
+    values = peek_parameters(name, ("system", "gains", "layout"),
                              **{k: v for k, v in kwargs.items() if k != "node_name"})
+    layout = layout_of(str(values["layout"]), name)
     method = None
     try:
         system = load_system(str(values["system"]))
         method = load_gains(str(values["gains"]), system, verify=False).method
     except FdMonitorError:
         pass                        # the fused node reports why, at configure
-    if values["layout"] != "chain" or method not in RUNTIMES or not runtime_class(method).CHAIN:
+    if layout != "nodes" or method not in RUNTIMES or not runtime_class(method).CHAIN:
         return [MonitorNode(**kwargs)]
     return make_chain(**{**kwargs, "parameter_overrides": [
         p for p in kwargs.get("parameter_overrides", []) if p.name != "layout"]})
@@ -375,7 +434,7 @@ def peek_parameters(node_name: str, names: Sequence[str], **kwargs: Any) -> dict
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the fused monitor node (or, with ``layout:=chain``, the four chain nodes)."""
+    """Run the fused monitor node (or, with ``layout:=nodes``, the four chain nodes)."""
     return run_node(make_nodes, args, prog="monitor", named=True,
                     usage=[USAGE, *(m.USAGE for m in (observer, detector, agei,
                                                       bias_estimator))])

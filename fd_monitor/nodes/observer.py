@@ -20,18 +20,22 @@ samples) or restarts at the next valid sample, as the offline runner does
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from rclpy.qos import QoSProfile
 
-from fd_monitor.core.envelope import CertifiedRegion, describe_excess
+from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
 from fd_monitor.core.qb import QBObserver
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
-from fd_monitor.nodes.common import OK, WARN, Diagnostics, NodeUsage, run_node
-from fd_monitor.nodes.fd_node import COMMON_PARAMS, GAP_TIMEOUT, MAX_GAP_PARAM, FdNode, Input
+from fd_monitor.nodes.chain_params import COMMON_PARAMS, GAP_TIMEOUT, MAX_GAP_PARAM
+from fd_monitor.nodes.fd_node import FdNode
+from fd_monitor.nodes.inputs import Input
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.reports import EstimateReport
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
     BIAS_ESTIMATE,
     DIAGNOSTICS,
@@ -41,7 +45,7 @@ from fd_monitor.wire.topics import (
     STATE_ESTIMATE,
 )
 
-__all__ = ["EstimateReport", "ObserverNode", "USAGE", "main"]
+__all__ = ["ObserverNode", "USAGE", "main"]
 
 PARAMS = (
     GAP_TIMEOUT,
@@ -62,44 +66,7 @@ USAGE = NodeUsage(
                 "region' when x^ or u leave the gain file's certified envelope)")))
 
 
-class EstimateHost(Protocol):
-    """What :class:`EstimateReport` needs of its node (a protocol: mypy checks each host)."""
-
-    diag: Diagnostics
-    system: System
-    _was_outside: bool
-
-    def mode_name(self, mode: int) -> str: ...
-    def gain_values(self) -> dict[str, str]: ...
-    def get_logger(self) -> Any: ...
-
-
-class EstimateReport:
-    """The ``estimate`` /diagnostics status of a node running the observer (observer,
-    monitor): the mode, WARN outside the gain file's certified region. Uses the node's
-    ``diag``, ``system``, ``mode_name`` and ``_was_outside`` (:class:`EstimateHost`)."""
-
-    def report_estimate(self: EstimateHost, k: int, mode: int, x_hat: Any, out: Any,
-                        names: Sequence[str] | None = None) -> None:
-        """Report q^_k, x^_k and the excess over the certified region (None: no region;
-        ``names``: of its entries, default the states then the inputs)."""
-        name = self.mode_name(mode)
-        values = {"sample": k, "mode": name, "x_hat": x_hat, **self.gain_values()}
-        if out is not None and np.any(out != 0.0):
-            # alarms still count; the thresholds are just not guaranteed out there
-            detail = describe_excess(names if names is not None
-                                     else (*self.system.states, *self.system.inputs), out)
-            if not self._was_outside:
-                self.get_logger().warning(f"sample {k}: outside certified region: {detail}")
-            self._was_outside = True
-            self.diag.update("estimate", WARN, f"outside certified region: {detail}",
-                             {**values, "outside_certified_region": detail})
-        else:
-            self._was_outside = False
-            self.diag.update("estimate", OK, f"mode {name}", values)
-
-
-class ObserverNode(EstimateReport, FdNode):
+class ObserverNode(FdNode):
     """Observer node: the hybrid observer (``thresholds``) or the QB observer (``qb``).
 
     Parameters
@@ -122,10 +89,11 @@ class ObserverNode(EstimateReport, FdNode):
         """Publisher, observer and inputs (at configure)."""
         self.observer: Any = self._observer_arg
         self._outside: np.ndarray | None = None
-        self._was_outside = False
         self.pub = self.publisher(STATE_ESTIMATE)
         self._state = STATE_ESTIMATE.layout(self.system)
         self.diag.add("estimate", self.params.stale_timeout)
+        self.estimate_report = EstimateReport(self.diag, self.get_logger(), self.system,
+                                              self.gain_values)
         self.start_runtime()
 
     def build_core(self, gains: Any) -> None:
@@ -206,7 +174,7 @@ class ObserverNode(EstimateReport, FdNode):
         self.publish_array(self.pub, lay.labels, k,
                            lay.encode(out.payload(), restart=self.restarting,
                                       bridge=self.bridging))
-        self.report_estimate(k, int(out.mode), np.ravel(out.x_hat), self._outside)
+        self.estimate_report.report(k, int(out.mode), np.ravel(out.x_hat), self._outside)
 
 
 def main(args: Sequence[str] | None = None) -> int:

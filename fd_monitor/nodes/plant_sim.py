@@ -17,7 +17,7 @@ Pacing: ``rate_factor`` times the sample rate (1.0 = real time, 100.0 = a hundre
 faster; a timer ticks once per sample, at most every millisecond), or ``0.0`` = as fast
 as the subscribers keep up without loss (wait for ``min_subscribers_*`` matched
 subscriptions, then pace by acknowledgements every ``ack_window`` samples; see
-:mod:`fd_monitor.nodes.common`). The node ends after the scenario's samples (or
+:mod:`fd_monitor.nodes.pacing`). The node ends after the scenario's samples (or
 ``duration``), once every sample is acknowledged, unless ``keep_going`` is true.
 """
 
@@ -43,21 +43,12 @@ from fd_monitor.core.simulator import (
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.nodes.adapter_input import RobotPublishers
-from fd_monitor.nodes.common import (
-    DEFAULT_DEPTH,
-    ERROR,
-    OK,
-    AckPacer,
-    Diagnostics,
-    NodeUsage,
-    Param,
-    data_pub_qos,
-    declare_parameters,
-    default_hardware_id,
-    pub_events,
-    run_node,
-    wait_for_subscribers,
-)
+from fd_monitor.nodes.diagnostics import ERROR, OK, Diagnostics, default_hardware_id
+from fd_monitor.nodes.pacing import AckPacer, wait_for_subscribers
+from fd_monitor.nodes.params import Param, declare_parameters
+from fd_monitor.nodes.process import run_node
+from fd_monitor.nodes.qos import DEFAULT_DEPTH, data_pub_qos, pub_events
+from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.conversions import to_msg
 from fd_monitor.wire.topics import (
     DIAGNOSTICS,
@@ -127,7 +118,7 @@ class PlantSimNode(Node):
         A batch-of-one simulator; default: built from the ``scenario`` and ``seed``
         parameters.
     qos : rclpy.qos.QoSProfile, optional
-        Publisher QoS; default :func:`~fd_monitor.nodes.common.data_pub_qos`.
+        Publisher QoS; default :func:`~fd_monitor.nodes.qos.data_pub_qos`.
     node_name : str
     **kwargs
         Passed to :class:`rclpy.node.Node` (e.g. ``parameter_overrides``, ``context``).

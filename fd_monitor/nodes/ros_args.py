@@ -109,8 +109,8 @@ def take_node_name(args: Sequence[str]) -> tuple[list[str], str | None]:
     launch_ros' ``Node(name=...)`` passes), and the last NAME given (None: none).
 
     rcl applies such a rule to every node of the process, so an executable running several
-    nodes (the standalone ``detector``, ``monitor`` with ``layout:=chain``) takes it out
-    and names its nodes from it instead (``det1``, ``det1_observer``, ...): four nodes
+    nodes (``monitor`` with ``layout:=nodes``) takes it out and names its nodes from it
+    instead (``det1_observer``, ``det1_detector``, ...): four nodes
     called ``det1`` would make rcl warn "Publisher already registered" and collide in the
     graph. A rule for one node only (``observer:__node:=x``) is left to rcl.
     """

@@ -528,7 +528,10 @@ class AdapterJoin:
 
     Pure; time is an argument. :meth:`put` each message (arrival order live, bag order
     offline, with ``now`` the arrival or log time in s); :meth:`events` gives what was decided.
-    Live and offline run exactly this, so a bag gives the same samples in both.
+    Live and offline run exactly this, so a bag gives the same samples in both. A channel
+    without a message in a sample is held by the one hold rule
+    (:class:`~fd_monitor.wire.hold.ZeroOrderHold`, on the grid's slots, up to its
+    ``max_hold``), the rule the nodes pair plain inputs by.
 
     Parameters
     ----------

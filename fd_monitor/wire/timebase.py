@@ -23,8 +23,9 @@ and offline.
   answers is that sample's input.
 * **Value at sample k**: the last message of slot k (``decimate: last``, default) or the
   mean of slot k's messages (``decimate: mean``) -- a faster topic is decimated; with no
-  message in slot k the latest earlier value is *held* (zero-order hold) while its age is at
-  most the channel's ``max_hold`` (s); older, the channel is *stale* and sample k is a gap.
+  message in slot k the latest earlier value is *held* (zero-order hold: the one hold rule of
+  :mod:`fd_monitor.wire.hold`) while its age is at most the channel's ``max_hold`` (s); older,
+  the channel is *stale* and sample k is a gap.
   A channel never received is ``no_value``: a gap too.
 * **When k is decided**: once every topic is *closed* for k (it has a message in a later
   slot, or as many in slot k as it sends per sample, or -- a slower topic -- its next message
@@ -58,6 +59,8 @@ from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+from fd_monitor.wire.hold import ZeroOrderHold
 
 __all__ = ["Gap", "GridSample", "GridSampler", "NewRun", "RUN_AHEAD", "RUN_BACK", "TRACK",
            "WAIT", "WARMUP", "snap_sample_time"]
@@ -233,7 +236,9 @@ class GridSampler:
         self.next_slot = 0                   # the next slot to decide
         self.newest: int | None = None       # highest slot seen on any topic
         self._acc: dict[str, dict[int, list[float]]] = {c: {} for c in self.channels}
-        self._held: dict[str, tuple[int, float] | None] = {c: None for c in self.channels}
+        # the hold rule (wire/hold.py) on the grid's slots: the newest decided value per
+        # channel, held for at most its max_hold
+        self._held = {c: ZeroOrderHold(self._hold_slots[c], depth=1) for c in self.channels}
         self._stray: list[tuple[str, int, int, dict[str, float]]] = []
         self._clock_r: list[int] = []        # recent clock messages: receive times, and
         self._clock_s: list[int] = []        # their stamps
@@ -421,9 +426,7 @@ class GridSampler:
                    f"after that sample was decided (more than {self.wait} sample(s) late): "
                    f"used as the held value from then on")
         for c, v in values.items():
-            h = self._held[c]
-            if h is None or j >= h[0]:
-                self._held[c] = (j, v)
+            self._held[c].put(j, v)              # the held value only when newer
 
     def _new_run(self) -> None:
         """Two clock messages far from the stream: end this run, start a grid at them."""
@@ -498,12 +501,13 @@ class GridSampler:
             acc = self._acc[c].pop(j, None)
             if acc is not None:
                 values[c] = acc[0] / acc[1] if c in self.mean else acc[2]
-                self._held[c] = (j, acc[2])
+                self._held[c].put(j, acc[2])
                 continue
-            h = self._held[c]
+            hold = self._held[c]
+            h = hold.at(j)
             if h is None:
                 gap = gap or Gap(k, "no_value", c)
-            elif j - h[0] > self._hold_slots[c]:
+            elif hold.too_old(h[0], j):
                 gap = gap or Gap(k, "stale", c)
             else:
                 values[c] = h[1]
