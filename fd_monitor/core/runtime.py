@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -60,6 +60,7 @@ from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.gap import gap_values
 from fd_monitor.core.generalized_observer import GeneralizedObserver
+from fd_monitor.core.lazy import LazyArray, Output
 from fd_monitor.core.monitor import Monitor, sample_floats, validate_sample
 from fd_monitor.core.monitor import run_batch as monitor_run_batch
 from fd_monitor.core.plant import SampledPlant
@@ -75,8 +76,7 @@ __all__ = ["HinfScRuntime", "HminusSwitchedRuntime", "QBRuntime", "Runtime",
            "RuntimeOutput", "RuntimeTrace", "ThresholdsRuntime"]
 
 
-@dataclass(frozen=True)
-class RuntimeOutput:
+class RuntimeOutput(Output):
     """What a runtime produces at sample k.
 
     Attributes
@@ -102,16 +102,60 @@ class RuntimeOutput:
     core : object
         The core object's own output at k (e.g. :class:`~fd_monitor.core.monitor.MonitorOutput`),
         for nodes that publish more than the common fields; None when there is none.
+
+    The arrays may be given as lists (made arrays on first read: :mod:`fd_monitor.core.lazy`).
     """
 
-    k: int
-    residual: np.ndarray
-    threshold: np.ndarray
-    alarm: np.ndarray
-    outside: np.ndarray | None
-    mode: int
-    estimates: Mapping[str, Any] = field(default_factory=dict)
-    core: Any = None
+    __slots__ = (
+        "_alarm",
+        "_outside",
+        "_residual",
+        "_threshold",
+        "core",
+        "estimates",
+        "k",
+        "mode",
+    )
+    FIELDS = ("k", "residual", "threshold", "alarm", "outside", "mode", "estimates", "core")
+    residual = LazyArray()
+    threshold = LazyArray()
+    alarm = LazyArray()
+    outside = LazyArray()
+
+    def __init__(self, k: int, residual: Any, threshold: Any, alarm: Any, outside: Any,
+                 mode: int, estimates: Mapping[str, Any] | None = None,
+                 core: Any = None) -> None:
+        self.k, self._residual, self._threshold, self._alarm = k, residual, threshold, alarm
+        self._outside, self.mode = outside, mode
+        self.estimates: Mapping[str, Any] = {} if estimates is None else estimates
+        self.core = core
+
+
+class _ChainEstimates(Mapping[str, Any]):
+    """:attr:`RuntimeOutput.estimates` of the ``thresholds`` runtime: read from the
+    :class:`~fd_monitor.core.monitor.MonitorOutput` when asked (its arrays are made on first
+    read)."""
+
+    __slots__ = ("_o",)
+    _NAMES = ("x_hat", "sigma_hat", "isolated")
+
+    def __init__(self, o: Any) -> None:
+        self._o = o
+
+    def __getitem__(self, name: str) -> Any:
+        if name == "x_hat":
+            return self._o.observer.x_hat
+        if name == "sigma_hat":
+            return self._o.estimator.sigma_hat
+        if name == "isolated":
+            return self._o.estimator.isolated
+        raise KeyError(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._NAMES)
+
+    def __len__(self) -> int:
+        return len(self._NAMES)
 
 
 @dataclass
@@ -521,10 +565,10 @@ class ThresholdsRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step` (no side signal)."""
         o = self.monitor.step(k, u, y)
-        d = o.detector
-        return RuntimeOutput(o.k, d.residual, d.threshold, d.alarm, o.outside, o.mode,
-                             {"x_hat": o.observer.x_hat, "sigma_hat": o.estimator.sigma_hat,
-                              "isolated": o.estimator.isolated}, o)
+        d, ob = o.detector, o.observer
+        # the stored values (lists on a single stream): an array is made when read
+        return RuntimeOutput(o.k, d._residual, d._threshold, d._alarm, ob._outside, o.mode,
+                             _ChainEstimates(o), o)
 
     def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
         """The chain's payloads: observer, detector, AGEI, estimator (``out.core``)."""
