@@ -76,6 +76,8 @@ class ModeDynamics:
         # ... compiled once per mode where the model can (the parameters' work done here)
         comp = None if self._model is None else self._model.compile_floats
         self._steps1 = [comp(p, self.dt) for p in self._mode_params] if comp else []
+        if self._model is None and not self._steps1:
+            self._steps1 = _scalar_linear_steps(self.plant)
 
     def __call__(self, q: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(N,) int modes, (N, n) states, (N, nu) inputs -> (N, n) next states."""
@@ -114,6 +116,32 @@ def excess_map(lo: Sequence[float], hi: Sequence[float]
                      f"z[{i}] - ({b!r} if {b!r} < (m := {m}) else m)")
     fn = eval(f"lambda z: [{', '.join(terms) or ''}]", {"inf": math.inf})
     return cast(Callable[[Sequence[float]], list[float]], fn)
+
+
+def _scalar_linear_steps(plant: SampledPlant) -> list[Callable[[Sequence[float],
+                                                                 Sequence[float]], list[float]]]:
+    """Per mode ``step(x, u) = [Ad x + Bd u + cd]`` on Python floats for a plant of one state
+    and at most one input whose modes are all linear and constant ([] otherwise).
+
+    :meth:`SampledPlant.step` computes ``x @ Ad.T + u @ Bd.T + cd`` (no disturbance, no
+    process fault in the observer): with one state and one input each product is a single
+    multiplication, so there is no summation order to match and the float form has the batch
+    path's bits (``x * a + u * b + c``; ``+ 0.0`` for ``u @ Bd.T`` without inputs) without
+    its numpy calls. Larger linear modes keep the batch path (a matrix product's summation
+    order is the BLAS library's).
+    """
+    s = plant.system
+    if s.n != 1 or s.nu > 1 or any(m.Ad is None for m in plant.modes) or any(plant.lpv_modes):
+        return []
+    steps = []
+    for dm in plant.modes:
+        assert dm.Ad is not None
+        a, c = float(dm.Ad[0, 0]), float(dm.cd[0])
+        bu = f"u[0] * {float(dm.Bd[0, 0])!r}" if s.nu else "0.0"
+        fn = eval(f"lambda x, u: [x[0] * {a!r} + {bu} + {c!r}]", {"inf": math.inf,
+                                                                   "nan": math.nan})
+        steps.append(cast(Callable[[Sequence[float], Sequence[float]], list[float]], fn))
+    return steps
 
 
 #: A guard condition's comparison by its ``op`` (anything else: ``==``, as

@@ -441,9 +441,10 @@ class Runtime:
         outside = None if not self.region_names else np.zeros((K, len(self.region_names)))
         est: dict[str, np.ndarray] = {}
         for j, o in enumerate(outs):
-            res[j], thr[j], alarm[j], mode[j] = o.residual, o.threshold, o.alarm, o.mode
-            if outside is not None and o.outside is not None:
-                outside[j] = o.outside
+            # the stored values (a list is written into the row as its array would be)
+            res[j], thr[j], alarm[j], mode[j] = o._residual, o._threshold, o._alarm, o.mode
+            if outside is not None and o._outside is not None:
+                outside[j] = o._outside
             for name, v in o.estimates.items():
                 a = np.asarray(v)
                 if name not in est:
