@@ -80,23 +80,72 @@ for k in range(K + 10):
 print(json.dumps({"sent": sent}), flush=True)
 """
 
-#: A bare rclpy node with the monitor's two subscriptions (the floor), on the same executor.
+#: A bare rclpy node with the monitor's two subscriptions (the floor):
+#: ``python -c BARE <executor> <messages> <imports>`` with executor ``events`` (rclpy's
+#: EventsExecutor in a spin_once loop, as the monitor) or ``single``
+#: (SingleThreadedExecutor.spin); messages ``msg`` (deserialized message objects), ``raw``
+#: (serialized bytes, not read), ``decode`` (serialized, decoded by the project's
+#: RawDecoder as the monitor does), ``publish`` (decode, and publish one serialized
+#: 2-value message per y: what the monitor's fd/alarm costs at least); imports ``ros`` (rclpy
+#: and the messages only), ``numpy``, ``monitor`` (everything the monitor imports).
 BARE = r"""
+import sys
+executor, messages, imports = sys.argv[1:4]
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
-from fd_monitor.nodes.common import _events_executor, data_sub_qos, use_dds_profile
-from fd_monitor.wire.topics import PLANT_U, PLANT_Y
-use_dds_profile(); rclpy.init()
+if imports == "numpy":
+    import numpy
+if imports == "monitor" or messages in ("decode", "publish"):
+    import fd_monitor.nodes.monitor
+# the DDS profile: inherited from the benchmark's environment (env())
+rclpy.init()
 n = rclpy.create_node("bare", namespace="/robot0")
-n.create_subscription(Float64MultiArray, PLANT_U.name, lambda m: None, data_sub_qos())
-n.create_subscription(Float64MultiArray, PLANT_Y.name, lambda m: None, data_sub_qos())
-ex = _events_executor(); ex.add_node(n)
+# the monitor's data QoS (data_sub_qos / data_pub_qos), without importing fd_monitor
+qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                 reliability=ReliabilityPolicy.RELIABLE)
+pub_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                     reliability=ReliabilityPolicy.RELIABLE)
+cb = lambda m: None
+if messages in ("decode", "publish"):
+    from functools import partial
+    from rclpy.serialization import deserialize_message
+    from fd_monitor.nodes.common import SerializedArray
+    from fd_monitor.wire.conversions import RawDecoder
+    dec = {t: RawDecoder(partial(deserialize_message, message_type=Float64MultiArray))
+           for t in "uy"}
+    cb_u = lambda raw: dec["u"].decode(raw)
+    if messages == "publish":
+        pub = n.create_publisher(Float64MultiArray, "fd/alarm", pub_qos)
+        enc = SerializedArray(["h1", "h2"])
+        def cb_y(raw):
+            d = dec["y"].decode(raw)
+            pub.publish(enc.encode(d.stamp, [0.0, 0.0]))
+    else:
+        cb_y = lambda raw: dec["y"].decode(raw)
+else:
+    cb_u = cb_y = cb
+raw = messages != "msg"
+n.create_subscription(Float64MultiArray, "plant/u", cb_u, qos, raw=raw)
+n.create_subscription(Float64MultiArray, "plant/y", cb_y, qos, raw=raw)
 try:
-    while rclpy.ok():
-        ex.spin_once(timeout_sec=0.1)
+    if executor == "events":
+        from rclpy.experimental import EventsExecutor
+        ex = EventsExecutor(); ex.add_node(n)
+        while rclpy.ok():
+            ex.spin_once(timeout_sec=0.1)
+    else:
+        ex = SingleThreadedExecutor(); ex.add_node(n)
+        ex.spin()
 except BaseException:
     pass
 """
+
+#: The floor variants ``--floor`` measures: (executor, messages, imports).
+FLOORS = (("single", "msg", "ros"), ("events", "msg", "ros"), ("events", "raw", "ros"),
+          ("events", "raw", "numpy"), ("events", "decode", "monitor"),
+          ("events", "publish", "monitor"))
 
 
 def env() -> dict[str, str]:
@@ -141,7 +190,7 @@ def rss_mb(pid: int) -> float:
 
 
 def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
-              floor: bool = False) -> dict:
+              floor: tuple[str, str, str] | None = None) -> dict:
     """One N: start, drive, measure, stop."""
     import rclpy
     from std_msgs.msg import Float64MultiArray
@@ -150,7 +199,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
     from fd_monitor.wire.topics import ALARM
 
     if floor:
-        procs = [subprocess.Popen([sys.executable, "-c", BARE], env=e,
+        procs = [subprocess.Popen([sys.executable, "-c", BARE, *floor], env=e,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     else:
         procs = [subprocess.Popen([sys.executable, "-m", "fd_monitor", "run", "monitor",
@@ -228,8 +277,8 @@ def _fmt(r: dict) -> str:
         return "-" if v is None else format(v, spec)
 
     rss = r.get("rss_mb") or [float("nan")]
-    what = "floor: bare rclpy, 2 subs" if r["floor"] else f"{r['robots']} monitors"
-    return (f"{what:26} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
+    what = f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
+    return (f"{what:28} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
             f"{f(r.get('p50_ms')):>7} {f(r.get('p99_ms')):>7} {f(r.get('max_ms')):>7} "
             f"{f(r.get('cpu_us_per_sample'), '.0f'):>9} {f(r.get('core_pct'), '.1f'):>6} "
             f"{np.mean(rss):6.1f} {max(rss):6.1f}  load {r.get('load', load()):.2f}")
@@ -248,11 +297,13 @@ def main() -> int:
     rclpy.init()
     print(f"load average {load():.2f} (1 min, {os.cpu_count()} cores); {args.rate:g} Hz, "
           f"{args.seconds:g} s per N; per robot: cpu us per sample, % of a core, RSS MB")
-    print(f"{'what':26} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
+    print(f"{'what':28} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'max ms':>7} {'cpu us/s.':>9} {'%core':>6} {'RSS':>6} {'max':>6}")
     try:
         if args.floor:
-            print(_fmt(run_fleet(1, args.rate, args.seconds, e, floor=True)), flush=True)
+            for variant in FLOORS:
+                print(_fmt(run_fleet(1, args.rate, args.seconds, e, floor=variant)),
+                      flush=True)
         for n in args.robots:
             print(_fmt(run_fleet(n, args.rate, args.seconds, e)), flush=True)
     finally:
