@@ -71,6 +71,8 @@ class AgeiOutput(Output):
     """
 
     __slots__ = ("_override", "k", "mode_uncertain", "phase", "row", "trigger")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("trigger", "phase", "row", "mode_uncertain", "override")
     FIELDS = ("k", "trigger", "override", "phase", "row", "mode_uncertain")
     override = LazyArray()
 

@@ -139,6 +139,8 @@ class BiasOutput(Output):
     """
 
     __slots__ = ("_isolated", "_sigma_hat", "active", "k", "k_detect")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("sigma_hat", "isolated", "active", "k_detect")
     FIELDS = ("k", "sigma_hat", "isolated", "active", "k_detect")
     sigma_hat = LazyArray()
     isolated = LazyArray()

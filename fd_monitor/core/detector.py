@@ -54,6 +54,8 @@ class DetectorOutput(Output):
     """
 
     __slots__ = ("_alarm", "_nominal", "_residual", "_threshold", "_w", "k")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("residual", "w", "threshold", "nominal", "alarm")
     FIELDS = ("k", "residual", "w", "threshold", "nominal", "alarm")
     residual = LazyArray()
     w = LazyArray()

@@ -171,6 +171,8 @@ class ObserverOutput(Output):
     """
 
     __slots__ = ("_outside", "_x_hat", "_y_tilde", "k", "mode")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("mode", "x_hat", "y_tilde")
     FIELDS = ("k", "mode", "x_hat", "y_tilde", "outside")
     x_hat = LazyArray()
     y_tilde = LazyArray()

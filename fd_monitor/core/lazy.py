@@ -11,11 +11,12 @@ arrays of the same dtype: ``np.array`` of the same list), and cannot be assigned
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
 from typing import Any, overload
 
 import numpy as np
 
-__all__ = ["LazyArray", "Output"]
+__all__ = ["Fields", "LazyArray", "Output", "stored_list"]
 
 
 class LazyArray:
@@ -45,6 +46,36 @@ class LazyArray:
             v = np.array(v)
             setattr(obj, self.slot, v)
         return v
+
+
+def stored_list(obj: Any, name: str) -> list[Any] | None:
+    """Field ``name`` of an output as a list, without making its array when it has not been
+    made (a node reading a few values per sample); None for a None field."""
+    v = getattr(obj, "_" + name) if isinstance(getattr(type(obj), name, None), LazyArray) \
+        else getattr(obj, name)
+    return v if v is None or type(v) is list else np.ravel(v).tolist()
+
+
+class Fields(Mapping[str, Any]):
+    """``payload()`` of an output as a mapping read when asked: ``fields[name]`` is
+    ``getattr(obj, name)``, so a node that publishes one topic makes only that topic's
+    arrays."""
+
+    __slots__ = ("_names", "_obj")
+
+    def __init__(self, obj: Any, names: tuple[str, ...]) -> None:
+        self._obj, self._names = obj, names
+
+    def __getitem__(self, name: str) -> Any:
+        if name not in self._names:
+            raise KeyError(name)
+        return getattr(self._obj, name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
 
 
 class Output:

@@ -60,7 +60,7 @@ from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.gap import gap_values
 from fd_monitor.core.generalized_observer import GeneralizedObserver
-from fd_monitor.core.lazy import LazyArray, Output
+from fd_monitor.core.lazy import Fields, LazyArray, Output
 from fd_monitor.core.monitor import Monitor, sample_floats, validate_sample
 from fd_monitor.core.monitor import run_batch as monitor_run_batch
 from fd_monitor.core.plant import SampledPlant
@@ -323,7 +323,7 @@ class Runtime:
         """
         raise NotImplementedError
 
-    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+    def payloads(self, out: RuntimeOutput) -> tuple[Mapping[str, Any], ...]:
         """What a live node publishes of ``out``, by field name: ``residual``,
         ``threshold``, ``alarm`` (m,), ``mode``, ``x_hat`` (flattened; zero-length when the
         method has none)."""
@@ -571,11 +571,12 @@ class ThresholdsRuntime(Runtime):
         return RuntimeOutput(o.k, d._residual, d._threshold, d._alarm, ob._outside, o.mode,
                              _ChainEstimates(o), o)
 
-    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+    def payloads(self, out: RuntimeOutput) -> tuple[Mapping[str, Any], ...]:
         """The chain's payloads: observer, detector, AGEI, estimator (``out.core``)."""
         o = out.core
-        return (o.observer.payload(), o.detector.payload(), o.agei.payload(),
-                o.estimator.payload())
+        # read when a topic is published (the parts' payload() fields)
+        return tuple(Fields(part, part.payload_names) for part in
+                     (o.observer, o.detector, o.agei, o.estimator))
 
     def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """sigma^ per output."""
