@@ -41,6 +41,10 @@ __all__ = ["HybridObserver", "ModeDynamics", "ObserverOutput", "NO_TRIGGER"]
 NO_TRIGGER = -1
 
 
+#: Compiled single-stream steps by (model, dt, parameters): see ModeDynamics.
+_COMPILED: dict[tuple[Any, ...], Callable[[Sequence[float], Sequence[float]], list[float]]] = {}
+
+
 class ModeDynamics:
     """``f(q, x, u)`` for a batch with per-run modes, in one model call when possible.
 
@@ -75,7 +79,14 @@ class ModeDynamics:
                              for q in range(len(system.modes))] if self._floats else []
         # ... compiled once per mode where the model can (the parameters' work done here)
         comp = None if self._model is None else self._model.compile_floats
-        self._steps1 = [comp(p, self.dt) for p in self._mode_params] if comp else []
+        self._steps1 = []
+        if comp is not None and self._model is not None:
+            for p in self._mode_params:
+                # compiled once per process and parameter set (observer and estimator share)
+                key = (self._model.name, self.dt, tuple(sorted(p.items())))
+                if key not in _COMPILED:
+                    _COMPILED[key] = comp(p, self.dt)
+                self._steps1.append(_COMPILED[key])
         if self._model is None and not self._steps1:
             self._steps1 = _scalar_linear_steps(self.plant)
 
