@@ -181,6 +181,26 @@ def cpu_seconds(pids: list[int]) -> float:
     return total
 
 
+def thread_cpu(pid: int) -> dict[str, float]:
+    """CPU seconds so far per thread name of a process (/proc/<pid>/task: the Python main
+    thread, rclpy's executor, Fast DDS's receive/event/shm threads, ...), summed by name."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[str, float] = {}
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for t in tasks:
+        try:
+            raw = Path(f"/proc/{pid}/task/{t}/stat").read_text()
+        except OSError:
+            continue
+        name = raw[raw.index("(") + 1:raw.rindex(")")]
+        f = raw.rsplit(")", 1)[1].split()
+        out[name] = out.get(name, 0.0) + (int(f[11]) + int(f[12])) / tick
+    return out
+
+
 def rss_mb(pid: int) -> float:
     """Resident set size of a process, MB (/proc)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -232,6 +252,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         time.sleep(2.0)                      # start-up CPU settles
         pids = [p.pid for p in procs]
         cpu0, t0 = cpu_seconds(pids), time.perf_counter()
+        threads0 = thread_cpu(pids[0])
         drv.stdin.write("go\n")
         drv.stdin.flush()
         import select
@@ -245,6 +266,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         while time.perf_counter() < end:
             ex.spin_once(timeout_sec=0.01)
         cpu = cpu_seconds(pids) - cpu0
+        threads = {n: v - threads0.get(n, 0.0) for n, v in thread_cpu(pids[0]).items()}
         wall = time.perf_counter() - t0 - 2.0
         sent = json.loads(line)["sent"][10:]
         K = len(sent)
@@ -255,7 +277,10 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
                    missing=0 if floor else len(rows) - lat.size,
                    cpu_us_per_sample=cpu / (n_robots if not floor else 1) / K * 1e6,
                    core_pct=100 * cpu / wall / (n_robots if not floor else 1),
-                   rss_mb=[round(rss_mb(p), 1) for p in pids])
+                   rss_mb=[round(rss_mb(p), 1) for p in pids],
+                   # the first process's CPU per sample by thread name, us
+                   threads={n: round(v / K * 1e6) for n, v in
+                            sorted(threads.items(), key=lambda kv: -kv[1]) if v > 0})
         if lat.size:
             row.update(p50_ms=float(np.median(lat)), p99_ms=float(np.percentile(lat, 99)),
                        max_ms=float(lat.max()))
@@ -278,10 +303,13 @@ def _fmt(r: dict) -> str:
 
     rss = r.get("rss_mb") or [float("nan")]
     what = f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
+    per_thread = ", ".join(f"{n} {v}" for n, v in list(r.get("threads", {}).items())[:5])
     return (f"{what:28} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
             f"{f(r.get('p50_ms')):>7} {f(r.get('p99_ms')):>7} {f(r.get('max_ms')):>7} "
             f"{f(r.get('cpu_us_per_sample'), '.0f'):>9} {f(r.get('core_pct'), '.1f'):>6} "
-            f"{np.mean(rss):6.1f} {max(rss):6.1f}  load {r.get('load', load()):.2f}")
+            f"{np.mean(rss):6.1f} {max(rss):6.1f}  load {r.get('load', load()):.2f}"
+            + (f"\n{'':28} us/sample by thread (first process): {per_thread}"
+               if per_thread else ""))
 
 
 def main() -> int:

@@ -772,6 +772,10 @@ class HinfScRuntime(Runtime):
         self._Cpinv = np.linalg.pinv(model.C)
         self._plaus = Plausibility(system)
         self._rho_lo, self._rho_hi = model.rho_min.tolist(), model.rho_max.tolist()
+        # the scheduling map and its parameters, looked up once (not per sample)
+        sched = model.scheduling if self.lpv else None
+        self._sched = None if not sched else (SCHEDULING_MAPS[str(sched["map"])],
+                                              dict(sched.get("params") or {}))
         # thresholds in force, armed or not (read-only: every output shares them)
         self._thr = self.bank.thresholds.copy()
         self._thr_off = np.full(len(self.channels), np.inf)
@@ -840,10 +844,14 @@ class HinfScRuntime(Runtime):
         outside = rho = None
         rl: list[float] | None = None
         if self.lpv:
-            raw = self._rho(k, yf, side).tolist()
+            sched = self._sched
+            if sched is not None and (side is None or side.get("rho") is None):
+                raw = np.asarray(sched[0](yf, sched[1]), dtype=float).tolist()  # as _rho
+            else:
+                raw = self._rho(k, yf, side).tolist()
             rl = [min(max(v, a), b) for v, a, b in zip(raw, self._rho_lo, self._rho_hi)]
             rho = np.array(rl)
-            outside = np.array([a - b for a, b in zip(raw, rl)])
+            outside = [a - b for a, b in zip(raw, rl)]     # an array when read
         if self._k0 is None:
             bank.reset(self._Cpinv @ np.array(yf))
             self._k0 = k
