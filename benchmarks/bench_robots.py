@@ -15,8 +15,14 @@ Printed per N (the 1-minute load average with each line):
   per robot and sample, us, and as ``% core`` per robot (cpu seconds / run seconds / N);
   the issue's goal is <= 300 us per sample (3 % of a core at 100 Hz);
 * RSS per process, MB (mean and max; goal <= 50 MB);
-* the floor: a bare rclpy process with the same two subscriptions at the same rate, measured
-  the same way (``--floor``; what any Python ROS node receiving u and y costs here).
+* the floors (``--floor``): a bare rclpy process with the same two subscriptions at the same
+  rate, measured the same way, in the variants of :data:`FLOORS` (SingleThreadedExecutor or
+  EventsExecutor in a spin_once loop; message objects, serialized bytes, bytes decoded by the
+  project's RawDecoder, plus one publication per sample; rclpy alone, numpy, the monitor's
+  imports): what any Python ROS node receiving u and y costs here, and what each choice
+  costs;
+* below each row, the first process's CPU per sample by thread name (the Python main thread,
+  Fast DDS's threads).
 
 Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
 [--seconds 10] [--floor]``. Isolated ROS_DOMAIN_ID, loopback discovery.
