@@ -774,8 +774,8 @@ class HinfScRuntime(Runtime):
         self._rho_lo, self._rho_hi = model.rho_min.tolist(), model.rho_max.tolist()
         # the scheduling map and its parameters, looked up once (not per sample)
         sched = model.scheduling if self.lpv else None
-        self._sched = None if not sched else (SCHEDULING_MAPS[str(sched["map"])],
-                                              dict(sched.get("params") or {}))
+        self._sched: tuple[Callable[..., Any], dict[str, Any]] | None = None if not sched \
+            else (SCHEDULING_MAPS[str(sched["map"])], dict(sched.get("params") or {}))
         # thresholds in force, armed or not (read-only: every output shares them)
         self._thr = self.bank.thresholds.copy()
         self._thr_off = np.full(len(self.channels), np.inf)
