@@ -15,8 +15,14 @@ Printed per N (the 1-minute load average with each line):
   per robot and sample, us, and as ``% core`` per robot (cpu seconds / run seconds / N);
   the issue's goal is <= 300 us per sample (3 % of a core at 100 Hz);
 * RSS per process, MB (mean and max; goal <= 50 MB);
-* the floor: a bare rclpy process with the same two subscriptions at the same rate, measured
-  the same way (``--floor``; what any Python ROS node receiving u and y costs here).
+* the floors (``--floor``): a bare rclpy process with the same two subscriptions at the same
+  rate, measured the same way, in the variants of :data:`FLOORS` (SingleThreadedExecutor or
+  EventsExecutor in a spin_once loop; message objects, serialized bytes, bytes decoded by the
+  project's RawDecoder, plus one publication per sample; rclpy alone, numpy, the monitor's
+  imports): what any Python ROS node receiving u and y costs here, and what each choice
+  costs;
+* below each row, the first process's CPU per sample by thread name (the Python main thread,
+  Fast DDS's threads).
 
 Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
 [--seconds 10] [--floor]``. Isolated ROS_DOMAIN_ID, loopback discovery.
@@ -81,25 +87,72 @@ for k in range(K + 10):
 print(json.dumps({"sent": sent}), flush=True)
 """
 
-#: A bare rclpy node with the monitor's two subscriptions (the floor), on the same executor.
+#: A bare rclpy node with the monitor's two subscriptions (the floor):
+#: ``python -c BARE <executor> <messages> <imports>`` with executor ``events`` (rclpy's
+#: EventsExecutor in a spin_once loop, as the monitor) or ``single``
+#: (SingleThreadedExecutor.spin); messages ``msg`` (deserialized message objects), ``raw``
+#: (serialized bytes, not read), ``decode`` (serialized, decoded by the project's
+#: RawDecoder as the monitor does), ``publish`` (decode, and publish one serialized
+#: 2-value message per y: what the monitor's fd/alarm costs at least); imports ``ros`` (rclpy
+#: and the messages only), ``numpy``, ``monitor`` (everything the monitor imports).
 BARE = r"""
+import sys
+executor, messages, imports = sys.argv[1:4]
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
-from fd_monitor.nodes.pacing import use_dds_profile
-from fd_monitor.nodes.process import _events_executor
-from fd_monitor.nodes.qos import data_sub_qos
-from fd_monitor.wire.topics import PLANT_U, PLANT_Y
-use_dds_profile(); rclpy.init()
+if imports == "numpy":
+    import numpy
+if imports == "monitor" or messages in ("decode", "publish"):
+    import fd_monitor.nodes.monitor
+# the DDS profile: inherited from the benchmark's environment (env())
+rclpy.init()
 n = rclpy.create_node("bare", namespace="/robot0")
-n.create_subscription(Float64MultiArray, PLANT_U.name, lambda m: None, data_sub_qos())
-n.create_subscription(Float64MultiArray, PLANT_Y.name, lambda m: None, data_sub_qos())
-ex = _events_executor(); ex.add_node(n)
+# the monitor's data QoS (data_sub_qos / data_pub_qos), without importing fd_monitor
+qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=1,
+                 reliability=ReliabilityPolicy.RELIABLE)
+pub_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                     reliability=ReliabilityPolicy.RELIABLE)
+cb = lambda m: None
+if messages in ("decode", "publish"):
+    from functools import partial
+    from rclpy.serialization import deserialize_message
+    from fd_monitor.nodes.serialized import SerializedArray
+    from fd_monitor.wire.conversions import RawDecoder
+    dec = {t: RawDecoder(partial(deserialize_message, message_type=Float64MultiArray))
+           for t in "uy"}
+    cb_u = lambda raw: dec["u"].decode(raw)
+    if messages == "publish":
+        pub = n.create_publisher(Float64MultiArray, "fd/alarm", pub_qos)
+        enc = SerializedArray(["h1", "h2"])
+        def cb_y(raw):
+            d = dec["y"].decode(raw)
+            pub.publish(enc.encode(d.stamp, [0.0, 0.0]))
+    else:
+        cb_y = lambda raw: dec["y"].decode(raw)
+else:
+    cb_u = cb_y = cb
+raw = messages != "msg"
+n.create_subscription(Float64MultiArray, "plant/u", cb_u, qos, raw=raw)
+n.create_subscription(Float64MultiArray, "plant/y", cb_y, qos, raw=raw)
 try:
-    while rclpy.ok():
-        ex.spin_once(timeout_sec=0.1)
+    if executor == "events":
+        from rclpy.experimental import EventsExecutor
+        ex = EventsExecutor(); ex.add_node(n)
+        while rclpy.ok():
+            ex.spin_once(timeout_sec=0.1)
+    else:
+        ex = SingleThreadedExecutor(); ex.add_node(n)
+        ex.spin()
 except BaseException:
     pass
 """
+
+#: The floor variants ``--floor`` measures: (executor, messages, imports).
+FLOORS = (("single", "msg", "ros"), ("events", "msg", "ros"), ("events", "raw", "ros"),
+          ("events", "raw", "numpy"), ("events", "decode", "monitor"),
+          ("events", "publish", "monitor"))
 
 
 def env() -> dict[str, str]:
@@ -135,6 +188,26 @@ def cpu_seconds(pids: list[int]) -> float:
     return total
 
 
+def thread_cpu(pid: int) -> dict[str, float]:
+    """CPU seconds so far per thread name of a process (/proc/<pid>/task: the Python main
+    thread, rclpy's executor, Fast DDS's receive/event/shm threads, ...), summed by name."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[str, float] = {}
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for t in tasks:
+        try:
+            raw = Path(f"/proc/{pid}/task/{t}/stat").read_text()
+        except OSError:
+            continue
+        name = raw[raw.index("(") + 1:raw.rindex(")")]
+        f = raw.rsplit(")", 1)[1].split()
+        out[name] = out.get(name, 0.0) + (int(f[11]) + int(f[12])) / tick
+    return out
+
+
 def rss_mb(pid: int) -> float:
     """Resident set size of a process, MB (/proc)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -144,7 +217,7 @@ def rss_mb(pid: int) -> float:
 
 
 def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
-              floor: bool = False) -> dict:
+              floor: tuple[str, str, str] | None = None) -> dict:
     """One N: start, drive, measure, stop."""
     import rclpy
     from std_msgs.msg import Float64MultiArray
@@ -154,7 +227,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
     from fd_monitor.wire.topics import ALARM
 
     if floor:
-        procs = [subprocess.Popen([sys.executable, "-c", BARE], env=e,
+        procs = [subprocess.Popen([sys.executable, "-c", BARE, *floor], env=e,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     else:
         procs = [subprocess.Popen([sys.executable, "-m", "fd_monitor", "run", "monitor",
@@ -187,6 +260,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         time.sleep(2.0)                      # start-up CPU settles
         pids = [p.pid for p in procs]
         cpu0, t0 = cpu_seconds(pids), time.perf_counter()
+        threads0 = thread_cpu(pids[0])
         drv.stdin.write("go\n")
         drv.stdin.flush()
         import select
@@ -200,6 +274,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         while time.perf_counter() < end:
             ex.spin_once(timeout_sec=0.01)
         cpu = cpu_seconds(pids) - cpu0
+        threads = {n: v - threads0.get(n, 0.0) for n, v in thread_cpu(pids[0]).items()}
         wall = time.perf_counter() - t0 - 2.0
         sent = json.loads(line)["sent"][10:]
         K = len(sent)
@@ -210,7 +285,10 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
                    missing=0 if floor else len(rows) - lat.size,
                    cpu_us_per_sample=cpu / (n_robots if not floor else 1) / K * 1e6,
                    core_pct=100 * cpu / wall / (n_robots if not floor else 1),
-                   rss_mb=[round(rss_mb(p), 1) for p in pids])
+                   rss_mb=[round(rss_mb(p), 1) for p in pids],
+                   # the first process's CPU per sample by thread name, us
+                   threads={n: round(v / K * 1e6) for n, v in
+                            sorted(threads.items(), key=lambda kv: -kv[1]) if v > 0})
         if lat.size:
             row.update(p50_ms=float(np.median(lat)), p99_ms=float(np.percentile(lat, 99)),
                        max_ms=float(lat.max()))
@@ -232,11 +310,14 @@ def _fmt(r: dict) -> str:
         return "-" if v is None else format(v, spec)
 
     rss = r.get("rss_mb") or [float("nan")]
-    what = "floor: bare rclpy, 2 subs" if r["floor"] else f"{r['robots']} monitors"
-    return (f"{what:26} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
+    what = f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
+    per_thread = ", ".join(f"{n} {v}" for n, v in list(r.get("threads", {}).items())[:5])
+    return (f"{what:28} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
             f"{f(r.get('p50_ms')):>7} {f(r.get('p99_ms')):>7} {f(r.get('max_ms')):>7} "
             f"{f(r.get('cpu_us_per_sample'), '.0f'):>9} {f(r.get('core_pct'), '.1f'):>6} "
-            f"{np.mean(rss):6.1f} {max(rss):6.1f}  load {r.get('load', load()):.2f}")
+            f"{np.mean(rss):6.1f} {max(rss):6.1f}  load {r.get('load', load()):.2f}"
+            + (f"\n{'':28} us/sample by thread (first process): {per_thread}"
+               if per_thread else ""))
 
 
 def main() -> int:
@@ -252,11 +333,13 @@ def main() -> int:
     rclpy.init()
     print(f"load average {load():.2f} (1 min, {os.cpu_count()} cores); {args.rate:g} Hz, "
           f"{args.seconds:g} s per N; per robot: cpu us per sample, % of a core, RSS MB")
-    print(f"{'what':26} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
+    print(f"{'what':28} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'max ms':>7} {'cpu us/s.':>9} {'%core':>6} {'RSS':>6} {'max':>6}")
     try:
         if args.floor:
-            print(_fmt(run_fleet(1, args.rate, args.seconds, e, floor=True)), flush=True)
+            for variant in FLOORS:
+                print(_fmt(run_fleet(1, args.rate, args.seconds, e, floor=variant)),
+                      flush=True)
         for n in args.robots:
             print(_fmt(run_fleet(n, args.rate, args.seconds, e)), flush=True)
     finally:

@@ -15,7 +15,12 @@ For every file of ``config/gains/`` (the registry of :mod:`fd_monitor.core.runti
   ``r`` and its alarm ``|r| > R``; nothing else (no validation, no scheduling, no
   nonlinear model, no output object). A runtime cannot be cheaper than this in pure Python;
 * ``floor np``: the same arithmetic vectorised with numpy (one ``matmul`` over the
-  generators, the norms, the alarms).
+  generators, the norms, the alarms);
+* ``floor C``: the same arithmetic compiled: a C kernel (:data:`C_KERNEL`) compiled with
+  ``gcc -O2`` when the benchmark starts and called through ``ctypes`` once per pass (the
+  loop over the samples in C), so no Python per sample. Benchmark only: the package's
+  runtime path is pure Python/numpy and does not need a compiler; without ``gcc`` the column
+  prints ``-`` and says why.
 
 Timing: one untimed warm-up pass, then the best of ``--repeat`` timed passes (the machine is
 shared: the best pass is the one least disturbed), CPU time of this process
@@ -31,8 +36,13 @@ No assertion: figures only (the speed goals are in doc/reference/benchmarks-runt
 from __future__ import annotations
 
 import argparse
+import atexit
+import ctypes
 import math
 import os
+import shutil
+import subprocess
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -122,6 +132,94 @@ def floor_numpy(G: int, n: int, nu: int, p: int, K: int) -> Callable[[], None]:
     return run
 
 
+#: The compiled floor: K samples of G generators, ``out = Phi_g [x_g; u_k; y_k]``,
+#: ``x_g = out[:n]``, ``r = out[n:]``, its 2-norm and its alarms ``|r_i| > R_i``.
+C_KERNEL = r"""
+#include <math.h>
+double floor_run(int K, int G, int n, int nu, int p, const double *phi, double *x,
+                 const double *u, const double *y, const double *thr, unsigned char *alarm)
+{
+    int r = n + nu + p, m = n + p;
+    double z[256], out[256], acc = 0.0;
+    for (int k = 0; k < K; k++) {
+        for (int g = 0; g < G; g++) {
+            const double *P = phi + (long)g * m * r;
+            double *xg = x + (long)g * n;
+            for (int i = 0; i < n; i++) z[i] = xg[i];
+            for (int i = 0; i < nu; i++) z[n + i] = u[(long)k * nu + i];
+            for (int i = 0; i < p; i++) z[n + nu + i] = y[(long)k * p + i];
+            for (int i = 0; i < m; i++) {
+                double s = 0.0;
+                for (int j = 0; j < r; j++) s += P[i * r + j] * z[j];
+                out[i] = s;
+            }
+            double ss = 0.0;
+            for (int i = 0; i < n; i++) xg[i] = out[i];
+            for (int i = 0; i < p; i++) {
+                double v = out[n + i];
+                ss += v * v;
+                alarm[i] = fabs(v) > thr[i];
+            }
+            acc += sqrt(ss);
+        }
+    }
+    return acc;
+}
+"""
+
+_C_LIB: Any = None
+_C_WHY = ""
+
+
+def c_library() -> Any:
+    """The compiled :data:`C_KERNEL` (ctypes), or None with the reason in ``_C_WHY``."""
+    global _C_LIB, _C_WHY
+    if _C_LIB is not None or _C_WHY:
+        return _C_LIB
+    gcc = shutil.which("gcc") or shutil.which("cc")
+    if gcc is None:
+        _C_WHY = "no gcc/cc on PATH"
+        return None
+    tmp = Path(tempfile.mkdtemp(prefix="fd_bench_c_"))
+    atexit.register(shutil.rmtree, tmp, True)
+    src, lib = tmp / "floor.c", tmp / "floor.so"
+    src.write_text(C_KERNEL)
+    try:
+        subprocess.run([gcc, "-O2", "-shared", "-fPIC", "-o", str(lib), str(src), "-lm"],
+                       check=True, capture_output=True, text=True)
+        dll = ctypes.CDLL(str(lib))
+    except (OSError, subprocess.CalledProcessError) as exc:
+        _C_WHY = f"compiling the C floor failed: {exc}"
+        return None
+    dll.floor_run.restype = ctypes.c_double
+    _C_LIB = dll
+    return dll
+
+
+def floor_c(G: int, n: int, nu: int, p: int, K: int) -> Callable[[], None] | None:
+    """K samples of the floor arithmetic in the compiled kernel (one ctypes call)."""
+    dll = c_library()
+    if dll is None or n + nu + p > 256:
+        return None
+    rng = np.random.default_rng(1)
+    r = n + nu + p
+    phi = np.ascontiguousarray(0.1 * rng.standard_normal((G, n + p, r)))
+    x = np.zeros((G, max(n, 1)))
+    us = np.ascontiguousarray(rng.standard_normal((K, max(nu, 1))))
+    ys = np.ascontiguousarray(rng.standard_normal((K, p)))
+    thr = np.ones(p)
+    alarm = np.zeros(p, dtype=np.uint8)
+    dp = ctypes.POINTER(ctypes.c_double)
+    args = (ctypes.c_int(K), ctypes.c_int(G), ctypes.c_int(n), ctypes.c_int(nu),
+            ctypes.c_int(p), phi.ctypes.data_as(dp), x.ctypes.data_as(dp),
+            us.ctypes.data_as(dp), ys.ctypes.data_as(dp), thr.ctypes.data_as(dp),
+            alarm.ctypes.data_as(ctypes.POINTER(ctypes.c_ubyte)))
+
+    def run() -> None:
+        dll.floor_run(*args)
+    return run
+
+
 def best_of(fn: Callable[[], Any], repeat: int, reset: Callable[[], Any] | None = None
             ) -> tuple[float, float]:
     """(best CPU s, best wall s) of ``repeat`` timed calls after one untimed warm-up."""
@@ -159,9 +257,13 @@ def measure(path: Path, samples: int, repeat: int, rng: np.random.Generator) -> 
     G, n, nu, p = dimensions(system, rt)
     cpu_py, _ = best_of(floor_python(G, n, nu, p, K), repeat)
     cpu_np, _ = best_of(floor_numpy(G, n, nu, p, K), repeat)
+    fc = floor_c(G, n, nu, p, K)
+    # the C pass is short: many samples per timed call so the clock resolves it
+    cpu_c = best_of(lambda: [fc() for _ in range(50)], repeat)[0] / 50 if fc else None
     return {"file": path.stem, "method": gf.method, "dims": f"{G}x(n{n},u{nu},y{p})",
             "step": K / cpu_step, "step_wall": K / wall_step, "run": K / cpu_run,
-            "floor_py": K / cpu_py, "floor_np": K / cpu_np}
+            "floor_py": K / cpu_py, "floor_np": K / cpu_np,
+            "floor_c": None if cpu_c is None else K / max(cpu_c, 1e-9)}
 
 
 def print_rates(samples: int = 2000, repeat: int = 5) -> list[dict[str, Any]]:
@@ -170,15 +272,20 @@ def print_rates(samples: int = 2000, repeat: int = 5) -> list[dict[str, Any]]:
     root = Path(__file__).resolve().parents[1] / "config" / "gains"
     print(f"before: {load()}; best of {repeat} passes of {samples} samples after a warm-up, "
           f"samples per CPU second (wall clock of the best step pass in brackets)")
+    c_lib = c_library()
+    print("floor C: " + ("C kernel compiled with gcc -O2, called once per pass via ctypes"
+                         if c_lib is not None else f"not measured ({_C_WHY})"))
     print(f"{'gain file':32s} {'method':16s} {'floor dims':16s} {'step':>9s} {'(wall)':>9s} "
-          f"{'run':>9s} {'floor py':>9s} {'floor np':>9s} {'step/py':>7s}")
+          f"{'run':>9s} {'floor py':>9s} {'floor np':>9s} {'floor C':>11s} {'step/py':>7s}")
     rows = []
     for path in sorted(root.glob("*.yaml")):
         r = measure(path, samples, repeat, rng)
         rows.append(r)
         print(f"{r['file']:32s} {r['method']:16s} {r['dims']:16s} {r['step']:9,.0f} "
               f"{r['step_wall']:9,.0f} {r['run']:9,.0f} {r['floor_py']:9,.0f} "
-              f"{r['floor_np']:9,.0f} {r['step'] / r['floor_py']:7.2f}", flush=True)
+              f"{r['floor_np']:9,.0f} "
+              f"{'-' if r['floor_c'] is None else format(r['floor_c'], ',.0f'):>11s} "
+              f"{r['step'] / r['floor_py']:7.2f}", flush=True)
     print(f"after: {load()}")
     return rows
 

@@ -165,3 +165,144 @@ def test_qb_floats_equal_the_numpy_path(name):
     assert np.array_equal(fast.mode, ref.mode)
     assert np.abs(fast.residual - ref.residual).max() <= 1e-12 * np.abs(ref.residual).max()
     assert np.array_equal(fast.alarm, ref.alarm) and ref.alarm.any()
+
+
+# --------------------------------------------------------------------------------------
+# thresholds: Monitor.step (the single stream on Python floats: the three_tank RK4 compiled
+# per mode, scalar linear modes on floats, the certified box and the controlled guards
+# precomputed per mode, outputs with lazy arrays) against BatchMonitor (the numpy batch
+# path, the reference), bit for bit.
+
+THRESHOLD_FILES = ["dc_motor_identified_thresholds", "three_tank_envelope",
+                   "three_tank_thresholds"]
+#: three_tank_bad_input is left out: read_bag refuses its corrupted records (wrong length),
+#: and its other samples are those of three_tank_thresholds' bias bags (covered).
+THRESHOLD_BAGS = sorted(s.name for s in LIB.bags
+                        if load_gains(s.gains, verify=False).method == "thresholds"
+                        and s.name != "three_tank_bad_input")
+#: Samples of a thresholds bag compared (the batch path costs 0.3-2 ms per sample): past the
+#: first alarm and the estimator's start (sample 812-1000) in FAULT_BAGS (one per gain
+#: file whose bag faults early enough); the others' first 400 (dc_motor_bias_velocity's
+#: fault starts at 2500, beyond what the batch path runs here in a second or two; its
+#: estimator's scalar linear steps are compared below).
+FAULT_BAGS = {"three_tank_bias_h1", "three_tank_incipient_h3", "three_tank_envelope_bias_h1"}
+THRESHOLD_SAMPLES = 400
+
+
+def _monitor_fields(o) -> dict:
+    """Every field of a MonitorOutput, by the names of BatchMonitor.step."""
+    ob, d, a, e = o.observer, o.detector, o.agei, o.estimator
+    return {"mode": ob.mode, "x_hat": ob.x_hat, "y_tilde": ob.y_tilde,
+            "residual": d.residual, "w": d.w, "threshold": d.threshold, "nominal": d.nominal,
+            "alarm": d.alarm, "trigger": a.trigger, "override": a.override, "phase": a.phase,
+            "row": a.row, "mode_uncertain": a.mode_uncertain, "sigma_hat": e.sigma_hat,
+            "isolated": e.isolated, "active": e.active, "k_detect": e.k_detect}
+
+
+def test_every_shipped_thresholds_file_has_a_library_bag():
+    files = {Path(load_gains(LIB[n].gains, verify=False).path).stem for n in THRESHOLD_BAGS}
+    assert files | {"three_tank_thresholds"} == set(THRESHOLD_FILES) == {
+        p.stem for p in (Path(__file__).parents[1] / "config" / "gains").glob("*.yaml")
+        if load_gains(p, verify=False).method == "thresholds"}
+
+
+@pytest.mark.parametrize("name", THRESHOLD_BAGS)
+def test_monitor_single_stream_equals_batch_on_library_bag(name):
+    """Every output of Monitor.step equals BatchMonitor's (one run) bit for bit (NaN where
+    NaN), dtype kinds included, up to the bag's first refused sample (three_tank_bad_input:
+    a NaN the batch path does not take) or THRESHOLD_SAMPLES; the x^ box excess equals the
+    reference formula's bits. The reference runs the stream twice in one batch (N = 2): with
+    N = 1 and one output, FilterBank's taps are one contiguous axis and numpy sums them
+    pairwise, not slice by slice (dc_motor_identified's 200-tap filter: the last bit
+    differs; a property of the batch path with N = 1, not of the single stream)."""
+    from fd_monitor.core.monitor import BatchMonitor, Monitor
+    from fd_monitor.model.errors import MessageError
+
+    spec = LIB[name]
+    system, gf = _loaded(Path(load_gains(spec.gains, verify=False).path).stem)
+    b = read_bag(spec.folder, [PLANT_U.absolute, PLANT_Y.absolute])
+    u, y = b[PLANT_U.absolute].values, b[PLANT_Y.absolute].values
+    mon, bm = Monitor(system, gf), BatchMonitor(system, gf, 2)
+    box = mon.observer._box
+    seen = {"alarm": False, "active": False}
+    # dc_motor: 250 samples (past its 200-tap filter's window; its batch path costs ~4 ms
+    # per sample)
+    K = min(len(y), 1100 if name in FAULT_BAGS else 250 if name.startswith("dc_motor")
+            else THRESHOLD_SAMPLES)
+    for k in range(K):
+        try:
+            o = mon.step(k, u[k], y[k])
+        except MessageError:
+            break
+        ref = bm.step(k, np.stack([u[k], u[k]]), np.stack([y[k], y[k]]))
+        for field, v in _monitor_fields(o).items():
+            r = ref[field][0]
+            assert np.asarray(v).dtype.kind == np.asarray(r).dtype.kind, (k, field)
+            assert np.array_equal(v, r, equal_nan=np.asarray(r).dtype.kind == "f"), (k, field)
+        if box:
+            lo, hi = box[o.mode]
+            z = list(o.observer.x_hat) + u[k].tolist()
+            assert o.outside.tolist() == [v - min(max(v, a), c) for v, a, c in zip(z, lo, hi)]
+        seen["alarm"] |= bool(o.alarm.any())
+        seen["active"] |= bool(o.estimator.active)
+    assert k > 100, "the comparison covers the bag"
+    if name in FAULT_BAGS:
+        assert seen["alarm"] and seen["active"], seen
+
+
+def test_three_tank_compiled_step_equals_the_float_step_bit_for_bit():
+    """The per-mode compiled RK4 (``compile_floats``) against ``step_floats`` on every mode
+    of every shipped plant of the three_tank model: the same bits, signs of zero included,
+    on random levels with exact zeros, ties (h1 == h3, h3 at h_upper) and negative inputs."""
+    import math
+    import random
+
+    from fd_monitor.core.hybrid_observer import ModeDynamics
+    from fd_monitor.model.nonlinear import get_model
+
+    model = get_model("three_tank")
+    rng = random.Random(5)
+    for plant in ("three_tank", "three_tank_lpv"):
+        system = load_system(plant)
+        md = ModeDynamics(system)
+        params = md._mode_params or [
+            {**model.defaults, **{k: float(v) for k, v in m.params.items()}}
+            for m in system.modes if m.model == "three_tank"]
+        for p in params:
+            step = model.compile_floats(p, system.sample_time)
+            for _ in range(1500):
+                x = [rng.choice([rng.uniform(-0.1, 0.8), 0.0, -0.0, p.get("h_upper", 0.35)])
+                     for _ in range(3)]
+                if rng.random() < 0.1:
+                    x[2] = x[0]
+                u = [rng.choice([rng.uniform(-1e-4, 1e-4), 0.0, -0.0]) for _ in range(2)]
+                a = model.step_floats(x, [*u, 0.0], p, system.sample_time)
+                b = step(x, [*u, 0.0])
+                assert [(v, math.copysign(1.0, v)) for v in a] == \
+                    [(v, math.copysign(1.0, v)) for v in b], (plant, x, u)
+
+
+def test_box_excess_and_scalar_linear_steps_equal_their_references():
+    """excess_map == [v - min(max(v, lo), hi)] (NaN, infinities, signed zeros); the scalar
+    linear modes on floats == SampledPlant.step (dc_motor_identified)."""
+    import math
+
+    from fd_monitor.core.hybrid_observer import ModeDynamics, excess_map
+
+    lo, hi = [-math.inf, 0.0, -1.0, 0.5], [1.0, math.inf, 1.0, 0.5]
+    f = excess_map(lo, hi)
+    pool = [0.3, -2.0, 2.0, 0.0, -0.0, 1.0, -1.0, 0.5, math.nan, math.inf, -math.inf]
+    rng = np.random.default_rng(2)
+    for z in rng.choice(pool, (2000, 4)).tolist():
+        ref = [v - min(max(v, a), b) for v, a, b in zip(z, lo, hi)]
+        got = f(z)
+        assert [repr(v) for v in got] == [repr(v) for v in ref], z
+    system = load_system("dc_motor_identified")
+    md = ModeDynamics(system)
+    assert md._steps1, "dc_motor_identified: scalar linear modes on floats"
+    x = rng.uniform(-5.0, 5.0, (3000, 1))
+    u = rng.uniform(-1.0, 1.0, (3000, 1))
+    q = np.zeros(3000, dtype=int)
+    batch = md.plant.step(q, x, u)
+    one = [md.step1(0, x[i].tolist(), u[i].tolist()) for i in range(3000)]
+    assert np.array_equal(np.array(one), batch)

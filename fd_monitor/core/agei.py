@@ -25,12 +25,12 @@ observer never executes autonomous transitions.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from fd_monitor.core.filters import as_floats
+from fd_monitor.core.lazy import LazyArray, Output
 from fd_monitor.core.thresholds import AgeiRow, DiagnosisGains
 from fd_monitor.model.system import System
 
@@ -47,8 +47,7 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 
 
-@dataclass(frozen=True)
-class AgeiOutput:
+class AgeiOutput(Output):
     """AGEI decision at sample k (used by observer and detector at k + 1).
 
     Attributes
@@ -71,12 +70,17 @@ class AgeiOutput:
     carries which.
     """
 
-    k: int
-    trigger: int | np.ndarray
-    override: np.ndarray
-    phase: int | np.ndarray
-    row: int | np.ndarray
-    mode_uncertain: bool | np.ndarray = False
+    __slots__ = ("_override", "k", "mode_uncertain", "phase", "row", "trigger")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("trigger", "phase", "row", "mode_uncertain", "override")
+    FIELDS = ("k", "trigger", "override", "phase", "row", "mode_uncertain")
+    override = LazyArray()
+
+    def __init__(self, k: int, trigger: int | np.ndarray, override: Any,
+                 phase: int | np.ndarray, row: int | np.ndarray,
+                 mode_uncertain: bool | np.ndarray = False) -> None:
+        self.k, self.trigger, self._override = k, trigger, override
+        self.phase, self.row, self.mode_uncertain = phase, row, mode_uncertain
 
     def payload(self) -> dict[str, Any]:
         """Field name -> value: ``trigger``, ``phase``, ``row``, ``mode_uncertain``,

@@ -37,7 +37,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -45,6 +44,7 @@ import numpy as np
 from fd_monitor.core.filters import as_floats, linear_map
 from fd_monitor.core.gap import gap_values
 from fd_monitor.core.hybrid_observer import ModeDynamics
+from fd_monitor.core.lazy import LazyArray, Output
 from fd_monitor.core.thresholds import DiagnosisGains
 from fd_monitor.model.system import System
 
@@ -120,8 +120,7 @@ def project(sigma: np.ndarray, step: np.ndarray, Gamma: np.ndarray,
     return out
 
 
-@dataclass(frozen=True)
-class BiasOutput:
+class BiasOutput(Output):
     """Estimator output at sample k (published as the bias estimate).
 
     Attributes
@@ -139,11 +138,17 @@ class BiasOutput:
     :meth:`payload` names the fields (:mod:`fd_monitor.wire.topics`: their topic).
     """
 
-    k: int
-    sigma_hat: np.ndarray
-    isolated: np.ndarray
-    active: bool | np.ndarray
-    k_detect: int | np.ndarray
+    __slots__ = ("_isolated", "_sigma_hat", "active", "k", "k_detect")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("sigma_hat", "isolated", "active", "k_detect")
+    FIELDS = ("k", "sigma_hat", "isolated", "active", "k_detect")
+    sigma_hat = LazyArray()
+    isolated = LazyArray()
+
+    def __init__(self, k: int, sigma_hat: Any, isolated: Any, active: bool | np.ndarray,
+                 k_detect: int | np.ndarray) -> None:
+        self.k, self._sigma_hat, self._isolated = k, sigma_hat, isolated
+        self.active, self.k_detect = active, k_detect
 
     def payload(self) -> dict[str, Any]:
         """Field name -> value: ``sigma_hat``, ``isolated``, ``active``, ``k_detect``."""
@@ -359,7 +364,7 @@ class BiasEstimator:
         sig = self._sigma1
         ran = k - self._k_detect1 >= g.isolation_delay
         iso = [ran and abs(a) > t for a, t in zip(sig, self._iso_thr1)]
-        return BiasOutput(k, np.array(sig), np.array(iso), True, self._k_detect1), sig
+        return BiasOutput(k, sig, iso, True, self._k_detect1), sig
 
     def _presmooth1(self, u: list[float], y: list[float], mode: int) -> None:
         """Delayed small-gain observer (single stream): z estimates x at the oldest buffered

@@ -13,12 +13,12 @@ R_{i,k}``: no latching (a per-sample flag, as published).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from fd_monitor.core.filters import FilterBank, FilterSpec, FloatFilter, as_floats
+from fd_monitor.core.lazy import LazyArray, Output
 from fd_monitor.core.thresholds import DiagnosisGains
 from fd_monitor.model.system import System
 
@@ -31,8 +31,7 @@ def no_override(ny: int, batch: int | None = None) -> np.ndarray:
     return np.full(ny if batch is None else (batch, ny), np.nan)
 
 
-@dataclass(frozen=True)
-class DetectorOutput:
+class DetectorOutput(Output):
     """Detector output at sample k.
 
     Attributes
@@ -50,15 +49,25 @@ class DetectorOutput:
         (ny,) bool, |r_k| > R_k.
 
     :meth:`payload` names the fields; :mod:`fd_monitor.wire.topics` says which topic
-    carries which.
+    carries which. The arrays may be given as lists (made arrays on first read:
+    :mod:`fd_monitor.core.lazy`).
     """
 
-    k: int
-    residual: np.ndarray
-    w: np.ndarray
-    threshold: np.ndarray
-    nominal: np.ndarray
-    alarm: np.ndarray
+    __slots__ = ("_alarm", "_nominal", "_residual", "_threshold", "_w", "k")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("residual", "w", "threshold", "nominal", "alarm")
+    FIELDS = ("k", "residual", "w", "threshold", "nominal", "alarm")
+    residual = LazyArray()
+    w = LazyArray()
+    threshold = LazyArray()
+    nominal = LazyArray()
+    alarm = LazyArray()
+
+    def __init__(self, k: int, residual: Any, w: Any, threshold: Any, nominal: Any,
+                 alarm: Any) -> None:
+        self.k = k
+        self._residual, self._w, self._threshold = residual, w, threshold
+        self._nominal, self._alarm = nominal, alarm
 
     def payload(self) -> dict[str, Any]:
         """Field name -> value: ``residual``, ``w``, ``threshold``, ``nominal``, ``alarm``."""
@@ -130,8 +139,7 @@ class ResidualDetector:
             self._nominal1 = nominal
         R = [n if o != o else (n if n >= o else o) for n, o in zip(nominal, override)]
         alarm = [abs(a) > b for a, b in zip(r, R)]
-        return (DetectorOutput(k, np.array(r), np.array(w), np.array(R), np.array(nominal),
-                               np.array(alarm)), r, w, nominal, alarm)
+        return DetectorOutput(k, r, w, R, nominal, alarm), r, w, nominal, alarm
 
     def step_batch(self, k: int, y_tilde: np.ndarray, x_hat: np.ndarray, mode: np.ndarray,
                    override: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -20,14 +20,16 @@ takes and returns 1-D arrays (the node / :class:`~fd_monitor.core.monitor.Monito
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any
+import math
+import operator
+from collections.abc import Callable, Sequence
+from typing import Any, cast
 
 import numpy as np
 
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.filters import as_floats
+from fd_monitor.core.lazy import LazyArray, Output
 from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.plausibility import Plausibility
 from fd_monitor.model.nonlinear import get_model
@@ -37,6 +39,10 @@ __all__ = ["HybridObserver", "ModeDynamics", "ObserverOutput", "NO_TRIGGER"]
 
 #: Trigger value meaning "no autonomous guard event".
 NO_TRIGGER = -1
+
+
+#: Compiled single-stream steps by (model, dt, parameters): see ModeDynamics.
+_COMPILED: dict[tuple[Any, ...], Callable[[Sequence[float], Sequence[float]], list[float]]] = {}
 
 
 class ModeDynamics:
@@ -71,6 +77,18 @@ class ModeDynamics:
         self._floats = None if self._model is None else self._model.step_floats
         self._mode_params = [{k: float(v[q]) for k, v in self._table.items()}
                              for q in range(len(system.modes))] if self._floats else []
+        # ... compiled once per mode where the model can (the parameters' work done here)
+        comp = None if self._model is None else self._model.compile_floats
+        self._steps1 = []
+        if comp is not None and self._model is not None:
+            for p in self._mode_params:
+                # compiled once per process and parameter set (observer and estimator share)
+                key = (self._model.name, self.dt, tuple(sorted(p.items())))
+                if key not in _COMPILED:
+                    _COMPILED[key] = comp(p, self.dt)
+                self._steps1.append(_COMPILED[key])
+        if self._model is None and not self._steps1:
+            self._steps1 = _scalar_linear_steps(self.plant)
 
     def __call__(self, q: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(N,) int modes, (N, n) states, (N, nu) inputs -> (N, n) next states."""
@@ -88,6 +106,8 @@ class ModeDynamics:
         The model's ``step_floats`` when it has one (bit-identical to the batch call),
         else the batch call on a batch of one.
         """
+        if self._steps1:
+            return self._steps1[q](x, u)
         if self._floats is not None:
             return self._floats(x, u, self._mode_params[q], self.dt)
         return list(self(np.array([q]), np.array([x], dtype=float).reshape(1, -1),
@@ -95,21 +115,52 @@ class ModeDynamics:
 
 
 
-def _holds(v: float, op: str, value: float) -> bool:
-    """``v op value`` of a guard condition."""
-    if op == "<":
-        return v < value
-    if op == "<=":
-        return v <= value
-    if op == ">":
-        return v > value
-    if op == ">=":
-        return v >= value
-    return v == value
+def excess_map(lo: Sequence[float], hi: Sequence[float]
+               ) -> Callable[[Sequence[float]], list[float]]:
+    """``f(z) = [z_i - min(max(z_i, lo_i), hi_i)]`` (the signed excess over a box), compiled
+    once with the bounds as constants: ``a if a > v else v`` is what ``max(v, a)`` returns
+    (``b if b < m else m`` for ``min(m, b)``), NaN included; an infinite bound is no test."""
+    terms = []
+    for i, (a, b) in enumerate(zip(lo, hi)):
+        m = f"z[{i}]" if a == -math.inf else f"({a!r} if {a!r} > z[{i}] else z[{i}])"
+        terms.append(f"z[{i}] - {m}" if b == math.inf else
+                     f"z[{i}] - ({b!r} if {b!r} < (m := {m}) else m)")
+    fn = eval(f"lambda z: [{', '.join(terms) or ''}]", {"inf": math.inf})
+    return cast(Callable[[Sequence[float]], list[float]], fn)
 
 
-@dataclass(frozen=True)
-class ObserverOutput:
+def _scalar_linear_steps(plant: SampledPlant) -> list[Callable[[Sequence[float],
+                                                                 Sequence[float]], list[float]]]:
+    """Per mode ``step(x, u) = [Ad x + Bd u + cd]`` on Python floats for a plant of one state
+    and at most one input whose modes are all linear and constant ([] otherwise).
+
+    :meth:`SampledPlant.step` computes ``x @ Ad.T + u @ Bd.T + cd`` (no disturbance, no
+    process fault in the observer): with one state and one input each product is a single
+    multiplication, so there is no summation order to match and the float form has the batch
+    path's bits (``x * a + u * b + c``; ``+ 0.0`` for ``u @ Bd.T`` without inputs) without
+    its numpy calls. Larger linear modes keep the batch path (a matrix product's summation
+    order is the BLAS library's).
+    """
+    s = plant.system
+    if s.n != 1 or s.nu > 1 or any(m.Ad is None for m in plant.modes) or any(plant.lpv_modes):
+        return []
+    steps = []
+    for dm in plant.modes:
+        assert dm.Ad is not None
+        a, c = float(dm.Ad[0, 0]), float(dm.cd[0])
+        bu = f"u[0] * {float(dm.Bd[0, 0])!r}" if s.nu else "0.0"
+        fn = eval(f"lambda x, u: [x[0] * {a!r} + {bu} + {c!r}]", {"inf": math.inf,
+                                                                   "nan": math.nan})
+        steps.append(cast(Callable[[Sequence[float], Sequence[float]], list[float]], fn))
+    return steps
+
+
+#: A guard condition's comparison by its ``op`` (anything else: ``==``, as
+#: :meth:`~fd_monitor.core.plant.SampledPlant.next_mode` compares).
+_OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
+
+
+class ObserverOutput(Output):
     """Observer output at sample k (published as the state estimate).
 
     Attributes
@@ -130,11 +181,18 @@ class ObserverOutput:
     :meth:`payload` names the fields (:mod:`fd_monitor.wire.topics`: their topic).
     """
 
-    k: int
-    mode: int | np.ndarray
-    x_hat: np.ndarray
-    y_tilde: np.ndarray
-    outside: np.ndarray | None = None
+    __slots__ = ("_outside", "_x_hat", "_y_tilde", "k", "mode")
+    #: the keys of :meth:`payload`, in its order
+    payload_names = ("mode", "x_hat", "y_tilde")
+    FIELDS = ("k", "mode", "x_hat", "y_tilde", "outside")
+    x_hat = LazyArray()
+    y_tilde = LazyArray()
+    outside = LazyArray()
+
+    def __init__(self, k: int, mode: int | np.ndarray, x_hat: Any, y_tilde: Any,
+                 outside: Any = None) -> None:
+        self.k, self.mode, self._x_hat, self._y_tilde = k, mode, x_hat, y_tilde
+        self._outside = outside
 
     def payload(self) -> dict[str, Any]:
         """Field name -> value: ``mode``, ``x_hat``, ``y_tilde``."""
@@ -182,12 +240,17 @@ class HybridObserver:
         self._controlled = [(g.source, g.target, [(c.index, c.op, float(c.value))
                                                   for c in g.conditions])
                             for g in system.guards if g.kind == "controlled"]
+        # ... per source mode, in file order, with the comparison as a function
+        self._controlled1 = [[(t, [(i, _OPS.get(op, operator.eq), v) for i, op, v in conds])
+                              for src, t, conds in self._controlled if src == q]
+                             for q in range(s)]
         self._C = [None if m.C.shape[0] == m.C.shape[1] and np.array_equal(m.C, np.eye(
             m.C.shape[0])) else m.C for m in system.modes]
         r = region
         self._box = [] if r is None else [
             (r.state_lo[q].tolist() + r.input_lo[q].tolist(),
              r.state_hi[q].tolist() + r.input_hi[q].tolist()) for q in range(s)]
+        self._excess1 = [excess_map(lo, hi) for lo, hi in self._box]
         self.reset()
 
     def reset(self) -> None:
@@ -228,20 +291,20 @@ class HybridObserver:
         x_hat = y_t if self.k_next is None else self._x_next1
         self._x_next1 = self.f.step1(q, y_t, u)
         qn = q
-        for src, target, conds in self._controlled:
-            if src == q and qn == q:
-                for i, op, v in conds:
-                    if not _holds(u[i], op, v):
-                        break
-                else:
-                    qn = target
+        for target, conds in self._controlled1[q]:      # the first guard whose test holds
+            for i, op, v in conds:
+                if not op(u[i], v):
+                    break
+            else:
+                qn = target
+                if qn != q:                              # a later guard no longer applies
+                    break
         self._q_mid1 = qn
         self.k_next = k + 1
         out = None
         if self._box:
-            lo, hi = self._box[q]
-            out = np.array([v - min(max(v, a), b) for v, a, b in zip(x_hat + u, lo, hi)])
-        return ObserverOutput(k, q, np.array(x_hat), np.array(y_t), out), x_hat, y_t
+            out = self._excess1[q](x_hat + u)
+        return ObserverOutput(k, q, x_hat, y_t, out), x_hat, y_t
 
     def _apply_trigger(self, q: np.ndarray, trigger: np.ndarray) -> np.ndarray:
         t = np.where(trigger >= 0, trigger, len(self.system.guards))

@@ -40,8 +40,7 @@ changes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -50,6 +49,7 @@ from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.bias_estimator import BiasEstimator, BiasOutput
 from fd_monitor.core.detector import DetectorOutput, ResidualDetector, no_override
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
+from fd_monitor.core.lazy import Output
 from fd_monitor.core.thresholds import DiagnosisGains, as_gains
 from fd_monitor.model.errors import MessageError
 from fd_monitor.model.system import System
@@ -117,8 +117,7 @@ def validate_sample(system: System, k: Any, u: Any, y: Any,
     return (ki, validate_vector("u", u, system.nu, ki), validate_vector("y", y, system.ny, ki))
 
 
-@dataclass(frozen=True)
-class MonitorOutput:
+class MonitorOutput(Output):
     """Everything the chain produces at sample k.
 
     Attributes
@@ -130,11 +129,13 @@ class MonitorOutput:
     estimator : BiasOutput
     """
 
-    k: int
-    observer: ObserverOutput
-    detector: DetectorOutput
-    agei: AgeiOutput
-    estimator: BiasOutput
+    __slots__ = ("agei", "detector", "estimator", "k", "observer")
+    FIELDS = ("k", "observer", "detector", "agei", "estimator")
+
+    def __init__(self, k: int, observer: ObserverOutput, detector: DetectorOutput,
+                 agei: AgeiOutput, estimator: BiasOutput) -> None:
+        self.k, self.observer, self.detector, self.agei = k, observer, detector, agei
+        self.estimator = estimator
 
     @property
     def alarm(self) -> np.ndarray:
@@ -179,6 +180,7 @@ class Monitor:
         self.detector = ResidualDetector(system, self.gains)
         self.agei = Agei(system, self.gains, enabled=agei)
         self.estimator = BiasEstimator(system, self.gains)
+        self._nu, self._ny = system.nu, system.ny
         self.reset()
 
     def reset(self) -> None:
@@ -251,19 +253,19 @@ class Monitor:
         # of the batch path for one run, bit for bit, without numpy calls per sample.
         if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
             k = validate_sample(self.system, k, u, y, self._k_next)[0]
-        uf = sample_floats("u", u, self.system.nu, k)
-        yf = sample_floats("y", y, self.system.ny, k)
+        uf = sample_floats("u", u, self._nu, k)
+        yf = sample_floats("y", y, self._ny, k)
         obs, x_hat, y_t = self.observer.step1(k, uf, yf, self._sigma, self._trigger)
-        q = cast(int, obs.mode)                  # single stream: Python numbers
+        q: int = obs.mode                        # type: ignore[assignment]  # one stream: int
         det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
         ag, self._override = self.agei.step1(k, q, w, r, nominal)
-        hold = cast(bool, ag.mode_uncertain)
+        hold: bool = ag.mode_uncertain           # type: ignore[assignment]  # one stream
         if self.estimator._fast:
             est, self._sigma = self.estimator.step1(k, uf, yf, q, alarm, hold)
         else:
             est = self.estimator.step(k, np.array(uf), np.array(yf), q, det.alarm, hold)
             self._sigma = est.sigma_hat.tolist()
-        self._trigger = cast(int, ag.trigger)
+        self._trigger = ag.trigger               # type: ignore[assignment]  # one stream
         self._k_next = k + 1
         return MonitorOutput(k, obs, det, ag, est)
 

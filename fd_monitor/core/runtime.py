@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -60,6 +60,7 @@ from fd_monitor.core.batch import BatchResult
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.gap import gap_values
 from fd_monitor.core.generalized_observer import GeneralizedObserver
+from fd_monitor.core.lazy import Fields, LazyArray, Output
 from fd_monitor.core.monitor import Monitor, sample_floats, validate_sample
 from fd_monitor.core.monitor import run_batch as monitor_run_batch
 from fd_monitor.core.plant import SampledPlant
@@ -75,8 +76,7 @@ __all__ = ["HinfScRuntime", "HminusSwitchedRuntime", "QBRuntime", "Runtime",
            "RuntimeOutput", "RuntimeTrace", "ThresholdsRuntime"]
 
 
-@dataclass(frozen=True)
-class RuntimeOutput:
+class RuntimeOutput(Output):
     """What a runtime produces at sample k.
 
     Attributes
@@ -102,16 +102,60 @@ class RuntimeOutput:
     core : object
         The core object's own output at k (e.g. :class:`~fd_monitor.core.monitor.MonitorOutput`),
         for nodes that publish more than the common fields; None when there is none.
+
+    The arrays may be given as lists (made arrays on first read: :mod:`fd_monitor.core.lazy`).
     """
 
-    k: int
-    residual: np.ndarray
-    threshold: np.ndarray
-    alarm: np.ndarray
-    outside: np.ndarray | None
-    mode: int
-    estimates: Mapping[str, Any] = field(default_factory=dict)
-    core: Any = None
+    __slots__ = (
+        "_alarm",
+        "_outside",
+        "_residual",
+        "_threshold",
+        "core",
+        "estimates",
+        "k",
+        "mode",
+    )
+    FIELDS = ("k", "residual", "threshold", "alarm", "outside", "mode", "estimates", "core")
+    residual = LazyArray()
+    threshold = LazyArray()
+    alarm = LazyArray()
+    outside = LazyArray()
+
+    def __init__(self, k: int, residual: Any, threshold: Any, alarm: Any, outside: Any,
+                 mode: int, estimates: Mapping[str, Any] | None = None,
+                 core: Any = None) -> None:
+        self.k, self._residual, self._threshold, self._alarm = k, residual, threshold, alarm
+        self._outside, self.mode = outside, mode
+        self.estimates: Mapping[str, Any] = {} if estimates is None else estimates
+        self.core = core
+
+
+class _ChainEstimates(Mapping[str, Any]):
+    """:attr:`RuntimeOutput.estimates` of the ``thresholds`` runtime: read from the
+    :class:`~fd_monitor.core.monitor.MonitorOutput` when asked (its arrays are made on first
+    read)."""
+
+    __slots__ = ("_o",)
+    _NAMES = ("x_hat", "sigma_hat", "isolated")
+
+    def __init__(self, o: Any) -> None:
+        self._o = o
+
+    def __getitem__(self, name: str) -> Any:
+        if name == "x_hat":
+            return self._o.observer.x_hat
+        if name == "sigma_hat":
+            return self._o.estimator.sigma_hat
+        if name == "isolated":
+            return self._o.estimator.isolated
+        raise KeyError(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._NAMES)
+
+    def __len__(self) -> int:
+        return len(self._NAMES)
 
 
 @dataclass
@@ -279,7 +323,7 @@ class Runtime:
         """
         raise NotImplementedError
 
-    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+    def payloads(self, out: RuntimeOutput) -> tuple[Mapping[str, Any], ...]:
         """What a live node publishes of ``out``, by field name: ``residual``,
         ``threshold``, ``alarm`` (m,), ``mode``, ``x_hat`` (flattened; zero-length when the
         method has none)."""
@@ -397,9 +441,10 @@ class Runtime:
         outside = None if not self.region_names else np.zeros((K, len(self.region_names)))
         est: dict[str, np.ndarray] = {}
         for j, o in enumerate(outs):
-            res[j], thr[j], alarm[j], mode[j] = o.residual, o.threshold, o.alarm, o.mode
-            if outside is not None and o.outside is not None:
-                outside[j] = o.outside
+            # the stored values (a list is written into the row as its array would be)
+            res[j], thr[j], alarm[j], mode[j] = o._residual, o._threshold, o._alarm, o.mode
+            if outside is not None and o._outside is not None:
+                outside[j] = o._outside
             for name, v in o.estimates.items():
                 a = np.asarray(v)
                 if name not in est:
@@ -521,16 +566,17 @@ class ThresholdsRuntime(Runtime):
              side: Mapping[str, Any] | None = None) -> RuntimeOutput:
         """See :meth:`Runtime.step` (no side signal)."""
         o = self.monitor.step(k, u, y)
-        d = o.detector
-        return RuntimeOutput(o.k, d.residual, d.threshold, d.alarm, o.outside, o.mode,
-                             {"x_hat": o.observer.x_hat, "sigma_hat": o.estimator.sigma_hat,
-                              "isolated": o.estimator.isolated}, o)
+        d, ob = o.detector, o.observer
+        # the stored values (lists on a single stream): an array is made when read
+        return RuntimeOutput(o.k, d._residual, d._threshold, d._alarm, ob._outside, o.mode,
+                             _ChainEstimates(o), o)
 
-    def payloads(self, out: RuntimeOutput) -> tuple[dict[str, Any], ...]:
+    def payloads(self, out: RuntimeOutput) -> tuple[Mapping[str, Any], ...]:
         """The chain's payloads: observer, detector, AGEI, estimator (``out.core``)."""
         o = out.core
-        return (o.observer.payload(), o.detector.payload(), o.agei.payload(),
-                o.estimator.payload())
+        # read when a topic is published (the parts' payload() fields)
+        return tuple(Fields(part, part.payload_names) for part in
+                     (o.observer, o.detector, o.agei, o.estimator))
 
     def bias_estimates(self, estimates: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """sigma^ per output."""
@@ -726,6 +772,10 @@ class HinfScRuntime(Runtime):
         self._Cpinv = np.linalg.pinv(model.C)
         self._plaus = Plausibility(system)
         self._rho_lo, self._rho_hi = model.rho_min.tolist(), model.rho_max.tolist()
+        # the scheduling map and its parameters, looked up once (not per sample)
+        sched = model.scheduling if self.lpv else None
+        self._sched: tuple[Callable[..., Any], dict[str, Any]] | None = None if not sched \
+            else (SCHEDULING_MAPS[str(sched["map"])], dict(sched.get("params") or {}))
         # thresholds in force, armed or not (read-only: every output shares them)
         self._thr = self.bank.thresholds.copy()
         self._thr_off = np.full(len(self.channels), np.inf)
@@ -794,10 +844,14 @@ class HinfScRuntime(Runtime):
         outside = rho = None
         rl: list[float] | None = None
         if self.lpv:
-            raw = self._rho(k, yf, side).tolist()
+            sched = self._sched
+            if sched is not None and (side is None or side.get("rho") is None):
+                raw = np.asarray(sched[0](yf, sched[1]), dtype=float).tolist()  # as _rho
+            else:
+                raw = self._rho(k, yf, side).tolist()
             rl = [min(max(v, a), b) for v, a, b in zip(raw, self._rho_lo, self._rho_hi)]
             rho = np.array(rl)
-            outside = np.array([a - b for a, b in zip(raw, rl)])
+            outside = [a - b for a, b in zip(raw, rl)]     # an array when read
         if self._k0 is None:
             bank.reset(self._Cpinv @ np.array(yf))
             self._k0 = k

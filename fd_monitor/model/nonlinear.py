@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -60,6 +60,8 @@ class NonlinearModel:
     ranges: Mapping[str, tuple[float, float, bool]] = field(default_factory=dict)
     step_floats: Callable[[Sequence[float], Sequence[float], Mapping[str, float], float],
                           list[float]] | None = None
+    compile_floats: Callable[[Mapping[str, float], float], Callable[
+        [Sequence[float], Sequence[float]], list[float]]] | None = None
 
 
 _REGISTRY: dict[str, NonlinearModel] = {}
@@ -196,6 +198,79 @@ def _three_tank_floats(x: Sequence[float], u: Sequence[float], f: Mapping[str, f
     return [h1, h2, h3]
 
 
+def _three_tank_compile(f: Mapping[str, float], dt: float
+                        ) -> Callable[[Sequence[float], Sequence[float]], list[float]]:
+    """:func:`_three_tank_floats` for one parameter set, compiled once: ``step(x, u)``.
+
+    What depends only on the parameters is done here, not per sample: the constants are
+    written into the code (``repr`` round-trips exactly), the four RK4 stages are inlined
+    (no call per stage), and a flow whose area is +0.0 (a dry upper pipe, no leak) is the
+    constant +0.0 it always evaluates to (``0.0 * sqrt(v)``, v finite and >= 0) instead of a
+    square root. Every remaining operation is the one :func:`_three_tank_floats` does, in
+    the same order, so the result is bit-identical for finite inputs (a test checks it on
+    every shipped three_tank mode); the sign of Torricelli's flow is taken by branches
+    that give the same products (``a * 1.0 == a``, ``a * -1.0 == -a``).
+    """
+    pipe, byp, upper, h_up = (float(f[k]) for k in ("pipe_area", "bypass_area",
+                                                     "upper_area", "h_upper"))
+    out, a, g = float(f["outflow_area"]), float(f["tank_area"]), float(f["g"])
+    la = [float(f[f"leak_area_{i}"]) for i in (1, 2, 3)]
+    a13 = pipe + byp
+    g2 = 2.0 * g
+    substeps = int(f["substeps"])
+    h = dt / substeps
+    c = 0.5 * h
+    w = h / 6.0
+
+    def flow(name: str, area: float, d: str) -> list[str]:
+        # area * sign(d) * sqrt(g2 * |d|), the product taken left to right as the original
+        return [f"if {d} > 0.0:", f"    {name} = {area!r} * sqrt({g2!r} * {d})",
+                f"elif {d} < 0.0:", f"    {name} = {-area!r} * sqrt({g2!r} * -{d})",
+                "else:", f"    {name} = {area * 0.0!r} * sqrt({g2!r} * abs({d}))"]
+
+    def zero(v: float) -> bool:
+        return v == 0.0
+
+    def root_term(name: str, area: float, v: str) -> str:
+        # area * sqrt(v), v >= 0 (or -0.0, inf, NaN): with a zero area, area * v has the
+        # same bits (sqrt keeps v's sign, zero, infinity and NaN) without the square root
+        if zero(area):
+            return f"{name} = {area!r} * {v}"
+        return f"{name} = {area!r} * sqrt({v})"
+
+    def rhs(s: str, h1: str, h2: str, h3: str) -> list[str]:
+        L = [f"d13 = {h1} - {h3}", f"d32 = {h3} - {h2}"]
+        L += flow("q13", a13, "d13") + flow("q32", pipe, "d32")
+        L += [f"v = {h3} - {h_up!r}",
+              root_term("q32u", upper, f"({g2!r} * (0.0 if v < 0.0 else v))")]
+        L += [f"p1 = 0.0 if {h1} < 0.0 else {h1}", f"p2 = 0.0 if {h2} < 0.0 else {h2}",
+              f"p3 = 0.0 if {h3} < 0.0 else {h3}"]
+        L += [root_term("q20", out, f"({g2!r} * p2)")]
+        L += [root_term(f"l{i}", ai, f"({g2!r} * p{i})") for i, ai in zip((1, 2, 3), la)]
+        L += [f"a{s} = (q1 - q13 - l1) / {a!r}",
+              f"b{s} = (q2 + q32 + q32u - q20 - l2) / {a!r}",
+              f"c{s} = (q13 - q32 - q32u - l3) / {a!r}"]
+        return L
+
+    body = ["h1, h2, h3 = x[0], x[1], x[2]",
+            "q1 = u[0]", "if 0.0 > q1:", "    q1 = 0.0",
+            "q2 = u[1]", "if 0.0 > q2:", "    q2 = 0.0",
+            f"for _ in range({substeps}):"]
+    stages = rhs("1", "h1", "h2", "h3")
+    for s, prev, step in (("2", "1", c), ("3", "2", c), ("4", "3", h)):
+        # the stage's state, computed once as the argument of rhs() is
+        stages += [f"x1 = h1 + {step!r} * a{prev}", f"x2 = h2 + {step!r} * b{prev}",
+                   f"x3 = h3 + {step!r} * c{prev}", *rhs(s, "x1", "x2", "x3")]
+    stages += [f"h1 = h1 + {w!r} * (a1 + 2.0 * a2 + 2.0 * a3 + a4)",
+               f"h2 = h2 + {w!r} * (b1 + 2.0 * b2 + 2.0 * b3 + b4)",
+               f"h3 = h3 + {w!r} * (c1 + 2.0 * c2 + 2.0 * c3 + c4)"]
+    body += ["    " + s for s in stages] + ["return [h1, h2, h3]"]
+    src = "def step(x, u, sqrt=sqrt):\n" + "\n".join("    " + s for s in body) + "\n"
+    ns: dict[str, Any] = {"sqrt": math.sqrt}
+    exec(src, ns)
+    return cast(Callable[[Sequence[float], Sequence[float]], list[float]], ns["step"])
+
+
 register_model(NonlinearModel(
     name="three_tank",
     n_states=3,
@@ -205,6 +280,7 @@ register_model(NonlinearModel(
     step=_three_tank_step,
     rhs=_three_tank_rhs,
     step_floats=_three_tank_floats,
+    compile_floats=_three_tank_compile,
     defaults={"leak_area_1": 0.0, "leak_area_2": 0.0, "leak_area_3": 0.0, "g": GRAVITY,
               "substeps": 1.0},
     description=(

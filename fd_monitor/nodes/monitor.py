@@ -45,6 +45,7 @@ from typing import Any, cast
 import numpy as np
 from rclpy.qos import QoSProfile
 
+from fd_monitor.core.lazy import stored_list
 from fd_monitor.core.methods import METHODS, RUNTIMES, load_gains, runtime_class, runtime_for
 from fd_monitor.core.runtime import ThresholdsRuntime
 from fd_monitor.core.thresholds import as_gains
@@ -284,8 +285,9 @@ class MonitorNode(FdNode):
         except MessageError as exc:
             # refused by the runtime: reported like a bad message, and a hole at k
             raise ImplausibleError(str(exc)) from None
-        pays = (*rt.payloads(out), {"restart": self.restarting, "bridge": self.bridging})
+        pays: Any = None                 # built for the first topic someone subscribes to
         if self._plan is None:
+            pays = (*rt.payloads(out), {"restart": self.restarting, "bridge": self.bridging})
             self._plan = [(pub, SerializedArray(lay.labels), lay.sources(pays), t.next_sample)
                           for pub, t, lay in zip(self.pubs, self.outputs, self._layouts(out))]
         stamps = (k, k + 1)
@@ -294,6 +296,9 @@ class MonitorNode(FdNode):
             # costs ~1 us, a message 5-10 us to assemble, pack and hand to DDS)
             if not pub.get_subscription_count():
                 continue
+            if pays is None:
+                pays = (*rt.payloads(out), {"restart": self.restarting,
+                                            "bridge": self.bridging})
             # values as Python numbers (bools and ints pack exactly as float64)
             data: list[Any] = []
             for i, name, scalar in src:
@@ -304,23 +309,27 @@ class MonitorNode(FdNode):
                     data.extend(v.tolist())
             pub.publish(ser.encode(stamps[nxt], data))
         self._diagnose(k, out)
+        # the stored lists: no array made for the verdict's few values
         fault = self.fault
         assert fault is not None                       # configured
         if out.core is not None and self.runtime.CHAIN:
             est = out.core.estimator
-            fault.step(k, out.alarm, est.sigma_hat, est.isolated)
+            fault.step(k, stored_list(out, "alarm"), stored_list(est, "sigma_hat"),
+                       stored_list(est, "isolated"))
         else:
-            fault.step(k, out.alarm)
+            fault.step(k, stored_list(out, "alarm"))
 
     def _diagnose(self, k: int, out: Any) -> None:
         """A full report when a status can change (alarms, mode, AGEI phase, estimator,
         certified region) and at least every DIAG_REFRESH s; else the channels are only
         marked fresh. /diagnostics goes out every diagnostics_period anyway."""
-        alarm = out.alarm.tolist()
-        outside = out.outside is not None and bool((out.outside != 0.0).any())
+        alarm = stored_list(out, "alarm")
+        excess = stored_list(out, "outside")
+        outside = excess is not None and any(v != 0.0 for v in excess)
         core = out.core if self.runtime.CHAIN else None
         key = (alarm, out.mode, outside, None if core is None else
-               (core.agei.phase, core.estimator.active, core.estimator.isolated.tolist()))
+               (core.agei.phase, core.estimator.active, stored_list(core.estimator,
+                                                                    "isolated")))
         now = time.monotonic()
         if key == self._last_key and now < self._next_report:
             for ch in self._channels_all:
