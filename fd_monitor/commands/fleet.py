@@ -224,13 +224,14 @@ def fleet_jobs(sources: list[str], gains: str | None, analyze: Callable[..., Any
 
 
 def analyze_fleet(client: Any, jobs: list[dict[str, Any]], out: str | Path,
-                  progress: bool = False) -> tuple[TaskRun, FleetTables]:
+                  progress: bool = False, per_worker: int = 4) -> tuple[TaskRun, FleetTables]:
     """Run the jobs on ``client`` and write the tables into ``out`` as they finish.
 
     The largest bags go first and the bags are sent in batches (:func:`analyze_batch`,
     :func:`~fd_monitor.analysis.scaleout.guided_batches`: large while many remain, single
     bags at the end), so the workers finish together and many small bags do not cost one
-    task each. The rows are the same whatever the batches (each bag is analysed alone).
+    task each (``per_worker``: batches of the remaining bags per worker). The rows are the
+    same whatever the batches (each bag is analysed alone).
 
     Returns
     -------
@@ -240,7 +241,8 @@ def analyze_fleet(client: Any, jobs: list[dict[str, Any]], out: str | Path,
     """
     workers = max(1, len(client.scheduler_info().get("workers", {})))
     order = sorted(jobs, key=lambda j: -_bag_bytes(j["bag"]))
-    batches = [order[b.start:b.stop] for b in guided_batches(len(order), workers)]
+    batches = [order[b.start:b.stop] for b in guided_batches(len(order), workers,
+                                                                  per_worker=per_worker)]
     bar = RateBar(len(jobs), "analyze", "bags", enabled=progress)
     with FleetTables(out) as tables:
         run = run_tasks(client, analyze_batch, batches,
