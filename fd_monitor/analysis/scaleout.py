@@ -106,8 +106,10 @@ def _local_cluster(workers: int | None) -> tuple[Any, Any]:
     main = threading.current_thread() is threading.main_thread()
     before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
     try:
+        # CRITICAL: a worker's heartbeat that meets the closing scheduler logs a traceback
+        # at ERROR; a task's own failure comes back to the client, which reports it
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR,
+                               dashboard_address=":0", silence_logs=logging.CRITICAL,
                                env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
                                     "MKL_NUM_THREADS": "1"})
     finally:
