@@ -35,7 +35,12 @@ from fd_monitor.analysis.fleet import (
     fleet_summary,
     read_tables,
 )
-from fd_monitor.analysis.scaleout import guided_batches, open_client, run_tasks
+from fd_monitor.analysis.scaleout import (
+    LEAN_CONFIG,
+    guided_batches,
+    open_client,
+    run_tasks,
+)
 from fd_monitor.commands.analyze import analyze_bag
 from fd_monitor.commands.cli import main
 from fd_monitor.commands.fleet import (
@@ -137,7 +142,11 @@ def dask_cluster():
     dask = str(Path(sys.executable).parent / "dask")
     port = _free_port()
     addr = f"tcp://127.0.0.1:{port}"
-    env = dict(os.environ, OMP_NUM_THREADS="1")
+    # the embedded cluster's quiet settings (LEAN_CONFIG), as Dask reads them from the
+    # environment: the three processes idle while the embedded cluster works
+    env = dict(os.environ, OMP_NUM_THREADS="1",
+               **{"DASK_" + k.upper().replace(".", "__").replace("-", "_"): str(v)
+                  for k, v in LEAN_CONFIG.items()})
     quiet = {"env": env, "cwd": REPO, "stdout": subprocess.DEVNULL,
              "stderr": subprocess.DEVNULL}
     procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
