@@ -1,8 +1,9 @@
 """``python -m fd_monitor analyze BAG_OR_DIR_OR_GLOB ... --gains G``: a fleet's bags on Dask.
 
 ``analyze`` with more than one bag, a folder of bags, a glob pattern or any of the options
-below runs here: one task per bag (:func:`analyze_task`, the single-bag ``analyze --json``
-document reduced to table rows by :mod:`fd_monitor.analysis.fleet`) on an embedded Dask
+below runs here: the bags in batches, one task each (:func:`analyze_batch`; each bag by
+:func:`analyze_task`, the single-bag ``analyze --json`` document reduced to table rows by
+:mod:`fd_monitor.analysis.fleet`; the gain file loaded once per worker) on an embedded Dask
 ``LocalCluster`` (one worker per core; ``--workers N``) or on a running Dask scheduler
 (``--scheduler tcp://HOST:PORT``; its workers need the fd_monitor package and the bags at the
 same paths). Results are written to ``--out``'s Parquet tables as they finish; a bag that
