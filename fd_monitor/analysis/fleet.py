@@ -2,7 +2,8 @@
 
 ``python -m fd_monitor analyze BAG_OR_DIR_OR_GLOB ... --gains G`` over many bags runs
 batches of bags as tasks (:mod:`fd_monitor.commands.fleet`, on
-:mod:`fd_monitor.analysis.scaleout`) and reduces each bag's ``analyze --json`` document to table rows here:
+:mod:`fd_monitor.analysis.scaleout`) and reduces each bag's ``analyze --json`` document
+to table rows here:
 
 * :func:`find_bags` -- bags from paths, folders (searched recursively) and glob patterns;
 * :class:`FleetMap` -- a mapping file: the robot (or the bag's path, or a key of its
