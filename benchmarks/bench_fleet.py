@@ -378,12 +378,14 @@ def scaling(args: argparse.Namespace) -> None:
     print()
     print("## summary: 2 vs 1 worker (target >= 1.8x)")
     print("| work | wall 1 worker s | wall 2 workers s | wall ratio | ratio the CPU allows on "
-          f"{CORES} idle cores | load before (1 / 2 workers) |\n|---|---|---|---|---|---|")
+          f"{CORES} idle cores | 2 workers: total CPU / bound | load before (1 / 2 workers) |"
+          "\n|---|---|---|---|---|---|---|")
     for what, (wall, cpu) in ((f"fleet, {args.bags} bags", f),
                               (f"evaluate, {args.runs} runs", e)):
         print(f"| {what} | {wall[0].wall:.1f} | {wall[1].wall:.1f} | "
               f"{wall[0].wall / wall[1].wall:.2f}x | "
-              f"{cpu[0].bound(CORES) / cpu[1].bound(CORES):.2f}x | {wall[0].load_before} / "
+              f"{cpu[0].bound(CORES) / cpu[1].bound(CORES):.2f}x | "
+              f"{cpu[1].total / cpu[1].bound(CORES):.2f}x | {wall[0].load_before} / "
               f"{wall[1].load_before} |")
     print(f"load after: {load()}")
 
