@@ -1,7 +1,8 @@
 """A fleet's bags and a campaign's chunks on Dask (issue 24; doc/howto/fleet.md).
 
-One embedded LocalCluster for the module (start-up is seconds): first with one worker, then
-scaled to two. What must hold: many-bag ``analyze`` gives the same tables with 1 and 2
+Two clusters for the module, started once: the embedded LocalCluster of one worker (as the
+commands start it) and a real ``dask scheduler`` with two ``dask worker`` processes, which
+boot while the first works. What must hold: many-bag ``analyze`` gives the same tables with 1 and 2
 workers as the single-bag ``analyze --json`` of each bag one by one; a corrupt bag among
 them is one row with its error; ``evaluate``'s chunks give identical figures in this process
 and with 1 and 2 workers; and both run through ``--scheduler`` on a real ``dask scheduler``
@@ -34,11 +35,22 @@ from fd_monitor.analysis.fleet import (
     fleet_summary,
     read_tables,
 )
-from fd_monitor.analysis.scaleout import run_tasks
+from fd_monitor.analysis.scaleout import (
+    LEAN_CONFIG,
+    guided_batches,
+    open_client,
+    run_tasks,
+)
 from fd_monitor.commands.analyze import analyze_bag
 from fd_monitor.commands.cli import main
-from fd_monitor.commands.fleet import analyze_fleet, analyze_task, fleet_jobs
+from fd_monitor.commands.fleet import (
+    analyze_fleet,
+    analyze_task,
+    fleet_jobs,
+    load_gains_cached,
+)
 from fd_monitor.core.methods import load_gains
+from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.scenario import load_scenario
 
 pytest.importorskip("distributed")
@@ -124,16 +136,49 @@ def _free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def one_worker(fleet, tmp_path_factory):
-    """The fleet's tables and the short campaign's rows on an embedded LocalCluster of one
-    single-threaded worker process (the API :func:`analyze_fleet`, :func:`run_campaign_on`)."""
-    from distributed import Client, LocalCluster
+def dask_cluster():
+    """A real ``dask scheduler`` and two ``dask worker`` processes on localhost, started at
+    once (they boot while the embedded cluster works); its address."""
+    dask = str(Path(sys.executable).parent / "dask")
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    # the embedded cluster's quiet settings (LEAN_CONFIG), as Dask reads them from the
+    # environment: the three processes idle while the embedded cluster works
+    env = dict(os.environ, OMP_NUM_THREADS="1",
+               **{"DASK_" + k.upper().replace(".", "__").replace("-", "_"): str(v)
+                  for k, v in LEAN_CONFIG.items()})
+    quiet = {"env": env, "cwd": REPO, "stdout": subprocess.DEVNULL,
+             "stderr": subprocess.DEVNULL}
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                               "--no-dashboard", "--dashboard-address", "127.0.0.1:0"],
+                              **quiet)]
+    try:
+        # the workers retry until the scheduler listens
+        procs += [subprocess.Popen([dask, "worker", addr, "--nthreads", "1", "--no-nanny",
+                                    "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
+                                    "--name", f"w{i}"], **quiet)
+                  for i in range(2)]
+        yield addr
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:   # a worker slow to close on a loaded
+                p.kill()                        # machine: its results are in already
+                p.wait(timeout=30)
 
+
+@pytest.fixture(scope="module")
+def one_worker(fleet, tmp_path_factory, dask_cluster):
+    """The fleet's tables and the short campaign's rows on the embedded cluster of one
+    worker (:func:`open_client`, as the commands start it; the API :func:`analyze_fleet`
+    with all four bags in one batch, :func:`run_campaign_on`)."""
     out = tmp_path_factory.mktemp("w1")
     jobs = jobs_of(fleet)
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=":0") as lc, Client(lc) as client:
-        run, tables = analyze_fleet(client, jobs, out / "tables")
+    with open_client(1) as client:
+        run, tables = analyze_fleet(client, jobs, out / "tables", per_worker=1)
         rows, done = run_campaign_on(client, load_gains("pwa_cascade_qb"),
                                      _short_scenarios(out), RUNS, **CAMPAIGN)
         # Ctrl-C (KeyboardInterrupt in the result loop) after the first bag: the rest is
@@ -147,57 +192,60 @@ def one_worker(fleet, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def two_workers(fleet, tmp_path_factory, one_worker):
-    """The same through the command line's ``--scheduler`` on a real ``dask scheduler`` and
-    two ``dask worker`` processes on localhost: ``analyze --json`` and ``evaluate --json``
-    documents, and the tables folder."""
+def two_workers(fleet, tmp_path_factory, one_worker, dask_cluster):
+    """The same through the command line's ``--scheduler`` on the real cluster's two
+    workers (one bag a batch): ``analyze --json`` and ``evaluate --json`` documents, and
+    the tables folder."""
     from distributed import Client
 
     out = tmp_path_factory.mktemp("w2")
-    dask = str(Path(sys.executable).parent / "dask")
-    port = _free_port()
-    addr = f"tcp://127.0.0.1:{port}"
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    quiet = {"env": env, "cwd": REPO, "stdout": subprocess.DEVNULL,
-             "stderr": subprocess.DEVNULL}
-    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                               "--no-dashboard", "--dashboard-address", "127.0.0.1:0"],
-                              **quiet)]
-    try:
-        # the workers retry until the scheduler listens
-        procs += [subprocess.Popen([dask, "worker", addr, "--nthreads", "1", "--no-nanny",
-                                    "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
-                                    "--name", f"w{i}"], **quiet)
-                  for i in range(2)]
-        with Client(addr, timeout="60s") as c:
-            c.wait_for_workers(2, timeout=60)
-        docs = []
-        for argv in (["analyze", str(fleet), "--gains", GAINS, "--map",
-                      str(fleet / "fleet_map.yaml"), "--out", str(out / "tables"),
-                      "--no-progress"],
-                     ["evaluate", "pwa_cascade_qb", "--runs", str(RUNS), "--chunk", "2",
-                      "--rho", "0.05,1", "--no-progress",
-                      *[a for sc in _short_scenarios(out) for a in ("-s", sc.source)]]):
-            with contextlib.redirect_stdout(io.StringIO()) as buf:
-                assert main([*argv, "--scheduler", addr, "--json"]) == 0
-            docs.append(json.loads(buf.getvalue()))
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:   # a worker slow to close on a loaded
-                p.kill()                        # machine: its results are in already
-                p.wait(timeout=30)
+    with Client(dask_cluster, timeout="60s") as c:
+        c.wait_for_workers(2, timeout=60)
+    docs = []
+    for argv in (["analyze", str(fleet), "--gains", GAINS, "--map",
+                  str(fleet / "fleet_map.yaml"), "--out", str(out / "tables"),
+                  "--no-progress"],
+                 ["evaluate", "pwa_cascade_qb", "--runs", str(RUNS), "--chunk", "2",
+                  "--rho", "0.05,1", "--no-progress",
+                  *[a for sc in _short_scenarios(out) for a in ("-s", sc.source)]]):
+        with contextlib.redirect_stdout(io.StringIO()) as buf:
+            assert main([*argv, "--scheduler", dask_cluster, "--json"]) == 0
+        docs.append(json.loads(buf.getvalue()))
     return out / "tables", docs[0], docs[1]
+
+
+def test_guided_batches_cover_every_item_once_and_end_with_single_items():
+    for n, w in ((1, 1), (4, 1), (4, 2), (200, 2), (10_000, 2), (10_000, 100), (7, 16)):
+        batches = guided_batches(n, w)
+        assert [i for b in batches for i in b] == list(range(n))
+        sizes = [len(b) for b in batches]
+        assert sizes == sorted(sizes, reverse=True) and max(sizes) <= 16
+        assert sizes[-min(n, w):] == [1] * min(n, w)        # the workers finish together
+    # many more bags than workers: far fewer tasks than bags
+    assert len(guided_batches(10_000, 2)) < 700 and len(guided_batches(200, 2)) == 30
+    assert [len(b) for b in guided_batches(4, 1, per_worker=1)] == [4]
+
+
+def test_gain_file_loaded_once_per_worker_and_again_after_an_edit(tmp_path):
+    src = REPO / "config" / "gains" / "three_tank_thresholds.yaml"
+    g = tmp_path / "g.yaml"
+    g.write_bytes(src.read_bytes())
+    first = load_gains_cached(str(g))
+    assert load_gains_cached(str(g)) is first                # the same objects: not reloaded
+    assert first[0].certificate_status == "verified" and first[1].name == "three_tank"
+    g.write_bytes(src.read_bytes() + b"# edited\n")          # another digest: loaded again
+    again = load_gains_cached(str(g))
+    assert again is not first and again[0].method == first[0].method
+    g.write_bytes(src.read_bytes().replace(b"method: thresholds", b"method: threshold"))
+    with pytest.raises(FdMonitorError):                      # a failure is not cached
+        load_gains_cached(str(g))
 
 
 def test_many_bags_1_and_2_workers_equal_one_by_one_and_a_corrupt_bag_is_a_row(
         one_worker, two_workers, fleet, tmp_path, capsys):
     run1, t1, _r, _d, stop, partial = one_worker
     folder2, doc2, _ev = two_workers
-    assert (run1.workers, run1.done, run1.stopped) == (1, 4, False)
+    assert (run1.workers, run1.done, run1.total, run1.stopped) == (1, 1, 1, False)  # 1 batch
     assert (stop.stopped, stop.done, stop.total) == (True, 0, 4)   # stopped in the 1st callback
     kept, _a = read_tables(partial.folder)
     assert partial.bags == 1 and len(kept) == 1 and kept[0]["bag"] in {j["name"] for j in

@@ -1,8 +1,9 @@
 """A fleet's bags: which robot, which day, which sensor.
 
-``python -m fd_monitor analyze BAG_OR_DIR_OR_GLOB ... --gains G`` over many bags runs one
-task per bag (:mod:`fd_monitor.commands.fleet`, on :mod:`fd_monitor.analysis.scaleout`) and
-reduces each bag's ``analyze --json`` document to table rows here:
+``python -m fd_monitor analyze BAG_OR_DIR_OR_GLOB ... --gains G`` over many bags runs
+batches of bags as tasks (:mod:`fd_monitor.commands.fleet`, on
+:mod:`fd_monitor.analysis.scaleout`) and reduces each bag's ``analyze --json`` document
+to table rows here:
 
 * :func:`find_bags` -- bags from paths, folders (searched recursively) and glob patterns;
 * :class:`FleetMap` -- a mapping file: the robot (or the bag's path, or a key of its
@@ -366,9 +367,10 @@ def _plain(v: Any) -> Any:
 class FleetTables:
     """The two Parquet tables of a fleet run, written as rows arrive.
 
-    Rows are buffered and written as a row group every ``flush_every`` bags, and at
-    :meth:`close`; a run stopped with Ctrl-C closes them, so the files hold every bag that
-    finished. Rows are in completion order (sort by ``bag`` to compare runs).
+    Rows (one at a time, :meth:`add`, or Arrow tables of a batch, :meth:`add_tables`) are
+    buffered and written as a row group every ``flush_every`` bags, and at :meth:`close`;
+    a run stopped with Ctrl-C closes them, so the files hold every bag that finished.
+    Rows are in completion order (sort by ``bag`` to compare runs).
 
     Parameters
     ----------
@@ -385,6 +387,7 @@ class FleetTables:
         self._writers = [pq.ParquetWriter(self.folder / BAGS_FILE, self._schemas[0]),
                          pq.ParquetWriter(self.folder / ALARMS_FILE, self._schemas[1])]
         self._buf: list[list[dict[str, Any]]] = [[], []]
+        self._tables: list[list[Any]] = [[], []]
         self.flush_every = max(1, int(flush_every))
         self._pending = 0
         self.bags = 0
@@ -403,14 +406,30 @@ class FleetTables:
         if self._pending >= self.flush_every:
             self.flush()
 
+    def add_tables(self, bags: Any, alarms: Any) -> None:
+        """Rows already in Arrow tables of :func:`bag_schema` and :func:`alarm_schema` (a
+        batch of bags analysed by a worker: no per-row work here)."""
+        self._tables[0].append(bags)
+        self._tables[1].append(alarms)
+        self.bags += bags.num_rows
+        self.alarms += alarms.num_rows
+        self.errors += bags.num_rows - bags.column("error").null_count
+        self._pending += bags.num_rows
+        if self._pending >= self.flush_every:
+            self.flush()
+
     def flush(self) -> None:
         """Write the buffered rows as a row group of each table."""
         import pyarrow as pa
 
-        for w, schema, buf in zip(self._writers, self._schemas, self._buf):
+        for w, schema, buf, tabs in zip(self._writers, self._schemas, self._buf,
+                                        self._tables):
             if buf:
-                w.write_table(pa.Table.from_pylist(buf, schema=schema))
+                tabs.append(pa.Table.from_pylist(buf, schema=schema))
                 buf.clear()
+            if tabs:
+                w.write_table(pa.concat_tables(tabs) if len(tabs) > 1 else tabs[0])
+                tabs.clear()
         self._pending = 0
 
     def close(self) -> None:

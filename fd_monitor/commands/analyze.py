@@ -122,12 +122,15 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
 
 
 def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
-                agei: bool = True, adapter: str | None = None) -> dict[str, Any]:
+                agei: bool = True, adapter: str | None = None,
+                loaded: tuple[Any, System] | None = None) -> dict[str, Any]:
     """Run the gain file's monitor over a bag (:func:`fd_monitor.analysis.offline.run_bag`) and
     summarise (:func:`fd_monitor.analysis.summary.analyze_run`).
 
     Bad input messages (NaN/Inf, wrong length, duplicates, out-of-order stamps, holes) are
-    reported in ``input_errors`` and ``restarts``, never fatal.
+    reported in ``input_errors`` and ``restarts``, never fatal. ``loaded``: the gain file
+    and plant already loaded and verified from these sources (a fleet worker's cache,
+    :func:`fd_monitor.commands.fleet.load_gains_cached`), not read again.
 
     Raises
     ------
@@ -139,9 +142,11 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     from fd_monitor.core.methods import load_gains
     from fd_monitor.model.system import gain_system
 
-    raw = load_gains(gains_source, verify=False)
-    system = gain_system(raw, system_source)
-    gains = load_gains(gains_source, system)   # plant SHA-256 and certificate
+    if loaded is None:
+        raw = load_gains(gains_source, verify=False)
+        system = gain_system(raw, system_source)
+        loaded = load_gains(gains_source, system), system   # plant SHA-256, certificate
+    gains, system = loaded
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     if adapter is not None:                     # the robot's topics (wire/adapters.py)
