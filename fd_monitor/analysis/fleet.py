@@ -19,6 +19,9 @@ to table rows here:
   ``alarms_over_time.png``.
 
 Nothing here imports rclpy.
+
+Why one module of ~610 lines: the fleet's tables (schemas, one row per bag and per alarm
+episode), its mapping file, summary and report page are one product; each function is short.
 """
 
 from __future__ import annotations

@@ -38,6 +38,9 @@ A stable plant identified from closed-loop data may get a slowest eigenvalue a h
 
 Every bound is empirical: it covers the held-out data it was computed from, times the margin;
 its sample count is returned with it.
+
+Why one module of ~780 lines: the identification numerics are small pure functions
+(fits, bounds, simulation, covariance, physical parameters) that share one model type.
 """
 
 from __future__ import annotations

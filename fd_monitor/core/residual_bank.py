@@ -36,6 +36,9 @@ uncertain banks) and to :data:`TABLE_TOL` times the size of ``[x^; u; y]`` (LPV 
 ``test/test_fast_paths.py`` checks it on every shipped gain file. The model and the
 generators are :mod:`fd_monitor.core.hinf_model`; the certificate the loader re-verifies is
 :mod:`fd_monitor.core.hinf_certificate`.
+
+Why one module of ~550 lines: the bank and its fast path (the discretisation polynomial,
+its a-priori bound) are one runtime, with the reference step kept beside the fast one.
 """
 
 from __future__ import annotations
