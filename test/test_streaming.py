@@ -1,11 +1,14 @@
 """Bounded-memory ``analyze`` and ``simulate`` (issue 24 item 4): the same results in chunks.
 
-``analyze`` reads, steps and reduces a bag in chunks (:mod:`fd_monitor.analysis.streaming`)
-and must give the document of the whole-bag path (:func:`~fd_monitor.analysis.offline.run_bag`
-+ :func:`~fd_monitor.analysis.summary.analyze_run`) bit for bit, here with chunks of 7 so
-every boundary case (an alarm episode, a hole, a region excursion across two chunks) is hit;
-``simulate`` writes its bag in chunks and must write the same bytes. Memory and time against
-the bag's length: ``benchmarks/bench_fleet.py``.
+The contract reader (:func:`fd_monitor.analysis.reader.read_pass`) reads a bag in batches of
+records, releases in-step samples without buffering them
+(:meth:`~fd_monitor.wire.join.StampJoin.release_complete`), and
+:func:`~fd_monitor.analysis.offline.run_bag` stacks the runtime's outputs in chunks (all of
+them, or only what ``analyze`` reads). With batches and chunks of 7 (every boundary case: an
+alarm episode, a hole, a region excursion across two chunks) both must give the run of the
+whole bag read at once, message by message through the join, bit for bit; ``simulate`` writes
+its bag in chunks and must write the same bytes. Memory and time against the bag's length:
+``benchmarks/bench_analyze_memory.py``.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fd_monitor.analysis import generate, streaming
+from fd_monitor.analysis import generate, offline, reader
 from fd_monitor.analysis.offline import run_bag
 from fd_monitor.analysis.summary import SparseRows, analyze_run, region_mark
 from fd_monitor.core.methods import load_gains
@@ -32,15 +35,28 @@ REPO = Path(__file__).resolve().parent.parent
     ("farhat_koenig_fault", "farhat_koenig_hminus_switched"),  # a side signal (mode)
     ("thesis_4_7_overlap", "thesis_4_7_hinf_sc"),
 ])
-def test_streaming_analyze_equals_the_whole_bag_path(bag, gains, monkeypatch):
+def test_chunked_reading_equals_the_whole_bag_read_at_once(bag, gains, monkeypatch):
     path = REPO / "bags" / bag
     system = gain_system(load_gains(gains, verify=False))
     gf = load_gains(gains, system)
-    ref = analyze_run(run_bag(path, gf, system=system))
-    monkeypatch.setattr(streaming, "CHUNK", 7)
-    got = streaming.analyze_streaming(path, gf, system)
+    with monkeypatch.context() as m:             # one batch, one chunk, no in-step release
+        m.setattr(reader, "BATCH", 10 ** 9)
+        m.setattr(offline, "CHUNK", 10 ** 9)
+        m.setattr(reader, "_in_step", lambda *a: False)
+        whole = run_bag(path, gf, system=system)
+    ref = analyze_run(whole)
+    monkeypatch.setattr(reader, "BATCH", 7)
+    monkeypatch.setattr(offline, "CHUNK", 7)
+    got = analyze_run(run_bag(path, gf, system=system, keep="summary"))
     assert json.dumps(got, sort_keys=True) == json.dumps(ref, sort_keys=True)
     assert got["samples"] > 0 and (got["alarms"] or got["input_errors"])
+    full = run_bag(path, gf, system=system)
+    for name in ("k", "signal", "threshold", "alarm", "mode_hat"):
+        assert np.array_equal(getattr(full, name), getattr(whole, name)), name
+    for name, v in whole.traces.items():
+        assert np.array_equal(full.traces[name], v) and full.traces[name].dtype == v.dtype
+    assert np.array_equal(full.truth.values, whole.truth.values, equal_nan=True)
+    assert full.integrity == whole.integrity and full.inputs == whole.inputs
 
 
 def test_sparse_region_marks_equal_the_dense_ones():

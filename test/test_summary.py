@@ -8,7 +8,8 @@ import pytest
 from bag_compare import assert_bags_close
 
 from fd_monitor.analysis.library import load_library
-from fd_monitor.analysis.offline import _classify, run_bag
+from fd_monitor.analysis.offline import run_bag
+from fd_monitor.analysis.reader import classify as _classify
 from fd_monitor.analysis.summary import (
     Outputs,
     episodes,

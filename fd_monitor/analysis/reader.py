@@ -369,6 +369,7 @@ def read_pass(bag: str | Path, topics: Sequence[str],
     join = stream.join
     orders = {t: TopicOrder(t) for t in topics}
     problem: BagError | None = None              # found on the way: raised after the checks
+    width = len(topics)
     with bag_errors(bag):
         records = read_raw(bag, damage=damage)
         for batch in iter(lambda: list(itertools.islice(records, BATCH)), []):
@@ -393,7 +394,26 @@ def read_pass(bag: str | Path, topics: Sequence[str],
             except BagError as exc:                 # stop decoding; the census goes on
                 problem = exc
                 continue
-            for topic, t_ns, d, k in decoded:
+            i, n = 0, len(decoded)
+            while i < n:
+                if i + width <= n and _in_step(decoded, i, width, join.k_next, orders):
+                    # the next stamp's messages together: released at once (the sample and
+                    # join state putting them one by one gives; nothing to report)
+                    grp = decoded[i:i + width]
+                    k = grp[0][3]
+                    s = join.release_complete(k, {names[e[0]]: e[2] for e in grp},
+                                              grp[-1][1] * 1e-9)
+                    if s is not None:
+                        for e in grp:
+                            orders[e[0]].last = k
+                            if on_message is not None:
+                                on_message(e[0], e[1], k)
+                        if not stream.step(s):
+                            join.lost(k)
+                        i += width
+                        continue
+                topic, t_ns, d, k = decoded[i]
+                i += 1
                 if on_message is not None:
                     on_message(topic, t_ns, k)
                 now = t_ns * 1e-9
@@ -428,6 +448,21 @@ def read_pass(bag: str | Path, topics: Sequence[str],
     if problem is not None:
         raise problem
     return scan
+
+
+def _in_step(decoded: list[list[Any]], i: int, width: int, k: int | None,
+             orders: dict[str, TopicOrder]) -> bool:
+    """``decoded[i:i + width]`` is one message of each joined topic, decoded, all of stamp
+    ``k`` (the join's next), each after a lower stamp on its topic (no order report)."""
+    if k is None:
+        return False
+    seen = set()
+    for e in decoded[i:i + width]:
+        last = orders[e[0]].last
+        if e[3] != k or type(e[2]) is not np.ndarray or (last is not None and last >= k):
+            return False
+        seen.add(e[0])
+    return len(seen) == width
 
 
 def _accept(_s: Sample) -> bool:

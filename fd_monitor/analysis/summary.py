@@ -226,8 +226,8 @@ def outputs_of_run(run: Any) -> Outputs:
 @dataclass
 class SparseRows:
     """A (n_rows, width) array that is zero but at rows ``index`` (the runtime's ``outside``
-    of a long run, kept by :func:`fd_monitor.analysis.offline.run_bag` for ``analyze``: a run is mostly inside its
-    region). :func:`region_mark` reads it as it reads the dense array.
+    of a long run, kept by :func:`fd_monitor.analysis.offline.run_bag` for ``analyze``: a
+    run is mostly inside its region). :func:`region_mark` reads it as it reads the dense array.
 
     Attributes
     ----------
