@@ -232,7 +232,8 @@ class TruthReader:
     bag : str
     columns : tuple of str, optional
         Keep only these columns (those the truth has; ``("mode",)``: what ``analyze``
-        reads, 12 bytes a sample); None: all.
+        reads, 12 bytes a sample; values as float32 when that is exact, no receive times);
+        None: all.
     """
 
     def __init__(self, bag: str, columns: tuple[str, ...] | None = None) -> None:
@@ -266,8 +267,16 @@ class TruthReader:
         if cdr_shape(records[0][3]) is not None and not _stamped(records[0][3]):
             stamps = stamps + self.unstamped     # plain messages numbered on arrival
             self.unstamped += len(stamps)
-        values = a.values if self.cols is None else a.values[:, self.cols].copy()
-        self.parts.append(TopicArrays(a.topic, a.labels, stamps, values, a.receive_ns))
+        if self.cols is None:
+            self.parts.append(TopicArrays(a.topic, a.labels, stamps, a.values, a.receive_ns))
+            return
+        values = a.values[:, self.cols]
+        # a mode index (and NaN) is exact in float32: half the memory a long bag keeps; the
+        # receive times are not kept (nothing that reads only some columns uses them)
+        small = values.astype(np.float32)
+        exact = np.array_equal(small, values, equal_nan=True)
+        self.parts.append(TopicArrays(a.topic, a.labels, stamps,
+                                      small if exact else values.copy(), np.zeros(0, np.int64)))
 
     def arrays(self) -> TopicArrays | None:
         """The truth read (None: absent or unusable)."""
@@ -317,7 +326,8 @@ def read_pass(bag: str | Path, topics: Sequence[str],
         The joined Float64MultiArray topics, every one required at every sample.
     labels : dict
         topic -> the expected channel labels, or None: its first message's (a first message
-        naming none, or names over :data:`MAX_LABEL_CHARS` characters, is refused).
+        naming none, or names over :data:`MAX_LABEL_CHARS` characters, is refused); such
+        entries are filled in when the pass reads the topic's first message.
     rep : InputReport
         Filled with what the policy reported.
     step : callable, optional
@@ -495,7 +505,9 @@ class _Decoder:
     def __init__(self, bag: str, topics: Sequence[str],
                  labels: dict[str, tuple[str, ...] | None]) -> None:
         self.bag = bag
-        self.labels = {t: labels.get(t) for t in topics}
+        self.labels = labels                      # the caller's: None entries filled in
+        for t in topics:
+            labels.setdefault(t, None)
         #: topic -> (length, the bytes before the data, data start, float64 count)
         self.known: dict[str, tuple[int, bytes, int, int]] = {}
         self.seen: dict[str, set[str]] = {t: set() for t in topics}

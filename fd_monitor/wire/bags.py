@@ -777,9 +777,11 @@ class _Scan:
             return
         crc = 0
         if not self.damage and rec.data_section_crc:
-            for i in range(0, pos, _RELEASE):    # in slices: no copy of the whole file
-                crc = zlib.crc32(buf[i:min(i + _RELEASE, pos)], crc)
-                _release(buf, i, min(i + _RELEASE, pos))
+            with memoryview(buf) as view:         # in slices of the mapping: no copy
+                for i in range(0, pos, _RELEASE):
+                    with view[i:min(i + _RELEASE, pos)] as part:
+                        crc = zlib.crc32(part, crc)
+                    _release(buf, i, min(i + _RELEASE, pos))
         if not self.damage and rec.data_section_crc and crc != rec.data_section_crc:
             self.report(pos, "data-section CRC mismatch: bytes outside the message chunks "
                              "(indexes, headers) changed; every message read passed its "
