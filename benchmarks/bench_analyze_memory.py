@@ -44,7 +44,7 @@ print(n)
 """
 
 #: Profile groups: (label, function-name suffix of the cumulative entry).
-_GROUPS = (("read MCAP (CRC, zstd, records)", "bags.py:" ),
+_GROUPS = (("read MCAP (CRC, zstd, records)", "bag_scanner.py:"),
            ("decode (batch)", "reader.py:batch"),
            ("runtime steps", "offline.py:step"),
            ("stack outputs", "runtime.py:stack"),

@@ -21,7 +21,8 @@ from fd_monitor.core.simulator import simulate
 from fd_monitor.model.errors import ImplausibleError
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import arrays_from, read_bag, write_bag
+from fd_monitor.wire.bag_reader import arrays_from, read_bag
+from fd_monitor.wire.bag_writer import write_bag
 from fd_monitor.wire.stream import MAX_GAP
 
 LIB = load_library()

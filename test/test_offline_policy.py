@@ -20,7 +20,7 @@ from fd_monitor.core.methods import load_gains
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import write_messages
+from fd_monitor.wire.bag_writer import write_messages
 from fd_monitor.wire.join import StampJoin
 from fd_monitor.wire.stream import (
     GAP_TIMEOUT,
@@ -209,7 +209,7 @@ def test_monitor_fed_at_the_recorded_pace_matches_offline(plant, tmp_path):
     from ros_util import Proc, replay_through
     from test_regression_live import logged_input_errors
 
-    from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.bag_reader import read_bag
 
     sys_, g, tr = plant
     bag = _bag(tmp_path, sys_, _timeline(tr))

@@ -23,7 +23,8 @@ from fd_monitor.model.errors import BagError, GainFileError, MessageError
 from fd_monitor.model.gains import save_gains
 from fd_monitor.model.scenario import load_scenario, parse_scenario
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import arrays_from, write_bag
+from fd_monitor.wire.bag_reader import arrays_from
+from fd_monitor.wire.bag_writer import write_bag
 
 GAINS_DIR = Path(__file__).resolve().parents[1] / "config" / "gains"
 GAIN_FILES = sorted(p.stem for p in GAINS_DIR.glob("*.yaml"))

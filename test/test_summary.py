@@ -29,7 +29,8 @@ from fd_monitor.model.errors import (
 )
 from fd_monitor.model.system import load_system
 from fd_monitor.nodes.domain import isolate_env
-from fd_monitor.wire.bags import TopicArrays, array_msg
+from fd_monitor.wire.bag_reader import TopicArrays
+from fd_monitor.wire.bag_writer import array_msg
 from fd_monitor.wire.conversions import decode
 
 LIB = load_library()

@@ -75,7 +75,7 @@ from fd_monitor.core.identify import (
 from fd_monitor.model.errors import BagError, FdMonitorWarning
 from fd_monitor.model.system import System, parse_system
 from fd_monitor.wire.adapters import read_adapted
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
 __all__ = [

@@ -167,8 +167,10 @@ def read_samples(bag: str | Path, topics: Sequence[str],
                 cols[i].append(v)
         return True
 
-    scan_labels: dict[str, tuple[str, ...] | None] = {
-        t: (tuple(given[i]) if given[i] is not None else None) for i, t in enumerate(topics)}
+    scan_labels: dict[str, tuple[str, ...] | None] = {}
+    for i, t in enumerate(topics):
+        got = given[i]
+        scan_labels[t] = None if got is None else tuple(got)
     scan = read_pass(bag, topics, scan_labels, rep, step, names=names, max_gap=max_gap,
                      checks=each_present, on_message=on_message, warn=warn)
     if not labs:

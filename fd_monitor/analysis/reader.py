@@ -54,14 +54,8 @@ from fd_monitor.model.errors import (
     NonFiniteError,
     WrongLengthError,
 )
-from fd_monitor.wire.bags import (
-    BagDamage,
-    BagDamageWarning,
-    TopicArrays,
-    _deserialize,
-    arrays_from_raw,
-    read_raw,
-)
+from fd_monitor.wire.bag_reader import TopicArrays, _deserialize, arrays_from_raw
+from fd_monitor.wire.bag_scanner import BagDamage, BagDamageWarning, read_raw
 from fd_monitor.wire.conversions import MAX_STAMP, cdr_shape, decode, readable_stamp
 from fd_monitor.wire.input_checks import MAX_DISTINCT_LABELS, MAX_LABEL_CHARS, metadata_problems
 from fd_monitor.wire.join import Sample, StampJoin
@@ -177,7 +171,7 @@ class BagScan:
         ``/plant/...`` Float64MultiArray topic -> the channel labels of its first message
         (None: it names none), or the BagError its bytes gave.
     damage : list
-        What the read found wrong (:class:`~fd_monitor.wire.bags.BagDamage`, CRC-less chunks
+        What the read found wrong (:class:`~fd_monitor.wire.bag_scanner.BagDamage`, CRC-less chunks
         included as ``kind="unchecked"``).
     metadata : list of str
         Where ``metadata.yaml`` disagrees with the MCAP
@@ -223,9 +217,10 @@ class BagScan:
 
 
 class TruthReader:
-    """``/plant/truth`` read batch by batch into one :class:`~fd_monitor.wire.bags.TopicArrays`
-    (the arrays :func:`~fd_monitor.wire.bags.read_bag` gives; None as soon as a message does
-    not decode: the truth is then unused).
+    """``/plant/truth`` read batch by batch into one
+    :class:`~fd_monitor.wire.bag_reader.TopicArrays` (the arrays
+    :func:`~fd_monitor.wire.bag_reader.read_bag` gives; None as soon as a message does not
+    decode: the truth is then unused).
 
     Parameters
     ----------

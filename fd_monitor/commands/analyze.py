@@ -103,7 +103,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     MessageError
         An invalid sample (its index is named); nothing after it is processed.
     """
-    from fd_monitor.wire.bags import TopicArrays
+    from fd_monitor.wire.bag_reader import TopicArrays
 
     ks = [int(v) for v in np.asarray(k).reshape(-1)]
     us = dict(zip(ks, np.asarray(u, dtype=float).reshape(len(ks), -1)))

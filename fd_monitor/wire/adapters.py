@@ -63,7 +63,8 @@ import numpy as np
 from fd_monitor.model.errors import BagError, FdMonitorError, MessageError
 from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.system import read_yaml
-from fd_monitor.wire.bags import _typestore, messages_from_raw, read_raw
+from fd_monitor.wire.bag_reader import _typestore, messages_from_raw
+from fd_monitor.wire.bag_scanner import read_raw
 from fd_monitor.wire.timebase import WAIT, Gap, GridSample, GridSampler, NewRun, snap_sample_time
 
 __all__ = ["ADAPTER_TYPES", "Adapter", "AdapterError", "AdapterJoin", "AdaptedMessageError",
@@ -899,7 +900,7 @@ def rosbags_make(msgtype: str, **fields: Any) -> Any:
 def write_adapted(writer: Any, adapter: Adapter, k: Sequence[int], u: np.ndarray,
                   y: np.ndarray, stamps_ns: Sequence[int]) -> None:
     """Write samples as the robot's messages into an open
-    :class:`~fd_monitor.wire.bags.BagWriter` (``simulate --adapter``): per sample the
+    :class:`~fd_monitor.wire.bag_writer.BagWriter` (``simulate --adapter``): per sample the
     outputs' topics, then the inputs' (:func:`encode`), header stamps and bag times
     ``stamps_ns``.
 
