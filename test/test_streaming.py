@@ -83,3 +83,23 @@ def test_simulate_in_chunks_writes_the_same_bytes(name, samples, tmp_path):
     generate._simulate_streaming(tmp_path / "chunks", sc, 5, samples, chunk=7)
     assert (tmp_path / "whole" / "whole.mcap").read_bytes() == \
         (tmp_path / "chunks" / "chunks.mcap").read_bytes()
+
+
+def test_identify_adapter_reads_through_the_contract(tmp_path):
+    """``identify --adapter`` (:func:`~fd_monitor.analysis.identify.load_dataset`) reads a
+    robot's bag through the contract: its ``integrity`` record, and ``--strict`` refusing a
+    bag whose metadata.yaml is gone (issue 26 item 1)."""
+    from fd_monitor.analysis.identify import load_dataset
+    from fd_monitor.commands.simulate import simulate_to_bag
+    from fd_monitor.model.errors import BagError
+
+    bag = tmp_path / "robot"
+    simulate_to_bag("dc_motor_bias_velocity", bag, duration=2.0,
+                    adapter="dc_motor")
+    got: dict = {}
+    ds = load_dataset(bag, adapter="dc_motor", integrity=got)
+    assert got[str(bag)]["clean"] and got[str(bag)]["samples_used"] == ds.k.size == 200
+    (bag / "metadata.yaml").unlink()
+    with pytest.warns(UserWarning, match="no metadata.yaml"), \
+            pytest.raises(BagError, match=r"not used whole \(--strict\): metadata.yaml"):
+        load_dataset(bag, adapter="dc_motor", strict=True)

@@ -58,7 +58,9 @@ from fd_monitor.analysis.identify_quality import (
     physical_parameters,
     simulation,
 )
-from fd_monitor.analysis.integrity import read_joined
+from fd_monitor.analysis.integrity import describe, enforce_strict, read_joined
+from fd_monitor.analysis.integrity import integrity as bag_integrity_record
+from fd_monitor.analysis.offline import adapted_streams, scan_bag
 from fd_monitor.core.identify import (
     AffineModel,
     IdentificationError,
@@ -74,7 +76,6 @@ from fd_monitor.core.identify import (
 )
 from fd_monitor.model.errors import BagError, FdMonitorWarning
 from fd_monitor.model.system import System, parse_system
-from fd_monitor.wire.adapters import read_adapted
 from fd_monitor.wire.bag_reader import read_bag
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
@@ -223,7 +224,16 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
     if not path.exists():
         raise BagError(f"{bag}: no such bag")
     if adapter is not None:
-        s = read_adapted(path, adapter, sample_time=sample_time)
+        # the contract: the bag's census (damage, metadata.yaml) and the samples through the
+        # adapter and the nodes' input policy, as analyze --adapter reads them
+        scan = scan_bag(path)
+        s, rep = adapted_streams(path, adapter, sample_time=sample_time)
+        doc = bag_integrity_record(scan, rep)
+        enforce_strict(doc, bag, strict)
+        if integrity is not None:
+            integrity[str(bag)] = doc
+        if doc["skipped_chunks"] or doc["metadata"]:
+            warnings.warn(f"{bag}: {describe(doc)}", FdMonitorWarning, stacklevel=2)
         c = s.counts
         gaps = {r: sum(n.values()) for r, n in c["gaps"].items()}
         odd = {kind: sum(c.get(kind, {}).values())

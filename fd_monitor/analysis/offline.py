@@ -68,9 +68,9 @@ from fd_monitor.wire.stream import MAX_GAP
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 from fd_monitor.wire.topics import side_topic as _side_topic
 
-__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "read_inputs",
-           "read_streams", "run_bag", "run_runtime", "run_thresholds", "scan_bag",
-           "stamp_runs"]
+__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "adapted_streams",
+           "read_inputs", "read_streams", "run_bag", "run_runtime", "run_thresholds",
+           "scan_bag", "stamp_runs"]
 
 #: Samples stepped between two reductions of the runtime's outputs (a RuntimeOutput is
 #: ~4 KB: CHUNK of them are the largest thing a run holds).
@@ -333,7 +333,7 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
                            f"{', '.join(rt.side_inputs)}, which an adapter does not map")
         scan = read_pass(bag, [], {}, InputReport(),
                          truth=True if keep == "all" else ("mode",))
-        rep = _adapted_streams(bag, adapter, system, step)
+        rep = adapted_streams(bag, adapter, system=system, step=step)[1]
         truth = scan.truth
         if not rep.used and not refused:
             raise BagError(f"{bag}: no valid (u, y) sample")
@@ -488,15 +488,26 @@ def _runtime_step(rt: Any, nu: int, outs: _Reducer,
     return step
 
 
-def _adapted_streams(bag: str | Path, adapter: Any, system: Any,
-                     step: Callable[[Sample], bool]) -> InputReport:
-    """:func:`read_streams` of a robot's bag through an adapter: the time base's events
+def adapted_streams(bag: str | Path, adapter: Any, *, system: Any = None,
+                    sample_time: float | None = None,
+                    step: Callable[[Sample], bool] | None = None) -> tuple[Any, InputReport]:
+    """:func:`read_streams` of a robot's bag through an adapter (``analyze --adapter``,
+    ``report --adapter``, ``identify --adapter``): the time base's events
     (:func:`~fd_monitor.wire.adapters.read_adapted`) fed, at their log times, into the
     nodes' input policy exactly as the live node feeds them
-    (:func:`~fd_monitor.wire.adapters.feed`); gaps, late and bad messages in the report."""
+    (:func:`~fd_monitor.wire.adapters.feed`); gaps, late and bad messages in the report,
+    every released sample to ``step``.
+
+    Returns
+    -------
+    (AdaptedStreams, InputReport)
+        The adapter's samples, and what the policy and the adapter did not use (with
+        :func:`~fd_monitor.wire.input_checks.integrity` of the bag's census: the contract's
+        record).
+    """
 
     ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
-    s = read_adapted(bag, ad, system=system)
+    s = read_adapted(bag, ad, sample_time=sample_time, system=system)
     rep = InputReport(timebase={**s.counts, "sample_time": s.sample_time,
                                 "sample_time_note": s.sample_time_note})
     topic_of = {c.name: c.topic for c in (*ad.inputs, *ad.outputs)}
@@ -517,13 +528,14 @@ def _adapted_streams(bag: str | Path, adapter: Any, system: Any,
     nu = len(s.inputs)
     refused = {k for k, _r, _c in s.gaps}
     where = [s.clock_topic]
-    stream = policy_stream(["u", "y"] if nu else ["y"], rep, refused, where, step)
+    stream = policy_stream(["u", "y"] if nu else ["y"], rep, refused, where,
+                           step or (lambda _s: True))
     for now, e in s.events:
         if stream.join.pending or stream.join.held:
             stream.release(now)
         feed(stream, e, now, bool(nu))
     stream.release(math.inf)
-    return rep
+    return s, rep
 
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
