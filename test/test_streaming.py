@@ -33,7 +33,6 @@ REPO = Path(__file__).resolve().parent.parent
     ("three_tank_bad_input", "three_tank_thresholds"),        # input errors, holes, restarts
     ("three_tank_envelope_bias_h1", "three_tank_envelope"),   # alarms outside the region
     ("farhat_koenig_fault", "farhat_koenig_hminus_switched"),  # a side signal (mode)
-    ("thesis_4_7_overlap", "thesis_4_7_hinf_sc"),
 ])
 def test_chunked_reading_equals_the_whole_bag_read_at_once(bag, gains, monkeypatch):
     path = REPO / "bags" / bag
