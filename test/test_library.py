@@ -128,7 +128,8 @@ def test_bad_input_bag_holds_its_corruptions():
     system = _system(spec)
     n_y = sum(1 for _ in read_raw(spec.folder, ["/plant/y"]))
     assert n_y == 1500 - 50 + 1       # the gap removes 50 messages, the duplicate adds one
-    us, ys, rep = read_inputs(spec.folder, system)
+    s, rep = read_inputs(spec.folder, system)
+    ys, us = set(s.k.tolist()), set(s.k.tolist())
     kinds = rep.by_kind()
     assert kinds["non_finite"] == [300, 301]
     assert kinds["wrong_length"] == [450]

@@ -77,6 +77,7 @@ from fd_monitor.core.identify import (
 from fd_monitor.model.errors import BagError, FdMonitorWarning
 from fd_monitor.model.system import System, parse_system
 from fd_monitor.wire.bag_reader import read_bag
+from fd_monitor.wire.series import Series
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
 __all__ = [
@@ -106,23 +107,15 @@ _GUARD_RE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(>=|<=|>|<)\s*(\S+)\s*$"
 
 
 @dataclass(frozen=True)
-class Dataset:
-    """One record of inputs and outputs (a bag, or arrays from an adapter).
+class Dataset(Series):
+    """One record of inputs and outputs (a bag, or arrays from an adapter): a
+    :class:`~fd_monitor.wire.series.Series` (``name`` where it came from, used in messages
+    and the provenance; ``k`` (K,) increasing, a gap is a hole (no one-step pair across it);
+    ``u`` (K, nu) held over each sample; ``y`` (K, ny) output units; ``sample_time`` s or
+    None) with what identification needs besides.
 
     Attributes
     ----------
-    name : str
-        Where it came from (a bag path), used in messages and the provenance.
-    inputs, outputs : tuple of str
-        Channel names, (nu,) and (ny,).
-    k : numpy.ndarray
-        (K,) int sample indices, increasing; a gap is a hole (no one-step pair across it).
-    u : numpy.ndarray
-        (K, nu) inputs, held over each sample.
-    y : numpy.ndarray
-        (K, ny) measurements, output units.
-    sample_time : float or None
-        s; None when the record does not say.
     mode : numpy.ndarray or None
         (K,) int mode of each sample (a measured mode channel), or None.
     sha256 : str
@@ -131,13 +124,6 @@ class Dataset:
         (u, y[, mode]) topic names, for messages.
     """
 
-    name: str
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    k: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    sample_time: float | None = None
     mode: np.ndarray | None = None
     sha256: str = ""
     topics: tuple[str, ...] = (PLANT_U.absolute, PLANT_Y.absolute)

@@ -64,6 +64,7 @@ from fd_monitor.model.system import gain_system
 from fd_monitor.wire.adapters import Adapter, feed, load_adapter, read_adapted
 from fd_monitor.wire.input_checks import integrity
 from fd_monitor.wire.join import Sample
+from fd_monitor.wire.series import Series
 from fd_monitor.wire.stream import MAX_GAP
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 from fd_monitor.wire.topics import side_topic as _side_topic
@@ -77,8 +78,7 @@ __all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "adapted_str
 CHUNK = 1024
 
 
-def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
-                                                       dict[int, np.ndarray], InputReport]:
+def read_inputs(bag: str | Path, system: Any) -> tuple[Series, InputReport]:
     """Read ``/plant/u`` and ``/plant/y`` message by message, keeping the valid ones.
 
     The nodes' input policy (:func:`read_streams`): a message that does not decode (NaN/Inf,
@@ -89,12 +89,10 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
 
     Returns
     -------
-    (dict, dict, InputReport)
-        stamp -> u (nu,), stamp -> y (ny,) of the released samples, the report (with the
-        restarts).
+    (Series, InputReport)
+        The released samples, and the report (with the restarts).
     """
-    us, ys, _side, rep = read_streams(bag, system)
-    return us, ys, rep
+    return read_streams(bag, system)
 
 
 def _plant_topics(system: Any, side: dict[str, tuple[str, ...]]
@@ -116,8 +114,7 @@ def _plant_topics(system: Any, side: dict[str, tuple[str, ...]]
 def read_streams(bag: str | Path, system: Any,
                  side: dict[str, tuple[str, ...]] | None = None,
                  step: Callable[[Sample], bool] | None = None
-                 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray],
-                            dict[str, dict[int, np.ndarray]], InputReport]:
+                 ) -> tuple[Series, InputReport]:
     """:func:`read_inputs` plus side-signal topics, through the nodes' input policy, in one
     pass over the bag (:func:`fd_monitor.analysis.reader.read_pass`).
 
@@ -147,28 +144,36 @@ def read_streams(bag: str | Path, system: Any,
 
     Returns
     -------
-    (dict, dict, dict, InputReport)
-        stamp -> u (nu,), stamp -> y (ny,), name -> (stamp -> value) of the released samples
-        (a stamp released twice, in two runs: the last), the report.
+    (Series, InputReport)
+        The released samples in release order (``k`` (K,), ``u`` (K, nu), ``y`` (K, ny),
+        ``side`` name -> (K, ...); a new run starts again lower), and the report.
     """
     side = dict(side or {})
     topics, labels, names = _plant_topics(system, side)
     rep = InputReport()
-    us: dict[int, np.ndarray] = {}
-    ys: dict[int, np.ndarray] = {}
-    sides: dict[str, dict[int, np.ndarray]] = {n: {} for n in side}
+    ks: list[int] = []
+    cols: dict[str, list[np.ndarray]] = {n: [] for n in ("u", "y", *side)}
     no_u = np.zeros(0)
 
     def kept(s: Sample) -> bool:
         v = s.inputs
-        us[s.k] = v["u"] if system.nu else no_u
-        ys[s.k] = v["y"]
-        for n, d in sides.items():
-            d[s.k] = v[n]
+        ks.append(s.k)
+        cols["u"].append(v["u"] if system.nu else no_u)
+        for n in cols:
+            if n != "u":
+                cols[n].append(v[n])
         return True if step is None else step(s)
 
     read_pass(bag, topics, labels, rep, kept, names=names, max_gap=MAX_GAP)
-    return us, ys, sides, rep
+    K = len(ks)
+
+    def stacked(n: str, width: int) -> np.ndarray:
+        return np.asarray(cols[n], dtype=float).reshape(K, width) if K else np.zeros((0, width))
+
+    return Series(str(bag), tuple(system.inputs), tuple(system.outputs),
+                  np.asarray(ks, dtype=np.int64), stacked("u", system.nu),
+                  stacked("y", system.ny), float(system.sample_time),
+                  side={n: np.asarray(cols[n]) for n in side}), rep
 
 
 @dataclass

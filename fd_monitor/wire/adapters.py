@@ -65,6 +65,7 @@ from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.system import read_yaml
 from fd_monitor.wire.bag_reader import _typestore, messages_from_raw
 from fd_monitor.wire.bag_scanner import read_raw
+from fd_monitor.wire.series import Series
 from fd_monitor.wire.timebase import WAIT, Gap, GridSample, GridSampler, NewRun, snap_sample_time
 
 __all__ = ["ADAPTER_TYPES", "Adapter", "AdapterError", "AdapterJoin", "AdaptedMessageError",
@@ -641,23 +642,18 @@ def feed(stream: Any, event: AdaptedEvent, now: float, with_u: bool = True) -> b
 # -- offline: a bag through the join ------------------------------------------------------------
 
 
-@dataclass
-class AdaptedStreams:
-    """A bag's robot topics as the monitor's samples (:func:`read_adapted`).
+@dataclass(frozen=True)
+class AdaptedStreams(Series):
+    """A bag's robot topics as the monitor's samples (:func:`read_adapted`): a
+    :class:`~fd_monitor.wire.series.Series` (``name`` the bag, ``inputs``/``outputs`` the
+    channels, ``k`` (K,) int64 sample indices (gaps are holes), ``u`` (K, nu), ``y``
+    (K, ny), ``sample_time`` s: given, the plant's, or the clock's median step snapped to a
+    round value) with the adapter's time base.
 
     Attributes
     ----------
-    bag : str
-    inputs, outputs : tuple of str
-        Channel names (u and y columns).
-    k : numpy.ndarray
-        (K,) int64 sample indices (gaps are holes).
     t : numpy.ndarray
         (K,) s since the first sample (the grid instants).
-    u, y : numpy.ndarray
-        (K, nu), (K, ny)
-    sample_time : float
-        s (given, the plant's, or the clock's median step snapped to a round value).
     clock_topic : str
         The sample clock's topic.
     errors : list of (str, str)
@@ -673,21 +669,21 @@ class AdaptedStreams:
         One line: where the sample time came from.
     """
 
-    bag: str
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    k: np.ndarray
-    t: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    sample_time: float
-    clock_topic: str
+    #: always known here (given, the plant's, or from the clock), unlike a Series'
+    sample_time: float = 0.0
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    clock_topic: str = ""
     errors: list[tuple[str, str]] = field(default_factory=list)
     gaps: list[tuple[int, str, str]] = field(default_factory=list)
     new_runs: list[int] = field(default_factory=list)
     counts: dict[str, Any] = field(default_factory=dict)
     sample_time_note: str = ""
     events: list[tuple[float, Any]] = field(default_factory=list, repr=False)
+
+    @property
+    def bag(self) -> str:
+        """The bag read (:attr:`name`)."""
+        return self.name
 
 
 def stamp_sample_time(stamps_ns: Sequence[int], topic: str) -> tuple[float, str]:
@@ -780,10 +776,10 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
     return AdaptedStreams(
         str(bag), tuple(c.name for c in ad.inputs), tuple(c.name for c in ad.outputs),
         np.array([s.k for s in samples], dtype=np.int64),
-        np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
         np.array([s.u for s in samples]).reshape(len(samples), len(ad.inputs)),
         np.array([s.y for s in samples]).reshape(len(samples), len(ad.outputs)),
-        float(sample_time), ad.clock_topic, errors,
+        float(sample_time), np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
+        ad.clock_topic, errors,
         [(e.k, e.reason, e.channel) for _, e in events if isinstance(e, Gap)],
         [e.k for _, e in events if isinstance(e, NewRun)], join.counts(), note, events)
 
