@@ -213,7 +213,7 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
         # the contract: the bag's census (damage, metadata.yaml) and the samples through the
         # adapter and the nodes' input policy, as analyze --adapter reads them
         scan = scan_bag(path)
-        s, rep = adapted_streams(path, adapter, sample_time=sample_time)
+        s, rep = adapted_streams(path, adapter, sample_time=sample_time, keep=True)
         doc = bag_integrity_record(scan, rep)
         enforce_strict(doc, bag, strict)
         if integrity is not None:

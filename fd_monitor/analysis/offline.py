@@ -61,11 +61,19 @@ from fd_monitor.core.methods import load_gains, runtime_for
 from fd_monitor.model.errors import BagError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import gain_system
-from fd_monitor.wire.adapters import Adapter, feed, load_adapter, read_adapted
+from fd_monitor.wire.adapters import (
+    AdaptedSample,
+    AdaptedStreams,
+    Adapter,
+    adapted_events,
+    feed,
+    load_adapter,
+)
 from fd_monitor.wire.input_checks import integrity
 from fd_monitor.wire.join import Sample
 from fd_monitor.wire.series import Series
 from fd_monitor.wire.stream import MAX_GAP
+from fd_monitor.wire.timebase import Gap, NewRun
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 from fd_monitor.wire.topics import side_topic as _side_topic
 
@@ -495,32 +503,54 @@ def _runtime_step(rt: Any, nu: int, outs: _Reducer,
 
 def adapted_streams(bag: str | Path, adapter: Any, *, system: Any = None,
                     sample_time: float | None = None,
-                    step: Callable[[Sample], bool] | None = None) -> tuple[Any, InputReport]:
+                    step: Callable[[Sample], bool] | None = None, keep: bool = False
+                    ) -> tuple[Any, InputReport]:
     """:func:`read_streams` of a robot's bag through an adapter (``analyze --adapter``,
     ``report --adapter``, ``identify --adapter``): the time base's events
-    (:func:`~fd_monitor.wire.adapters.read_adapted`) fed, at their log times, into the
-    nodes' input policy exactly as the live node feeds them
+    (:func:`~fd_monitor.wire.adapters.adapted_events`, read in bounded memory) fed, at their
+    log times, into the nodes' input policy exactly as the live node feeds them
     (:func:`~fd_monitor.wire.adapters.feed`); gaps, late and bad messages in the report,
     every released sample to ``step``.
 
     Returns
     -------
-    (AdaptedStreams, InputReport)
-        The adapter's samples, and what the policy and the adapter did not use (with
-        :func:`~fd_monitor.wire.input_checks.integrity` of the bag's census: the contract's
-        record).
+    (AdaptedStreams or AdaptedRun, InputReport)
+        With ``keep`` the adapter's samples (:class:`~fd_monitor.wire.adapters.
+        AdaptedStreams`, as :func:`~fd_monitor.wire.adapters.read_adapted`), else the run's
+        sample time, notes and counts only; and what the policy and the adapter did not use
+        (with :func:`~fd_monitor.wire.input_checks.integrity` of the bag's census: the
+        contract's record).
     """
 
     ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
-    s = read_adapted(bag, ad, sample_time=sample_time, system=system)
-    rep = InputReport(timebase={**s.counts, "sample_time": s.sample_time,
-                                "sample_time_note": s.sample_time_note})
+    run = adapted_events(bag, ad, sample_time, system)
+    ad = run.adapter
+    nu = len(ad.inputs)
+    policy = InputReport()                       # the policy's reports, after the adapter's
+    refused: set[int] = set()                    # samples the time base could not fill
+    gaps: list[tuple[int, str, str]] = []
+    kept: list[tuple[float, Any]] = []
+    stream = policy_stream(["u", "y"] if nu else ["y"], policy, refused, [ad.clock_topic],
+                           step or (lambda _s: True))
+    for now, e in run.events:
+        if keep:
+            kept.append((now, e))
+        if isinstance(e, Gap):
+            gaps.append((e.k, e.reason, e.channel))
+            refused.add(e.k)
+        if stream.join.pending or stream.join.held:
+            stream.release(now)
+        feed(stream, e, now, bool(nu))
+    stream.release(math.inf)
+    rep = InputReport(timebase={**run.counts, "sample_time": run.sample_time,
+                                "sample_time_note": run.note},
+                      restarts=policy.restarts, bridges=policy.bridges, used=policy.used)
     topic_of = {c.name: c.topic for c in (*ad.inputs, *ad.outputs)}
-    for kind, line in s.errors:
+    for kind, line in run.errors:
         rep.errors.append({"kind": kind, "topic": line.split(" ", 1)[0].rstrip(":"),
                            "sample": None, "message": line})
     runs: list[list[Any]] = []                   # gap runs [first, last, reason, channel]
-    for k, reason, ch in s.gaps:
+    for k, reason, ch in gaps:
         if runs and runs[-1][1] == k - 1 and runs[-1][2:] == [reason, ch]:
             runs[-1][1] = k
         else:
@@ -530,17 +560,19 @@ def adapted_streams(bag: str | Path, adapter: Any, *, system: Any = None,
                            "message": f"samples {a}..{b}: {ch} "
                                       + ("never received" if reason == "no_value" else
                                          "not received within its max_hold")})
-    nu = len(s.inputs)
-    refused = {k for k, _r, _c in s.gaps}
-    where = [s.clock_topic]
-    stream = policy_stream(["u", "y"] if nu else ["y"], rep, refused, where,
-                           step or (lambda _s: True))
-    for now, e in s.events:
-        if stream.join.pending or stream.join.held:
-            stream.release(now)
-        feed(stream, e, now, bool(nu))
-    stream.release(math.inf)
-    return s, rep
+    rep.errors += policy.errors
+    if not keep:
+        return run, rep
+    samples = [e for _, e in kept if isinstance(e, AdaptedSample)]
+    t0 = samples[0].t_ns
+    return AdaptedStreams(
+        str(bag), tuple(c.name for c in ad.inputs), tuple(c.name for c in ad.outputs),
+        np.array([s.k for s in samples], dtype=np.int64),
+        np.array([s.u for s in samples]).reshape(len(samples), nu),
+        np.array([s.y for s in samples]).reshape(len(samples), len(ad.outputs)),
+        run.sample_time, np.array([(s.t_ns - t0) * 1e-9 for s in samples]), ad.clock_topic,
+        run.errors, gaps, [e.k for _, e in kept if isinstance(e, NewRun)], run.counts,
+        run.note, kept), rep
 
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
