@@ -30,9 +30,11 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
 
 Nothing here imports rclpy (the message decoding is the nodes' pure conversion function).
 
-Why one module of ~770 lines: reading a bag through the one input policy and running a
-runtime over it is one pipeline (input report, bag scan, run), which the regression suite
-compares bit for bit with the live nodes.
+The reading itself (one pass, in chunks: census, damage, metadata, labels, the input policy)
+is :mod:`fd_monitor.analysis.reader`; here are the runs over it. Why one module of ~640 lines:
+running a runtime over a bag's samples (plant topics or an adapter's), reducing its outputs
+chunk by chunk and the in-memory form (:func:`run_runtime`) are one pipeline, which the
+regression suite compares bit for bit with the live nodes.
 """
 
 from __future__ import annotations
