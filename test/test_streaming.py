@@ -84,20 +84,57 @@ def test_simulate_in_chunks_writes_the_same_bytes(name, samples, tmp_path):
         (tmp_path / "chunks" / "chunks.mcap").read_bytes()
 
 
-def test_identify_adapter_reads_through_the_contract(tmp_path):
+@pytest.fixture(scope="module")
+def robot_bag(tmp_path_factory):
+    """A dc_motor robot's bag (JointState y, Float64MultiArray u), 2 s at 100 Hz."""
+    from fd_monitor.commands.simulate import simulate_to_bag
+
+    bag = tmp_path_factory.mktemp("robot") / "robot"
+    simulate_to_bag("dc_motor_bias_velocity", bag, duration=2.0, adapter="dc_motor")
+    return bag
+
+
+def test_adapter_bag_out_of_log_time_order_reads_as_sorted(robot_bag, tmp_path):
+    """A recorder under a backlog writes one topic's queue after the other's: records out of
+    log-time order. The bounded reorder (:func:`~fd_monitor.wire.adapters.adapted_events`)
+    gives the samples of the bag written in log-time order."""
+    from fd_monitor.wire.adapters import load_adapter, read_adapted
+    from fd_monitor.wire.bag_scanner import read_raw
+    from fd_monitor.wire.bag_writer import BagWriter
+
+    ad = load_adapter("dc_motor")
+    recs = list(read_raw(robot_bag))
+    u_topic = ad.inputs[0].topic
+    out = tmp_path / "backlog"
+    with BagWriter(out) as w:
+        for i in range(0, len(recs), 60):              # each 60 records: u's queue last
+            block = recs[i:i + 60]
+            for topic, ty, t, raw in ([r for r in block if r[0] != u_topic]
+                                      + [r for r in block if r[0] == u_topic]):
+                w.add_topic(topic, ty)
+                w.write_raw(topic, t, raw)
+    assert [r[2] for r in read_raw(out)] != sorted(r[2] for r in read_raw(out))
+    a, b = read_adapted(robot_bag, ad), read_adapted(out, ad)
+    for name in ("k", "u", "y", "t"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert a.gaps == b.gaps and a.errors == b.errors and len(a.k) == 200
+
+
+def test_identify_adapter_reads_through_the_contract(robot_bag, tmp_path):
     """``identify --adapter`` (:func:`~fd_monitor.analysis.identify.load_dataset`) reads a
     robot's bag through the contract: its ``integrity`` record, and ``--strict`` refusing a
     bag whose metadata.yaml is gone (issue 26 item 1)."""
+    import shutil
+
     from fd_monitor.analysis.identify import load_dataset
-    from fd_monitor.commands.simulate import simulate_to_bag
     from fd_monitor.model.errors import BagError
 
-    bag = tmp_path / "robot"
-    simulate_to_bag("dc_motor_bias_velocity", bag, duration=2.0,
-                    adapter="dc_motor")
     got: dict = {}
-    ds = load_dataset(bag, adapter="dc_motor", integrity=got)
-    assert got[str(bag)]["clean"] and got[str(bag)]["samples_used"] == ds.k.size == 200
+    ds = load_dataset(robot_bag, adapter="dc_motor", integrity=got)
+    assert got[str(robot_bag)]["clean"] and got[str(robot_bag)]["samples_used"] == 200
+    assert ds.k.size == 200
+    bag = tmp_path / "robot"
+    shutil.copytree(robot_bag, bag)
     (bag / "metadata.yaml").unlink()
     with pytest.warns(UserWarning, match="no metadata.yaml"), \
             pytest.raises(BagError, match=r"not used whole \(--strict\): metadata.yaml"):
