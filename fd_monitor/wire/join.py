@@ -455,7 +455,7 @@ class StampJoin:
         would give when the join is in step (entry role without feedback or load shedding,
         ``k`` the next stamp, nothing pending, held, rejected or owed). None otherwise: the
         caller puts the inputs one by one. The offline reader's common case (a bag's
-        samples in order), at a tenth of the cost."""
+        samples in order), at about a third of the cost."""
         if (k != self.k_next or self.pending or self.held or self.rejected or self.feedback
                 or self.sequence is not None or self.max_lag is not None
                 or self._restart_next or self._missing or self._adopted is not None
