@@ -77,7 +77,7 @@ def live_monitor(bag: Path, env: dict[str, str], tmp: Path) -> dict[str, float]:
     """Replay into the monitor process; samples/s from the recorder's receive stamps."""
     import numpy as np
 
-    from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.bag_reader import read_bag
     from fd_monitor.wire.topics import ALARM, PLANT_U, PLANT_Y
 
     t_u, t_y, t_alarm = PLANT_U.absolute, PLANT_Y.absolute, ALARM.absolute
@@ -161,7 +161,7 @@ def raw_rclpy(bag: Path, env: dict[str, str]) -> dict[str, float]:
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
 
-    from fd_monitor.wire.bags import read_raw
+    from fd_monitor.wire.bag_scanner import read_raw
     from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
     plant = (PLANT_U.absolute, PLANT_Y.absolute)

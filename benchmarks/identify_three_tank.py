@@ -34,7 +34,7 @@ from fd_monitor.core.plant import SampledPlant
 from fd_monitor.design.thresholds import design_thresholds
 from fd_monitor.model.gains import save_gains
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 
 REPO = Path(__file__).resolve().parents[1]
 # the acceptance test's bias scenarios and guards: the same runs, more of them

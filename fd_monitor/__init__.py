@@ -36,7 +36,8 @@ if TYPE_CHECKING:  # the names as mypy and readers see them; imported lazily bel
     from fd_monitor.model.errors import FdMonitorError
     from fd_monitor.model.scenario import load_scenario
     from fd_monitor.model.system import load_system
-    from fd_monitor.wire.bags import read_bag, write_bag
+    from fd_monitor.wire.bag_reader import read_bag
+    from fd_monitor.wire.bag_writer import write_bag
 
 
 def __getattr__(name: str) -> Any:
@@ -62,10 +63,10 @@ def __getattr__(name: str) -> Any:
         from fd_monitor.core.simulator import simulate
         value = simulate
     elif name == "read_bag":
-        from fd_monitor.wire.bags import read_bag
+        from fd_monitor.wire.bag_reader import read_bag
         value = read_bag
     elif name == "write_bag":
-        from fd_monitor.wire.bags import write_bag
+        from fd_monitor.wire.bag_writer import write_bag
         value = write_bag
     elif name == "run_bag":
         from fd_monitor.analysis.offline import run_bag

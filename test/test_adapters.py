@@ -45,7 +45,7 @@ MAP = {
 
 
 def _roundtrip(msg, ty):
-    from fd_monitor.wire.bags import _typestore
+    from fd_monitor.wire.bag_reader import _typestore
 
     store = _typestore()
     return store.deserialize_cdr(bytes(store.serialize_cdr(msg, ty)), ty)
@@ -189,7 +189,7 @@ def test_bag_through_the_adapter_equals_the_simulation(tmp_path):
     from fd_monitor.core.simulator import simulate
     from fd_monitor.model.scenario import load_scenario
     from fd_monitor.model.system import load_system
-    from fd_monitor.wire.bags import bag_topics
+    from fd_monitor.wire.bag_scanner import bag_topics
 
     bag = tmp_path / "motor"
     info = simulate_to_bag("dc_motor_bias_velocity", bag, seed=3, duration=3.0,

@@ -21,7 +21,8 @@ from fd_monitor.model.system import load_system
 REPO = Path(__file__).resolve().parent.parent
 GAINS = REPO / "config" / "gains" / "three_tank_thresholds.yaml"
 
-bags = pytest.importorskip("fd_monitor.wire.bags")
+bags = pytest.importorskip("fd_monitor.wire.bag_writer")
+bag_reader = pytest.importorskip("fd_monitor.wire.bag_reader")
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +60,7 @@ def test_missing_topic(tmp_path, capsys):
     tr = simulate(load_scenario("three_tank_nominal"), 1, 50)
     ns = tr.k * 100_000_000
     path = bags.write_bag(tmp_path / "no_u", [
-        bags.arrays_from("/plant/y", sys_.outputs, tr.k, tr.y[0], ns)])
+        bag_reader.arrays_from("/plant/y", sys_.outputs, tr.k, tr.y[0], ns)])
     with pytest.raises(BagError, match="topic /plant/u missing"):
         analyze_bag(str(path), str(GAINS))
     assert cli_main(["analyze", str(path), "--gains", str(GAINS)]) == 2

@@ -22,7 +22,8 @@ import yaml
 
 from fd_monitor.commands.cli import main as cli_main
 from fd_monitor.model.paths import find_config_file
-from fd_monitor.wire.bags import arrays_from, read_bag, write_bag
+from fd_monitor.wire.bag_reader import arrays_from, read_bag
+from fd_monitor.wire.bag_writer import write_bag
 
 REPO = Path(__file__).resolve().parent.parent
 NOMINAL = REPO / "bags" / "three_tank_nominal"
@@ -49,7 +50,7 @@ def short(nominal, tmp_path_factory):
 def short_bad(nominal, tmp_path_factory):
     """N samples with bad input: NaN at k = 10, no message for k = 100..109, /plant/y of
     k = 200 twice."""
-    from fd_monitor.wire.bags import write_messages
+    from fd_monitor.wire.bag_writer import write_messages
 
     (lu, _su, vu, tu), (ly, _s, vy, _t) = nominal[U], nominal[Y]
     msgs = []
@@ -153,7 +154,7 @@ def _flip_chunk(folder: Path) -> None:
 
 
 def test_damaged_chunk_is_in_the_json(tmp_path, capsys, nominal):
-    from fd_monitor.wire.bags import BagWriter
+    from fd_monitor.wire.bag_writer import BagWriter
 
     bag = tmp_path / "b"
     with BagWriter(bag, chunk_bytes=4096) as w:          # ~20 chunks: one can be lost
@@ -309,7 +310,7 @@ def test_identify_says_what_it_did_not_use(tmp_path, capsys, linear, make, shows
 @pytest.mark.parametrize("labels,kind", [(("y2",), "malformed"), (("y1", "y2"), "wrong_length")],
                          ids=["labels-changed", "channel-count"])
 def test_identify_refuses_labels_changing_mid_bag(tmp_path, capsys, linear, labels, kind):
-    from fd_monitor.wire.bags import write_messages
+    from fd_monitor.wire.bag_writer import write_messages
 
     u, y = linear
     msgs = []
@@ -551,7 +552,7 @@ def test_rosbags_bag_without_crcs_is_not_damaged(tmp_path, capsys):
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    from fd_monitor.wire.bags import serialize_array
+    from fd_monitor.wire.bag_writer import serialize_array
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     bag = tmp_path / "rb"
@@ -623,7 +624,7 @@ def test_evaluate_stops_cleanly_on_ctrl_c(tmp_path):
 
 
 def _label_bag(path: Path, nominal, label_of) -> Path:
-    from fd_monitor.wire.bags import write_messages
+    from fd_monitor.wire.bag_writer import write_messages
 
     (lu, _s, vu, tu), (ly, _s2, vy, _t) = nominal[U], nominal[Y]
     msgs = []

@@ -16,14 +16,9 @@ from mcap.reader import make_reader
 from fd_monitor.analysis.library import load_library
 from fd_monitor.commands.simulate import simulate_to_bag
 from fd_monitor.model.errors import BagError
-from fd_monitor.wire.bags import (
-    BagDamageWarning,
-    BagWriter,
-    bag_topics,
-    read_bag,
-    read_raw,
-    serialize_array,
-)
+from fd_monitor.wire.bag_reader import read_bag
+from fd_monitor.wire.bag_scanner import BagDamageWarning, bag_topics, read_raw
+from fd_monitor.wire.bag_writer import BagWriter, serialize_array
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -141,7 +136,7 @@ def test_random_bytes_inside_a_chunk_one_line(sim_bag, tmp_path):
 
 def test_wrong_message_type_is_one_line(tmp_path):
     """/plant/y recorded as std_msgs/String: one line naming the topic and its type."""
-    from fd_monitor.wire.bags import _typestore
+    from fd_monitor.wire.bag_reader import _typestore
 
     store = _typestore()
     bag = tmp_path / "strings"
@@ -165,7 +160,7 @@ def _die_while_writing(path: Path, n: int) -> None:
     """A writer process that flushes chunks and is then killed (os._exit: no close)."""
     code = f"""
 import os
-from fd_monitor.wire.bags import BagWriter
+from fd_monitor.wire.bag_writer import BagWriter
 w = BagWriter({str(path)!r}, chunk_bytes=4096)
 for k in range({n}):
     w.write_array("/plant/y", k, ("h1", "h2", "h3"), [0.1, 0.2, 0.3], k * 1_000_000)

@@ -12,14 +12,9 @@ from fd_monitor.commands.simulate import simulate_to_bag
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.errors import BagError
 from fd_monitor.model.scenario import load_scenario
-from fd_monitor.wire.bags import (
-    BagWriter,
-    arrays_from,
-    bag_topics,
-    read_bag,
-    read_messages,
-    write_bag,
-)
+from fd_monitor.wire.bag_reader import arrays_from, read_bag, read_messages
+from fd_monitor.wire.bag_scanner import bag_topics
+from fd_monitor.wire.bag_writer import BagWriter, write_bag
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +59,7 @@ def test_write_read_round_trip_in_timestamp_order(tmp_path):
 
 
 def test_unstamped_messages_are_numbered(tmp_path):
-    from fd_monitor.wire.bags import _typestore
+    from fd_monitor.wire.bag_reader import _typestore
 
     types = _typestore().types
     with BagWriter(tmp_path / "bag") as w:
@@ -122,7 +117,8 @@ def test_simulate_cli_json_and_errors(tmp_path):
 
 
 def test_bags_module_does_not_import_rclpy():
-    code = ("import sys, fd_monitor.wire.bags, fd_monitor.commands.simulate; "
+    code = ("import sys, fd_monitor.wire.bag_writer, fd_monitor.wire.bag_scanner, "
+            "fd_monitor.wire.bag_reader, fd_monitor.commands.simulate; "
             "sys.exit('rclpy' in sys.modules)")
     assert subprocess.run([sys.executable, "-c", code], timeout=60).returncode == 0
 
@@ -140,7 +136,8 @@ def test_float64multiarray_fast_decoder_agrees_with_rosbags_on_mangled_bytes():
     bytes rosbags accepts, with the same fields, and leaves every other case to rosbags."""
     import random
 
-    from fd_monitor.wire.bags import _typestore, serialize_array
+    from fd_monitor.wire.bag_reader import _typestore
+    from fd_monitor.wire.bag_writer import serialize_array
     from fd_monitor.wire.conversions import parse_cdr
 
     store = _typestore()
@@ -189,7 +186,8 @@ def test_float64multiarray_fast_decoder_agrees_with_rosbags_on_mangled_bytes():
 def test_messages_from_raw_big_endian_and_bad_bytes_go_through_rosbags():
     """Big-endian CDR (which the fast path leaves alone) reads as rosbags reads it; bytes of
     no Float64MultiArray give the one BagError naming the bag, topic and time."""
-    from fd_monitor.wire.bags import _typestore, messages_from_raw, serialize_array
+    from fd_monitor.wire.bag_reader import _typestore, messages_from_raw
+    from fd_monitor.wire.bag_writer import serialize_array
 
     store = _typestore()
     ty = "std_msgs/msg/Float64MultiArray"
@@ -206,15 +204,15 @@ def test_messages_from_raw_big_endian_and_bad_bytes_go_through_rosbags():
 
 
 def test_message_index_check_accepts_only_what_the_strict_parser_accepts(repo):
-    """Reading skips the strict round trip of MessageIndex records (bags._message_index_ok,
+    """Reading skips the strict round trip of MessageIndex records (bag_scanner._message_index_ok,
     the index is never used): over the bundled bag's index records and 20,000 seeded
-    mutations of them, every record the check accepts is one bags._parse accepts."""
+    mutations of them, every record the check accepts is one bag_scanner._parse accepts."""
     import random
     import struct
 
     from mcap.opcode import Opcode
 
-    from fd_monitor.wire.bags import _message_index_ok, _parse, mcap_file
+    from fd_monitor.wire.bag_scanner import _message_index_ok, _parse, mcap_file
 
     buf = mcap_file(repo / "bags" / "three_tank_bias_h1").read_bytes()
     records, pos = [], 8
@@ -245,16 +243,16 @@ def test_message_index_check_accepts_only_what_the_strict_parser_accepts(repo):
 
 def test_arrays_of_one_layout_equal_the_message_by_message_reading(repo):
     """read_bag reads the topics whose messages share their layout bytes as one array
-    (bags._arrays_of_one_layout); on the bundled bag, an unstamped topic and NaN/inf values
+    (bag_reader._arrays_of_one_layout); on the bundled bag, an unstamped topic and NaN/inf values
     it gives exactly what decoding message by message gives, and it leaves any bag with a
     stamp decode() refuses (NaN, negative, 1.5, 2**53) to that loop, which names it."""
-    from fd_monitor.wire.bags import (
+    from fd_monitor.wire.bag_reader import (
         _arrays_message_by_message,
         _arrays_of_one_layout,
         _typestore,
-        read_raw,
-        serialize_array,
     )
+    from fd_monitor.wire.bag_scanner import read_raw
+    from fd_monitor.wire.bag_writer import serialize_array
 
     ty = "std_msgs/msg/Float64MultiArray"
     st = _typestore()

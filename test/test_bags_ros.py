@@ -10,7 +10,8 @@ import pytest
 from ros_util import Proc, run_cli
 
 from fd_monitor.commands.simulate import simulate_to_bag
-from fd_monitor.wire.bags import bag_topics, read_bag
+from fd_monitor.wire.bag_reader import read_bag
+from fd_monitor.wire.bag_scanner import bag_topics
 
 pytestmark = pytest.mark.ros
 
@@ -109,7 +110,7 @@ def test_record_killed_with_sigkill_loses_at_most_the_last_second(tmp_path):
     with the same messages."""
     import time
 
-    from fd_monitor.wire.bags import BagDamageWarning, read_raw
+    from fd_monitor.wire.bag_scanner import BagDamageWarning, read_raw
 
     rate = 100.0          # plant_sim at rate_factor 10: 10 x 10 Hz
     bag = tmp_path / "rec"
@@ -158,7 +159,7 @@ def test_record_meets_a_best_effort_driver(tmp_path):
     from std_msgs.msg import Float64MultiArray
 
     from fd_monitor.nodes.bag_nodes import RecorderNode
-    from fd_monitor.wire.bags import BagWriter
+    from fd_monitor.wire.bag_writer import BagWriter
     from fd_monitor.wire.conversions import to_msg
 
     out = tmp_path / "be"

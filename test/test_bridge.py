@@ -21,7 +21,8 @@ from fd_monitor.core.simulator import simulate
 from fd_monitor.model.errors import ImplausibleError
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import arrays_from, read_bag, write_bag
+from fd_monitor.wire.bag_reader import arrays_from, read_bag
+from fd_monitor.wire.bag_writer import write_bag
 from fd_monitor.wire.stream import MAX_GAP
 
 LIB = load_library()
@@ -38,8 +39,10 @@ def _bag_stream(name: str):
     spec = LIB[name]
     system, gf = _loaded(spec.gains)
     rt = runtime_for(system, gf)
-    us, ys, sides, _rep = read_streams(spec.folder, system,
-                                       {n: rt.side_labels[n] for n in rt.side_inputs})
+    s, _rep = read_streams(spec.folder, system, {n: rt.side_labels[n] for n in rt.side_inputs})
+    ks = s.k.tolist()
+    us, ys = dict(zip(ks, s.u)), dict(zip(ks, s.y))     # a stamp released twice: the last
+    sides = {n: dict(zip(ks, v)) for n, v in s.side.items()}
     return rt, sorted(us), us, ys, sides or None
 
 
@@ -280,7 +283,8 @@ def test_offline_stream_and_run_over_stamps_agree(tmp_path):
     assert run.inputs.bridges == [1301, 1610] and run.inputs.restarts == [2001 + MAX_GAP]
     assert run.inputs.by_kind()["missing"] == [list(h) for h in holes]
     rt = runtime_for(system, gf)
-    us, ys, _s, _r = read_streams(bag, system)
+    s, _r = read_streams(bag, system)
+    us, ys = dict(zip(s.k.tolist(), s.u)), dict(zip(s.k.tolist(), s.y))
     rep = InputReport()
     fields = run_runtime(rt, sorted(us), us, ys, rep)
     assert rep.bridges == run.inputs.bridges and rep.restarts == run.inputs.restarts

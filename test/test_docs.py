@@ -101,7 +101,8 @@ def test_key_modules_have_examples() -> None:
     method registry, the simulator, bags)."""
     assert {"fd_monitor", "fd_monitor.model.system", "fd_monitor.model.gains",
             "fd_monitor.core.methods", "fd_monitor.core.simulator",
-            "fd_monitor.wire.bags"} <= set(doctested_modules())
+            "fd_monitor.wire.bag_reader", "fd_monitor.wire.bag_writer"
+            } <= set(doctested_modules())
 
 
 def test_readme_is_a_front_page() -> None:
@@ -132,7 +133,7 @@ def test_public_api_is_lazy_and_complete() -> None:
     code = ("import sys, fd_monitor\n"
             "print(sorted(m for m in sys.modules if m.startswith(('numpy', 'fd_monitor.'))))\n"
             "print(all(getattr(fd_monitor, n) is not None for n in fd_monitor.__all__))\n"
-            "from fd_monitor.wire.bags import read_bag\n"
+            "from fd_monitor.wire.bag_reader import read_bag\n"
             "print(fd_monitor.read_bag is read_bag)\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
                          text=True, timeout=120)

@@ -31,7 +31,7 @@ from fd_monitor.core.plant import SampledPlant
 from fd_monitor.core.residual_bank import TABLE_TOL, ResidualBank
 from fd_monitor.core.runtime import HinfScRuntime
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y, side_topic
 
 #: Relative tolerance of a fast residual (see the module docstring).

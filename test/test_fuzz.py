@@ -169,7 +169,8 @@ def bag_streams(draw: Any) -> dict[str, Any]:
 
 def _run_stream(doc: dict[str, Any]) -> Any:
     from fd_monitor.analysis.offline import run_bag
-    from fd_monitor.wire.bags import arrays_from, write_bag
+    from fd_monitor.wire.bag_reader import arrays_from
+    from fd_monitor.wire.bag_writer import write_bag
 
     s = _SYSTEM
     ns = np.arange(len(doc["stamps"])) * 100_000_000
@@ -294,7 +295,8 @@ def _identify_stream(doc: dict[str, Any]) -> Any:
     """identify's reader (:func:`~fd_monitor.analysis.integrity.read_joined`) on generated
     stamps and values."""
     from fd_monitor.analysis.integrity import read_joined
-    from fd_monitor.wire.bags import arrays_from, write_bag
+    from fd_monitor.wire.bag_reader import arrays_from
+    from fd_monitor.wire.bag_writer import write_bag
 
     s = _SYSTEM
     ns = np.arange(len(doc["stamps"])) * 100_000_000

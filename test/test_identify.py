@@ -33,7 +33,8 @@ from fd_monitor.core.identify import (
 )
 from fd_monitor.model.errors import BagError
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import arrays_from, write_bag
+from fd_monitor.wire.bag_reader import arrays_from
+from fd_monitor.wire.bag_writer import write_bag
 
 A_TRUE = np.array([[0.95, 0.02], [0.0, 0.90]])
 B_TRUE = np.array([[0.10, 0.0], [0.0, 0.20]])

@@ -32,7 +32,8 @@ from fd_monitor.core.identify import (
     simulate,
 )
 from fd_monitor.wire.adapters import parse_adapter
-from fd_monitor.wire.bags import arrays_from, write_bag
+from fd_monitor.wire.bag_reader import arrays_from
+from fd_monitor.wire.bag_writer import write_bag
 
 A_TRUE = np.array([[0.96, 0.03], [-0.02, 0.93]])
 B_TRUE = np.array([[0.08, 0.02], [0.01, 0.06]])

@@ -13,7 +13,8 @@ from fd_monitor.analysis.generate import generate_bag
 from fd_monitor.analysis.library import LibraryError, load_expected, load_library
 from fd_monitor.analysis.offline import read_inputs
 from fd_monitor.model.scenario import load_scenario
-from fd_monitor.wire.bags import read_bag, read_raw
+from fd_monitor.wire.bag_reader import read_bag
+from fd_monitor.wire.bag_scanner import read_raw
 
 LIB = load_library()
 
@@ -79,7 +80,7 @@ def test_bag_comparison_tells_rounding_from_a_change(tmp_path):
     moved stamp and on a changed label."""
     from dataclasses import replace
 
-    from fd_monitor.wire.bags import write_bag
+    from fd_monitor.wire.bag_writer import write_bag
 
     spec = LIB["three_tank_valve"]
     src = read_bag(spec.folder)
@@ -127,7 +128,8 @@ def test_bad_input_bag_holds_its_corruptions():
     system = _system(spec)
     n_y = sum(1 for _ in read_raw(spec.folder, ["/plant/y"]))
     assert n_y == 1500 - 50 + 1       # the gap removes 50 messages, the duplicate adds one
-    us, ys, rep = read_inputs(spec.folder, system)
+    s, rep = read_inputs(spec.folder, system)
+    ys, us = set(s.k.tolist()), set(s.k.tolist())
     kinds = rep.by_kind()
     assert kinds["non_finite"] == [300, 301]
     assert kinds["wrong_length"] == [450]

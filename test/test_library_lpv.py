@@ -17,7 +17,7 @@ from fd_monitor.analysis.summary import read_bag_truth, truth_facts
 from fd_monitor.core.methods import load_gains
 from fd_monitor.model.nonlinear import SCHEDULING_MAPS
 from fd_monitor.model.scenario import load_scenario
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 
 LIB = load_library()
 NEW = ["three_tank_lpv_leaks_abrupt", "three_tank_lpv_leaks_incipient", "f16xl_overlap",

@@ -13,7 +13,7 @@ import pytest
 from ros_util import REPO, Proc, replay_through
 
 from fd_monitor.analysis.offline import run_bag
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 
 pytestmark = pytest.mark.ros
 

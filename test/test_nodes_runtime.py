@@ -26,7 +26,8 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
     from fd_monitor.model.system import load_system
     from fd_monitor.nodes.monitor import MonitorNode
     from fd_monitor.nodes.qos import data_pub_qos
-    from fd_monitor.wire.bags import bag_topics, read_bag
+    from fd_monitor.wire.bag_reader import read_bag
+    from fd_monitor.wire.bag_scanner import bag_topics
     from fd_monitor.wire.conversions import to_msg
 
     spec = load_library()[bag]

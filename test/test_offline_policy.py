@@ -20,7 +20,7 @@ from fd_monitor.core.methods import load_gains
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import write_messages
+from fd_monitor.wire.bag_writer import write_messages
 from fd_monitor.wire.join import StampJoin
 from fd_monitor.wire.stream import (
     GAP_TIMEOUT,
@@ -125,7 +125,7 @@ def test_offline_takes_the_live_nodes_decisions(plant, tmp_path):
         seen.append((s.k, s.restart, s.bridge, s.hole, s.new_run is not None))
         return True
 
-    us, ys, _side, rep = read_streams(bag, sys_, step=step)
+    got, rep = read_streams(bag, sys_, step=step)
     assert seen == _node_reference(timeline)
     ks = [s[0] for s in seen]
     assert ks == [*range(20), *range(25, 40), *range(41, 80), *range(28), 29]
@@ -146,8 +146,9 @@ def test_offline_takes_the_live_nodes_decisions(plant, tmp_path):
         (41, False, True, (40, 40), False), (0, True, False, None, True),
         (29, False, True, (28, 28), False)]
     # the values joined are the messages' (the new run's stamp 0 replays sample 0)
-    np.testing.assert_array_equal(ys[10], tr.y[0, 10])
-    np.testing.assert_array_equal(us[79], tr.u[0, 79])
+    assert got.k.tolist() == ks                        # released order, both runs
+    np.testing.assert_array_equal(got.y[ks.index(10)], tr.y[0, 10])
+    np.testing.assert_array_equal(got.u[ks.index(79)], tr.u[0, 79])
 
 
 def test_out_of_order_within_the_timeout_is_not_a_hole(plant, tmp_path):
@@ -159,8 +160,8 @@ def test_out_of_order_within_the_timeout_is_not_a_hole(plant, tmp_path):
           if not (m[1] == y and m[2] == 12)]
     tl.append((12 * TS + late, y, 12, tr.y[0, 12]))
     tl.sort(key=lambda m: m[0])
-    _us, ys, _s, rep = read_streams(_bag(tmp_path, sys_, tl), sys_)
-    assert sorted(ys) == list(range(30)) and rep.restarts == []
+    got, rep = read_streams(_bag(tmp_path, sys_, tl), sys_)
+    assert got.k.tolist() == list(range(30)) and rep.restarts == []
     assert rep.by_kind() == {"out_of_order": [12]}
 
 
@@ -209,7 +210,7 @@ def test_monitor_fed_at_the_recorded_pace_matches_offline(plant, tmp_path):
     from ros_util import Proc, replay_through
     from test_regression_live import logged_input_errors
 
-    from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.bag_reader import read_bag
 
     sys_, g, tr = plant
     bag = _bag(tmp_path, sys_, _timeline(tr))

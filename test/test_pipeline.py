@@ -17,7 +17,7 @@ from fd_monitor.commands.simulate import simulate_to_bag
 from fd_monitor.core.methods import load_gains
 from fd_monitor.core.monitor import Monitor
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 
 pytestmark = pytest.mark.ros
 

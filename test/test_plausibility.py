@@ -69,7 +69,8 @@ def test_offline_run_reports_it_and_recovers_without_alarm(plant):
 
 
 def test_flipped_bit_in_a_bag_is_an_input_error(plant, tmp_path):
-    from fd_monitor.wire.bags import arrays_from, write_bag
+    from fd_monitor.wire.bag_reader import arrays_from
+    from fd_monitor.wire.bag_writer import write_bag
 
     sys_, _g, tr = plant
     y = tr.y[0].copy()

@@ -21,7 +21,7 @@ from fd_monitor.analysis.expectations import check_expected
 from fd_monitor.analysis.library import load_expected, load_library
 from fd_monitor.analysis.offline import run_bag, stamp_runs
 from fd_monitor.analysis.summary import recorded_outputs, summarize
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 
 pytestmark = pytest.mark.ros
 

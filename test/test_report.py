@@ -10,7 +10,8 @@ import pytest
 
 from fd_monitor.analysis.library import load_library
 from fd_monitor.analysis.report import bag_report, campaign_report
-from fd_monitor.wire.bags import arrays_from, write_bag
+from fd_monitor.wire.bag_reader import arrays_from
+from fd_monitor.wire.bag_writer import write_bag
 
 LIB = load_library()
 

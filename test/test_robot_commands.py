@@ -39,7 +39,8 @@ def _robot_bag(tmp_path, name="motor", scenario="dc_motor_bias_velocity", second
     """A simulated dc_motor bag on the robot's topics, with the ``(topic, i)``-th messages of
     ``drop`` left out (a lost message)."""
     from fd_monitor.commands.simulate import simulate_to_bag
-    from fd_monitor.wire.bags import BagWriter, read_raw
+    from fd_monitor.wire.bag_scanner import read_raw
+    from fd_monitor.wire.bag_writer import BagWriter
 
     full = tmp_path / f"{name}_full"
     simulate_to_bag(scenario, full, seed=3, duration=seconds, adapter="dc_motor")
@@ -334,7 +335,7 @@ def test_validate_dry_run_shows_how_a_bag_pairs_into_samples(tmp_path, capsys):
 def test_record_adapter_records_robot_topics_fd_outputs_and_diagnostics(tmp_path, capsys):
     from ros_util import Proc, wait_graph
 
-    from fd_monitor.wire.bags import bag_topics
+    from fd_monitor.wire.bag_scanner import bag_topics
     from fd_monitor.wire.topics import CHAIN_OUTPUTS, DIAGNOSTICS
 
     plant, bag, n = load_gains(GAINS, verify=False).system_name, tmp_path / "rec", 300

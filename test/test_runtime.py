@@ -23,7 +23,8 @@ from fd_monitor.model.errors import BagError, GainFileError, MessageError
 from fd_monitor.model.gains import save_gains
 from fd_monitor.model.scenario import load_scenario, parse_scenario
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import arrays_from, write_bag
+from fd_monitor.wire.bag_reader import arrays_from
+from fd_monitor.wire.bag_writer import write_bag
 
 GAINS_DIR = Path(__file__).resolve().parents[1] / "config" / "gains"
 GAIN_FILES = sorted(p.stem for p in GAINS_DIR.glob("*.yaml"))
@@ -407,16 +408,16 @@ def test_hminus_mode_from_the_plants_guards():
 
 def test_analyze_reads_the_bag_once(monkeypatch):
     """`analyze` opens and reads a bag once (topics, labels, inputs, truth from one pass)."""
-    import fd_monitor.analysis.offline as offline
+    import fd_monitor.analysis.reader as reader
 
     calls = []
-    real = offline.read_raw
+    real = reader.read_raw
 
     def counting(*a, **kw):
         calls.append(a[0])
         return real(*a, **kw)
 
-    monkeypatch.setattr(offline, "read_raw", counting)   # the reader analyze runs
+    monkeypatch.setattr(reader, "read_raw", counting)    # the contract reader analyze runs
     bag = Path(__file__).resolve().parents[1] / "bags" / "three_tank_bias_h1"
     doc = analyze_bag(str(bag), "three_tank_thresholds")
     assert doc["isolated"] == ["h1"] and doc["transitions_true"] is not None

@@ -282,7 +282,7 @@ def test_simulate_cli_bad_scheduling_exits_2_with_one_line(tmp_path):
 
 def test_simulate_cli_writes_rho_and_mode_to_the_truth(tmp_path):
     """`simulate` -> bag for an uncertain plant: rho and the mode on /plant/truth by label."""
-    from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.bag_reader import read_bag
 
     out = subprocess.run([sys.executable, "-m", "fd_monitor", "simulate", "thesis_5_3_overlap",
                           "--duration", "2.0", "-o", str(tmp_path / "bag"), "--json"],
@@ -322,7 +322,7 @@ def test_measured_side_signals_are_what_a_monitor_may_measure(scenario, topics):
 def test_simulate_cli_writes_the_measured_mode_that_analyze_reads(tmp_path):
     """The switched plant's bag carries /plant/mode, and analyze runs the hminus_switched
     gain file on it (the side signal read from the bag)."""
-    from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.bag_reader import read_bag
 
     out = subprocess.run([sys.executable, "-m", "fd_monitor", "simulate",
                           "bag_farhat_koenig_fault", "--duration", "20.0",

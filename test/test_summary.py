@@ -8,7 +8,8 @@ import pytest
 from bag_compare import assert_bags_close
 
 from fd_monitor.analysis.library import load_library
-from fd_monitor.analysis.offline import _classify, run_bag
+from fd_monitor.analysis.offline import run_bag
+from fd_monitor.analysis.reader import classify as _classify
 from fd_monitor.analysis.summary import (
     Outputs,
     episodes,
@@ -28,7 +29,8 @@ from fd_monitor.model.errors import (
 )
 from fd_monitor.model.system import load_system
 from fd_monitor.nodes.domain import isolate_env
-from fd_monitor.wire.bags import TopicArrays, array_msg
+from fd_monitor.wire.bag_reader import TopicArrays
+from fd_monitor.wire.bag_writer import array_msg
 from fd_monitor.wire.conversions import decode
 
 LIB = load_library()

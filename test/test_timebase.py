@@ -25,7 +25,8 @@ from fd_monitor.wire.adapters import (
     read_adapted,
     rosbags_make,
 )
-from fd_monitor.wire.bags import BagWriter, _typestore
+from fd_monitor.wire.bag_reader import _typestore
+from fd_monitor.wire.bag_writer import BagWriter
 from fd_monitor.wire.timebase import snap_sample_time
 
 PLANT, GAINS = "dc_motor_identified", "dc_motor_identified_thresholds"
@@ -228,7 +229,8 @@ def test_the_same_messages_give_the_same_samples_in_any_interleaving(tmp_path):
     recorded: the time base decides on data, so a different interleaving (within the wait)
     gives the same samples."""
     robot_bag(tmp_path / "b", 800, jitter=0.4, y_lost=1 / 200, u_lost=1 / 200, seed=5)
-    from fd_monitor.wire.bags import messages_from_raw, read_raw
+    from fd_monitor.wire.bag_reader import messages_from_raw
+    from fd_monitor.wire.bag_scanner import read_raw
 
     msgs = list(messages_from_raw(tmp_path / "b", list(read_raw(tmp_path / "b"))))
     ad = load_adapter("dc_motor").for_system(load_system(PLANT))

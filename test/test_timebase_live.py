@@ -19,7 +19,7 @@ pytestmark = pytest.mark.ros
 def test_jittered_lossy_robot_bag_live_equals_offline(tmp_path):
     from ros_util import Proc, replay_through
 
-    from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.bag_reader import read_bag
 
     bag = tmp_path / "robot"
     robot_bag(bag, 1200, jitter=0.4, y_lost=1 / 200, u_lost=1 / 200, seed=5)

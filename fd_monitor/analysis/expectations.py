@@ -34,7 +34,7 @@ from fd_monitor.core.residual_bank import ResidualBank
 from fd_monitor.model.gains import to_plain
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
 __all__ = ["analyze_summary", "check_expected", "check_truth", "core_summary",

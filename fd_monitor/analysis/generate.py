@@ -4,7 +4,7 @@
 bag of the library (:mod:`fd_monitor.analysis.library`) starts from; :func:`bag_messages`
 applies a bag spec's corruptions (module docstring of :mod:`fd_monitor.analysis.library`);
 :func:`generate_bag` and :func:`generate_library` write them
-(:func:`fd_monitor.wire.bags.write_messages`), the same spec giving the same bytes.
+(:func:`fd_monitor.wire.bag_writer.write_messages`), the same spec giving the same bytes.
 
 Nothing here imports rclpy.
 """
@@ -32,7 +32,7 @@ from fd_monitor.core.simulator import (
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.yaml_io import require_memory
 from fd_monitor.wire.adapters import write_adapted
-from fd_monitor.wire.bags import BagWriter, write_messages
+from fd_monitor.wire.bag_writer import BagWriter, write_messages
 from fd_monitor.wire.topics import PLANT_TRUTH, PLANT_U, PLANT_Y, side_topic
 
 __all__ = ["BYTES_PER_BAG_SAMPLE", "bag_messages", "check_bag_size", "generate_bag",
@@ -139,7 +139,7 @@ def _corrupt(msgs: list[_Msg], c: Corruption, spec: BagSpec) -> list[_Msg]:
 
 
 def _write(path: str | Path, msgs: Sequence[_Msg]) -> Path:
-    """Write messages into a new bag (:func:`fd_monitor.wire.bags.write_messages`)."""
+    """Write messages into a new bag (:func:`fd_monitor.wire.bag_writer.write_messages`)."""
     return write_messages(path, ((m.topic, m.t_ns, m.stamp, m.labels, m.values)
                                  for m in msgs))
 
@@ -183,7 +183,7 @@ def _simulate_streaming(path: str | Path, scenario: Any, seed: int | None, n_sam
     """:func:`simulate_bag` without an adapter, ``chunk`` samples at a time: the simulator is
     stepped, the chunk's messages written, and nothing of it kept, so memory does not grow
     with the bag's length. The bytes are :func:`simulated_messages` written by
-    :func:`~fd_monitor.wire.bags.write_messages` (the simulator is step-based and its noise
+    :func:`~fd_monitor.wire.bag_writer.write_messages` (the simulator is step-based and its noise
     drawn per run in fixed blocks: a chunk is the same samples, ``test/test_streaming.py``)."""
     sys_ = scenario.system
     dt = sys_.sample_time

@@ -58,7 +58,9 @@ from fd_monitor.analysis.identify_quality import (
     physical_parameters,
     simulation,
 )
-from fd_monitor.analysis.integrity import read_joined
+from fd_monitor.analysis.integrity import describe, enforce_strict, read_joined
+from fd_monitor.analysis.integrity import integrity as bag_integrity_record
+from fd_monitor.analysis.offline import adapted_streams, scan_bag
 from fd_monitor.core.identify import (
     AffineModel,
     IdentificationError,
@@ -74,8 +76,8 @@ from fd_monitor.core.identify import (
 )
 from fd_monitor.model.errors import BagError, FdMonitorWarning
 from fd_monitor.model.system import System, parse_system
-from fd_monitor.wire.adapters import read_adapted
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
+from fd_monitor.wire.series import Series
 from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
 __all__ = [
@@ -105,23 +107,15 @@ _GUARD_RE = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(>=|<=|>|<)\s*(\S+)\s*$"
 
 
 @dataclass(frozen=True)
-class Dataset:
-    """One record of inputs and outputs (a bag, or arrays from an adapter).
+class Dataset(Series):
+    """One record of inputs and outputs (a bag, or arrays from an adapter): a
+    :class:`~fd_monitor.wire.series.Series` (``name`` where it came from, used in messages
+    and the provenance; ``k`` (K,) increasing, a gap is a hole (no one-step pair across it);
+    ``u`` (K, nu) held over each sample; ``y`` (K, ny) output units; ``sample_time`` s or
+    None) with what identification needs besides.
 
     Attributes
     ----------
-    name : str
-        Where it came from (a bag path), used in messages and the provenance.
-    inputs, outputs : tuple of str
-        Channel names, (nu,) and (ny,).
-    k : numpy.ndarray
-        (K,) int sample indices, increasing; a gap is a hole (no one-step pair across it).
-    u : numpy.ndarray
-        (K, nu) inputs, held over each sample.
-    y : numpy.ndarray
-        (K, ny) measurements, output units.
-    sample_time : float or None
-        s; None when the record does not say.
     mode : numpy.ndarray or None
         (K,) int mode of each sample (a measured mode channel), or None.
     sha256 : str
@@ -130,13 +124,6 @@ class Dataset:
         (u, y[, mode]) topic names, for messages.
     """
 
-    name: str
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    k: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    sample_time: float | None = None
     mode: np.ndarray | None = None
     sha256: str = ""
     topics: tuple[str, ...] = (PLANT_U.absolute, PLANT_Y.absolute)
@@ -223,7 +210,16 @@ def load_dataset(bag: str | Path, *, u_topic: str = PLANT_U.absolute,
     if not path.exists():
         raise BagError(f"{bag}: no such bag")
     if adapter is not None:
-        s = read_adapted(path, adapter, sample_time=sample_time)
+        # the contract: the bag's census (damage, metadata.yaml) and the samples through the
+        # adapter and the nodes' input policy, as analyze --adapter reads them
+        scan = scan_bag(path)
+        s, rep = adapted_streams(path, adapter, sample_time=sample_time, keep=True)
+        doc = bag_integrity_record(scan, rep)
+        enforce_strict(doc, bag, strict)
+        if integrity is not None:
+            integrity[str(bag)] = doc
+        if doc["skipped_chunks"] or doc["metadata"]:
+            warnings.warn(f"{bag}: {describe(doc)}", FdMonitorWarning, stacklevel=2)
         c = s.counts
         gaps = {r: sum(n.values()) for r, n in c["gaps"].items()}
         odd = {kind: sum(c.get(kind, {}).values())

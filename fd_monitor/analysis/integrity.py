@@ -37,15 +37,13 @@ from fd_monitor.model.plant_schema import MAX_MAGNITUDE
 from fd_monitor.wire.input_checks import (
     MAX_DISTINCT_LABELS,
     MAX_LABEL_CHARS,
-    bounded_labels,
     describe,
     integrity,
     metadata_problems,
-    tap,
 )
 
 __all__ = ["MAX_DISTINCT_LABELS", "MAX_LABEL_CHARS", "MAX_MAGNITUDE", "add_strict_flag",
-           "bag_integrity", "bounded_labels", "describe",
+           "bag_integrity", "describe",
            "enforce_strict", "integrity", "metadata_problems",
            "read_joined", "read_samples"]
 
@@ -68,20 +66,21 @@ def enforce_strict(doc: Mapping[str, Any], bag: str | Path, strict: bool) -> Non
         raise BagError(f"{bag}: input not used whole (--strict): {describe(doc)}")
 
 
-def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str] | None]
-                 = (), limits: Sequence[Any] = (), *, max_gap: int = 0,
-                 on_sample: Callable[[int], Any] | None = None,
-                 on_message: Callable[[str, int, Any], Any] | None = None
-                 ) -> tuple[list[int], list[np.ndarray], Any]:
-    """The samples of a bag without a plant file (``identify``, ``replay``), through the same
-    input policy as ``analyze`` (:func:`fd_monitor.analysis.offline.read_streams`).
+def read_samples(bag: str | Path, topics: Sequence[str],
+                 labels: Sequence[Sequence[str] | None] = (), limits: Sequence[Any] = (), *,
+                 max_gap: int = 0, on_sample: Callable[[int], Any] | None = None,
+                 on_message: Callable[[str, int, int | None], Any] | None = None,
+                 keep: bool = True, warn: bool = True
+                 ) -> tuple[list[int], list[np.ndarray], Any, Any]:
+    """The samples of a bag without a plant file (``identify``, ``replay``, ``bag check``),
+    through the same one-pass reader and input policy as ``analyze``
+    (:func:`fd_monitor.analysis.reader.read_pass`).
 
     Parameters
     ----------
-    scan : BagScan
-        The bag, read once (:func:`~fd_monitor.analysis.offline.scan_bag`).
+    bag : str or pathlib.Path
     topics : sequence of str
-        The joined Float64MultiArray topics (e.g. u then y).
+        The joined Float64MultiArray topics (e.g. u then y); none: the census only.
     labels : sequence
         Per topic the expected channel labels, or None: the first readable message's.
     limits : sequence
@@ -93,15 +92,18 @@ def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str
     on_sample : callable, optional
         Called with the stamp (as received) of each sample kept.
     on_message : callable, optional
-        Called with ``(topic, log time ns, message)`` of each message read, before any is
-        joined.
+        Called with ``(topic, log time ns, readable stamp or None)`` of each message read.
+    keep : bool
+        Keep the samples' values (False: only the report).
+    warn : bool
+        Say the damage and metadata problems once each.
 
     Returns
     -------
-    (list, list, InputReport)
+    (list, list, InputReport, BagScan)
         Released stamps (a new run after a restart renumbered to follow the last stamp with
         a hole of one sample, so no one-step pair crosses it), per topic the (K, m) values,
-        the report.
+        the report, the bag's census.
 
     Raises
     ------
@@ -109,39 +111,23 @@ def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str
         A topic missing or not a Float64MultiArray, more than :data:`MAX_DISTINCT_LABELS`
         label strings on a topic.
     """
-    from fd_monitor.analysis.offline import InputReport, _bag_errors, _join_messages
+    from fd_monitor.analysis.reader import InputReport, read_pass
     from fd_monitor.wire.join import Sample
-    from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY
 
     topics = list(topics)
-    present = scan.present
-    for t in topics:
-        if t not in present:
-            raise BagError(f"{scan.bag}: no topic {t} in the bag (topics: "
-                           f"{', '.join(sorted(present)) or 'none'})")
-        if present[t][0] != FLOAT64_MULTI_ARRAY:
-            raise BagError(f"{scan.bag}: {t} is recorded as {present[t][0]}, expected "
-                           f"{FLOAT64_MULTI_ARRAY}")
+
+    def each_present(scan: Any) -> None:         # one topic at a time, as identify says it
+        for t in topics:
+            scan.check_topics([t])
+
     given = list(labels) + [None] * (len(topics) - len(labels))
     lims = list(limits) + [None] * (len(topics) - len(limits))
-    labs: list[tuple[str, ...]] = []
-    for i, t in enumerate(topics):
-        if given[i] is not None:
-            labs.append(tuple(given[i] or ()))
-        else:
-            first = scan.first_labels(t)
-            if first is None:
-                raise BagError(f"{scan.bag}: {t}: its first message names no channels "
-                               f"(layout.dim[0].label): cannot tell them apart")
-            if len(",".join(first)) > MAX_LABEL_CHARS:
-                raise BagError(f"{scan.bag}: {t}: channel labels of over {MAX_LABEL_CHARS} "
-                               f"characters (limit MAX_LABEL_CHARS)")
-            labs.append(tuple(first))
     names = {t: f"s{i}" for i, t in enumerate(topics)}
     rep = InputReport()
     ks: list[int] = []
     cols: list[list[np.ndarray]] = [[] for _ in topics]
     shift = [0]
+    labs: list[tuple[str, ...]] = []
 
     def check(v: np.ndarray, i: int) -> str | None:
         lim = lims[i]
@@ -160,6 +146,8 @@ def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str
         return None
 
     def step(s: Sample) -> bool:
+        if not labs:                              # the labels the pass settled on
+            labs.extend(tuple(scan_labels[t] or ()) for t in topics)
         vals = [np.asarray(s.inputs[names[t]], float) for t in topics]
         for i, v in enumerate(vals):
             why = check(v, i)
@@ -174,19 +162,22 @@ def read_samples(scan: Any, topics: Sequence[str], labels: Sequence[Sequence[str
         ks.append(k)
         if on_sample is not None:
             on_sample(s.k)
-        for i, v in enumerate(vals):
-            cols[i].append(v)
+        if keep:
+            for i, v in enumerate(vals):
+                cols[i].append(v)
         return True
 
-    with _bag_errors(scan.bag):
-        msgs = bounded_labels(scan.messages(topics), scan.bag)
-        if on_message is not None:
-            msgs = tap(msgs, on_message)
-        _join_messages(msgs,
-                       {t: labs[i] for i, t in enumerate(topics)}, names,
-                       [names[t] for t in topics], rep, step, max_gap)
+    scan_labels: dict[str, tuple[str, ...] | None] = {}
+    for i, t in enumerate(topics):
+        got = given[i]
+        scan_labels[t] = None if got is None else tuple(got)
+    scan = read_pass(bag, topics, scan_labels, rep, step, names=names, max_gap=max_gap,
+                     checks=each_present, on_message=on_message, warn=warn)
+    if not labs:
+        labs.extend(tuple(scan.first_labels(t) or ()) if scan_labels[t] is None
+                    else tuple(scan_labels[t] or ()) for t in topics)
     return ks, [np.vstack(c) if c else np.zeros((0, len(labs[i])))
-                for i, c in enumerate(cols)], rep
+                for i, c in enumerate(cols)], rep, scan
 
 
 def read_joined(bag: str | Path, u_topic: str, y_topic: str, *, strict: bool = False
@@ -213,22 +204,17 @@ def read_joined(bag: str | Path, u_topic: str, y_topic: str, *, strict: bool = F
     """
     import warnings
 
-    from fd_monitor.analysis.offline import scan_bag
     from fd_monitor.model.errors import FdMonitorWarning
-    from fd_monitor.wire.conversions import readable_stamp
 
-    scan = scan_bag(bag)
     times: dict[int, int] = {}
 
-    def timed(topic: str, t: int, msg: Any) -> None:
-        if topic == y_topic:
-            k = readable_stamp(msg)
-            if k is not None:
-                times.setdefault(k, int(t))
+    def timed(topic: str, t: int, k: int | None) -> None:
+        if topic == y_topic and k is not None:
+            times.setdefault(k, int(t))
 
     raw: list[int] = []
-    ks, (u, y), rep = read_samples(scan, [u_topic, y_topic], on_sample=raw.append,
-                                   on_message=timed)
+    ks, (u, y), rep, scan = read_samples(bag, [u_topic, y_topic], on_sample=raw.append,
+                                         on_message=timed)
     doc = integrity(scan, rep)
     if not ks:
         raise BagError(f"{bag}: no usable (u, y) sample on {u_topic} and {y_topic} "
@@ -258,22 +244,32 @@ def bag_integrity(bag: str | Path, strict: bool = False, *, warn: bool = True,
     """
     import warnings
 
-    from fd_monitor.analysis.offline import scan_bag
     from fd_monitor.model.errors import FdMonitorWarning
     from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 
-    scan = scan_bag(bag, warn=warn)      # a missing or broken bag fails here, one line
-    topics = [t.absolute for t in (PLANT_U, PLANT_Y) if t.absolute in scan.present]
+    topics = [t.absolute for t in (PLANT_U, PLANT_Y)]
     rep = None
-    if PLANT_Y.absolute in topics:
-        try:
-            rep = read_samples(scan, topics)[2]
-        except BagError as exc:
-            if strict:
-                raise
-            if warn:
-                warnings.warn(f"{exc} (stamps and labels not checked)", FdMonitorWarning,
-                              stacklevel=2)
+    try:
+        # one pass: the census, and /plant/u, /plant/y through the input policy
+        _ks, _v, rep, scan = read_samples(bag, topics, keep=False, warn=warn)
+    except BagError as exc:
+        # the census alone (a missing or broken bag fails here, one line); the samples are
+        # checked only when the bag has them
+        scan = read_samples(bag, [], warn=warn)[3]
+        rep = None
+        if PLANT_Y.absolute in scan.present:
+            have = [t for t in topics if t in scan.present]
+            try:
+                if have != topics:
+                    rep = read_samples(bag, have, keep=False, warn=False)[2]
+                else:
+                    raise exc
+            except BagError as again:
+                if strict:
+                    raise
+                if warn:
+                    warnings.warn(f"{again} (stamps and labels not checked)",
+                                  FdMonitorWarning, stacklevel=2)
     doc = integrity(scan, rep)
     enforce_strict(doc, bag, strict and enforce)
     if warn and not doc["clean"]:

@@ -30,239 +30,65 @@ One mechanism serves ``analyze`` (:mod:`fd_monitor.commands.analyze`), the bag r
 
 Nothing here imports rclpy (the message decoding is the nodes' pure conversion function).
 
-Why one module of ~770 lines: reading a bag through the one input policy and running a
-runtime over it is one pipeline (input report, bag scan, run), which the regression suite
-compares bit for bit with the live nodes.
+The reading itself (one pass, in chunks: census, damage, metadata, labels, the input policy)
+is :mod:`fd_monitor.analysis.reader`; here are the runs over it. Why one module of ~640 lines:
+running a runtime over a bag's samples (plant topics or an adapter's), reducing its outputs
+chunk by chunk and the in-memory form (:func:`run_runtime`) are one pipeline, which the
+regression suite compares bit for bit with the live nodes.
 """
 
 from __future__ import annotations
 
-import bisect
-import contextlib
-import itertools
 import math
-import warnings
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fd_monitor.core.methods import load_gains, runtime_for
-from fd_monitor.model.errors import (
-    BagError,
-    FdMonitorError,
-    ImplausibleError,
-    MessageError,
-    NonFiniteError,
-    WrongLengthError,
+from fd_monitor.analysis.reader import (
+    INPUT_ERROR_KINDS,
+    UY,
+    BagScan,
+    InputReport,
+    classify,
+    policy_stream,
+    read_pass,
+    scan_bag,
+    stamp_runs,
 )
+from fd_monitor.analysis.summary import SparseRows
+from fd_monitor.core.methods import load_gains, runtime_for
+from fd_monitor.model.errors import BagError, ImplausibleError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import gain_system
-from fd_monitor.wire.adapters import Adapter, feed, load_adapter, read_adapted
-from fd_monitor.wire.bags import (
-    BagDamage,
-    BagDamageWarning,
-    arrays_from_raw,
-    messages_from_raw,
-    read_raw,
+from fd_monitor.wire.adapters import (
+    AdaptedSample,
+    AdaptedStreams,
+    Adapter,
+    adapted_events,
+    feed,
+    load_adapter,
 )
-from fd_monitor.wire.conversions import decode, readable_stamp
-from fd_monitor.wire.input_checks import bounded_labels, integrity, metadata_problems
-from fd_monitor.wire.join import Sample, StampJoin
-from fd_monitor.wire.stream import (
-    GAP_TIMEOUT,
-    MAX_GAP,
-    RESTART_AFTER,
-    STAMP_HORIZON,
-    InputStream,
-    TopicOrder,
-)
-from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY, PLANT_TRUTH, PLANT_U, PLANT_Y
+from fd_monitor.wire.input_checks import integrity
+from fd_monitor.wire.join import Sample
+from fd_monitor.wire.series import Series
+from fd_monitor.wire.stream import MAX_GAP
+from fd_monitor.wire.timebase import Gap, NewRun
+from fd_monitor.wire.topics import PLANT_U, PLANT_Y
 from fd_monitor.wire.topics import side_topic as _side_topic
 
-__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "read_inputs",
-           "read_streams", "run_bag", "run_runtime", "run_thresholds", "scan_bag",
-           "stamp_runs"]
+__all__ = ["BagRun", "BagScan", "INPUT_ERROR_KINDS", "InputReport", "adapted_streams",
+           "read_inputs", "read_streams", "run_bag", "run_runtime", "run_thresholds",
+           "scan_bag", "stamp_runs"]
 
-#: Prefix of the plant's topics in a bag (the records a scan keeps).
-_PLANT = PLANT_U.absolute.rsplit("/", 1)[0] + "/"
-#: The joined inputs, as an error report names them.
-_UY = f"{PLANT_U.absolute},{PLANT_Y.absolute}"
-
-#: Kinds of input errors the analysis reports (``input_errors`` of expected.yaml): the
-#: decode errors, the input policy's reports (:mod:`fd_monitor.wire.stream`: ``late``, a
-#: message for a stamp inside a declared hole; ``held``, the first stamp of an episode below
-#: the stream or beyond the stamp horizon; ``dropped``, a full join buffer) and the runtime's
-#: refusal (``implausible``).
-INPUT_ERROR_KINDS = ("non_finite", "wrong_length", "malformed", "duplicate", "out_of_order",
-                     "missing", "implausible", "late", "held", "dropped", "stale", "no_value",
-                     "stray", "decimated")
-#: Kinds whose ``sample`` is a run ``[first, last]`` of samples not used.
-_SAMPLE_KINDS = ("missing", "stale", "no_value")
-#: Kinds whose ``sample`` is one stamp not used (a refused message or sample).
-_STAMP_KINDS = ("non_finite", "wrong_length", "malformed", "implausible")
+#: Samples stepped between two reductions of the runtime's outputs (a RuntimeOutput is
+#: ~4 KB: CHUNK of them are the largest thing a run holds).
+CHUNK = 1024
 
 
-@dataclass
-class InputReport:
-    """What was wrong with a bag's input messages.
-
-    Attributes
-    ----------
-    errors : list of dict
-        ``{kind, topic, sample, message}`` per rejected or suspicious message; ``kind`` one of
-        :data:`INPUT_ERROR_KINDS`. ``sample`` is the stamp (None when unreadable).
-    restarts : list of int
-        Samples at which the monitor restarted (after a hole longer than ``MAX_GAP``, a
-        refused restart sample, or at a new run), the first processed sample not counted.
-    bridges : list of int
-        Samples at which the monitor bridged a shorter hole (its memory kept).
-    """
-
-    errors: list[dict[str, Any]] = field(default_factory=list)
-    restarts: list[int] = field(default_factory=list)
-    bridges: list[int] = field(default_factory=list)
-    used: int = 0
-    timebase: dict[str, Any] = field(default_factory=dict)
-
-    def sample_counts(self) -> dict[str, Any]:
-        """Samples ``present`` (used + skipped), ``used`` (processed by the runtime) and
-        ``skipped``: reason -> samples not used (a ``missing`` run counts its stamps; an
-        adapter's ``stale``/``no_value`` gaps their samples; a refused message or sample its
-        stamp). Messages dropped without losing a sample (duplicates, late, out of order)
-        are not samples: they are in :attr:`errors` and :attr:`timebase`."""
-        lost: dict[str, set[int] | int] = {}
-        for e in self.errors:
-            s = e["sample"]
-            if e["kind"] in _SAMPLE_KINDS and isinstance(s, (list, tuple)):
-                n = lost.get(e["kind"], 0)
-                assert isinstance(n, int)  # a kind is a count or a set of stamps, never both
-                lost[e["kind"]] = n + int(s[1]) - int(s[0]) + 1
-            elif e["kind"] in _STAMP_KINDS and isinstance(s, int) and s >= 0:
-                got = lost.setdefault(e["kind"], set())
-                assert isinstance(got, set)
-                got.add(s)
-        skipped = {k: (len(v) if isinstance(v, set) else v) for k, v in sorted(lost.items())}
-        return {"present": self.used + sum(skipped.values()), "used": self.used,
-                "skipped": skipped}
-
-    def by_kind(self) -> dict[str, list[Any]]:
-        """kind -> sorted stamps (``missing``, ``stale``, ``no_value``: ``[first, last]``
-        runs; -1: no stamp); a kind's entries sort by their first stamp whatever their form."""
-        out: dict[str, list[Any]] = {}
-        for e in self.errors:
-            s = e["sample"]
-            out.setdefault(e["kind"], []).append(-1 if s is None else
-                                                 list(s) if isinstance(s, tuple) else s)
-        return {k: sorted(v, key=lambda x: (x[0], x[-1]) if isinstance(x, list) else (x, x))
-                for k, v in out.items()}
-
-
-#: Input-error kind of each MessageError class (the first that matches); any other: malformed.
-_KIND_OF = ((ImplausibleError, "implausible"), (NonFiniteError, "non_finite"),
-            (WrongLengthError, "wrong_length"))
-
-
-def _classify(exc: MessageError) -> str:
-    """The :data:`INPUT_ERROR_KINDS` entry of a refused message, by the error's class."""
-    return next((kind for cls, kind in _KIND_OF if isinstance(exc, cls)), "malformed")
-
-
-@dataclass
-class BagScan:
-    """One pass over a bag (an analysis opens and reads it once).
-
-    Attributes
-    ----------
-    bag : str
-    present : dict
-        topic -> (message type, number of readable messages), every topic of the bag.
-    records : list
-        ``(topic, type, timestamp_ns, cdr_bytes)`` in file order of the ``/plant/...``
-        topics (inputs, measurements, side signals, truth).
-    """
-
-    bag: str
-    present: dict[str, tuple[str, int]]
-    records: list[tuple[str, str, int, bytes]]
-    #: What the read found wrong (:class:`~fd_monitor.wire.bags.BagDamage`, CRC-less chunks
-    #: included as ``kind="unchecked"``) and where ``metadata.yaml`` disagrees with the MCAP
-    #: (:func:`fd_monitor.analysis.integrity.metadata_problems`).
-    damage: list[Any] = field(default_factory=list)
-    metadata: list[str] = field(default_factory=list)
-
-    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
-        """``(topic, timestamp_ns, message)`` of ``topics`` in file order (as
-        :func:`fd_monitor.wire.bags.read_messages`)."""
-
-        want = set(topics)
-        yield from messages_from_raw(self.bag, (r for r in self.records if r[0] in want))
-
-    def first_labels(self, topic: str) -> tuple[str, ...] | None:
-        """Channel labels of the first message of a Float64MultiArray ``topic`` (None when
-        it has none or no message); BagError when the topic has another type."""
-        if topic in self.present and self.present[topic][0] != FLOAT64_MULTI_ARRAY:
-            raise BagError(f"{self.bag}: {topic} is {self.present[topic][0]}, not "
-                           f"{FLOAT64_MULTI_ARRAY}")
-        for _topic, _t, msg in self.messages([topic]):
-            dims = msg.layout.dim
-            return tuple(dims[0].label.split(",")) if dims and dims[0].label else None
-        return None
-
-    def truth(self) -> Any:
-        """``/plant/truth`` as :class:`~fd_monitor.wire.bags.TopicArrays`, or None (absent or
-        unreadable)."""
-
-        truth = PLANT_TRUTH.absolute
-        if self.present.get(truth, ("", 0))[0] != FLOAT64_MULTI_ARRAY:
-            return None
-        try:
-            with _bag_errors(self.bag):
-                return arrays_from_raw(self.bag, (r for r in self.records
-                                                  if r[0] == truth))[truth]
-        except BagError:
-            return None
-
-
-def scan_bag(bag: str | Path, warn: bool = True) -> BagScan:
-    """Read a bag once: every topic's type and count, and the ``/plant/...`` records.
-
-    The damage found and ``metadata.yaml``'s disagreements with the MCAP are kept in the
-    scan (:func:`fd_monitor.analysis.integrity.integrity`) and, with ``warn``, each said once
-    as a warning (stderr); chunks without CRC are not damage and not warned about.
-
-    Raises
-    ------
-    BagError
-        Missing bag, not a bag, unreadable data (the bag named).
-    """
-    if not Path(bag).exists():
-        raise BagError(f"{bag}: no such bag")
-    present: dict[str, tuple[str, int]] = {}
-    records: list[tuple[str, str, int, bytes]] = []
-    damage: list[BagDamage] = []
-    with _bag_errors(bag):
-        for rec in read_raw(bag, damage=damage):
-            topic, ty = rec[0], rec[1]
-            present[topic] = (ty, present.get(topic, (ty, 0))[1] + 1)
-            if topic.startswith(_PLANT):
-                records.append(rec)
-    damaged = any(d.kind == "damage" for d in damage)
-    scan = BagScan(str(bag), present, records, damage,
-                   metadata_problems(bag, present, damaged))
-    if warn:
-        for d in damage:
-            if d.kind == "damage":   # one location: said once even when read again
-                warnings.warn(str(d), BagDamageWarning, stacklevel=1)
-        for line in scan.metadata:
-            warnings.warn(f"{bag}: {line}", BagDamageWarning, stacklevel=1)
-    return scan
-
-
-def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
-                                                       dict[int, np.ndarray], InputReport]:
+def read_inputs(bag: str | Path, system: Any) -> tuple[Series, InputReport]:
     """Read ``/plant/u`` and ``/plant/y`` message by message, keeping the valid ones.
 
     The nodes' input policy (:func:`read_streams`): a message that does not decode (NaN/Inf,
@@ -273,20 +99,34 @@ def read_inputs(bag: str | Path, system: Any) -> tuple[dict[int, np.ndarray],
 
     Returns
     -------
-    (dict, dict, InputReport)
-        stamp -> u (nu,), stamp -> y (ny,) of the released samples, the report (with the
-        restarts).
+    (Series, InputReport)
+        The released samples, and the report (with the restarts).
     """
-    us, ys, _side, rep = read_streams(bag, system)
-    return us, ys, rep
+    return read_streams(bag, system)
+
+
+def _plant_topics(system: Any, side: dict[str, tuple[str, ...]]
+                  ) -> tuple[list[str], dict[str, tuple[str, ...] | None], dict[str, str]]:
+    """The joined topics of a plant (y, u when it has inputs, the side signals), their
+    labels and join names."""
+    t_u, t_y = PLANT_U.absolute, PLANT_Y.absolute
+    labels: dict[str, tuple[str, ...] | None] = {t_u: PLANT_U.labels(system),
+                                                  t_y: PLANT_Y.labels(system)}
+    names = {t_u: "u", t_y: "y"}
+    for name, labs in side.items():
+        labels[_side_topic(name).absolute] = tuple(labs)
+        names[_side_topic(name).absolute] = name
+    topics = ([t_y] + ([t_u] if system.nu else [])
+              + [_side_topic(n).absolute for n in side])
+    return topics, labels, names
 
 
 def read_streams(bag: str | Path, system: Any,
-                 side: dict[str, tuple[str, ...]] | None = None, scan: BagScan | None = None,
+                 side: dict[str, tuple[str, ...]] | None = None,
                  step: Callable[[Sample], bool] | None = None
-                 ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray],
-                            dict[str, dict[int, np.ndarray]], InputReport]:
-    """:func:`read_inputs` plus side-signal topics, through the nodes' input policy.
+                 ) -> tuple[Series, InputReport]:
+    """:func:`read_inputs` plus side-signal topics, through the nodes' input policy, in one
+    pass over the bag (:func:`fd_monitor.analysis.reader.read_pass`).
 
     The messages go, in bag record order, through
     :class:`~fd_monitor.wire.stream.InputStream` (the code a node's subscription callback
@@ -305,8 +145,6 @@ def read_streams(bag: str | Path, system: Any,
         Side signal name -> its labels (read from
         :func:`~fd_monitor.wire.topics.side_topic`); a stamp without a
         valid value of every side signal is not a usable sample (reported as missing).
-    scan : BagScan, optional
-        The bag already read (:func:`scan_bag`); default: read it now.
     step : callable, optional
         ``step(sample) -> bool`` run on each released
         :class:`~fd_monitor.wire.join.Sample` after its values are kept (a runtime step,
@@ -316,171 +154,36 @@ def read_streams(bag: str | Path, system: Any,
 
     Returns
     -------
-    (dict, dict, dict, InputReport)
-        stamp -> u (nu,), stamp -> y (ny,), name -> (stamp -> value) of the released samples
-        (a stamp released twice, in two runs: the last), the report.
+    (Series, InputReport)
+        The released samples in release order (``k`` (K,), ``u`` (K, nu), ``y`` (K, ny),
+        ``side`` name -> (K, ...); a new run starts again lower), and the report.
     """
-    if scan is None:
-        scan = scan_bag(bag)
-    rep = InputReport()
     side = dict(side or {})
-    t_u, t_y = PLANT_U.absolute, PLANT_Y.absolute
-    labels = {t_u: PLANT_U.labels(system), t_y: PLANT_Y.labels(system)}
-    names = {t_u: "u", t_y: "y"}
-    for name, labs in side.items():
-        labels[_side_topic(name).absolute] = tuple(labs)
-        names[_side_topic(name).absolute] = name
-    topics = ([t_y] + ([t_u] if system.nu else [])
-              + [_side_topic(n).absolute for n in side])
-
-    present = scan.present
-    missing = [t for t in topics if t not in present]
-    if missing:
-        raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
-                       f"{', '.join(sorted(present)) or 'none'})")
-    for t in topics:
-        if present[t][0] != FLOAT64_MULTI_ARRAY:
-            raise BagError(f"{bag}: {t} is recorded as {present[t][0]}, expected "
-                           f"{FLOAT64_MULTI_ARRAY}")
-        # a bag of another plant (or u and y swapped) would have every message refused
-        first = scan.first_labels(t)
-        if first and tuple(first) != tuple(labels[t]):
-            raise BagError(f"{bag}: {t} has channels {list(first)[:10]} but plant "
-                           f"{system.name} has {list(labels[t])}: a bag of another plant?")
-    us: dict[int, np.ndarray] = {}
-    ys: dict[int, np.ndarray] = {}
-    sides: dict[str, dict[int, np.ndarray]] = {n: {} for n in side}
+    topics, labels, names = _plant_topics(system, side)
+    rep = InputReport()
+    ks: list[int] = []
+    cols: dict[str, list[np.ndarray]] = {n: [] for n in ("u", "y", *side)}
     no_u = np.zeros(0)
 
-    def keep(s: Sample) -> bool:
+    def kept(s: Sample) -> bool:
         v = s.inputs
-        us[s.k] = v["u"] if system.nu else no_u
-        ys[s.k] = v["y"]
-        for n, d in sides.items():
-            d[s.k] = v[n]
+        ks.append(s.k)
+        cols["u"].append(v["u"] if system.nu else no_u)
+        for n in cols:
+            if n != "u":
+                cols[n].append(v[n])
         return True if step is None else step(s)
 
-    required = [names[t] for t in topics]
-    with _bag_errors(bag):
-        _join_messages(bounded_labels(scan.messages(topics), bag), labels, names, required,
-                       rep, keep,
-                       MAX_GAP)
-    return us, ys, sides, rep
+    read_pass(bag, topics, labels, rep, kept, names=names, max_gap=MAX_GAP)
+    K = len(ks)
 
+    def stacked(n: str, width: int) -> np.ndarray:
+        return np.asarray(cols[n], dtype=float).reshape(K, width) if K else np.zeros((0, width))
 
-def _join_messages(messages: Iterable[tuple[str, int, Any]],
-                   labels: dict[str, tuple[str, ...]], names: dict[str, str],
-                   required: Sequence[str], rep: InputReport,
-                   step: Callable[[Sample], bool], max_gap: int = 0) -> None:
-    """The message loop of :func:`read_streams`: each ``(topic, log time ns, message)``
-    through :class:`~fd_monitor.wire.stream.InputStream`; reports into ``rep``."""
-
-    refused: set[int] = set()                    # stamps of messages that did not decode
-    where = [_UY]                                # topic of the message being joined
-    stream = _policy_stream(required, rep, refused, where, step, max_gap)
-    join = stream.join
-    orders = {t: TopicOrder(t) for t in labels}
-    # Every message decoded first (pure, per message), then joined and stepped: decoding
-    # interleaved with the runtime's steps measured ~35 % slower (three_tank, 3,000 samples).
-    decoded: list[tuple[str, float, Any, int | None]] = []
-    for topic, t_ns, msg in messages:
-        try:
-            decoded.append((topic, t_ns * 1e-9,
-                            decode(msg, topic, labels=labels[topic], require_stamp=True), None))
-        except MessageError as exc:
-            decoded.append((topic, t_ns * 1e-9, exc, readable_stamp(msg)))
-    for topic, now, d, k in decoded:
-        if join.pending or join.held:            # what is due by this record's time (a
-            where[0] = _UY                       # node's gap timer, at the same guard)
-            stream.release(now)
-        where[0] = topic
-        if isinstance(d, MessageError):
-            rep.errors.append({"kind": _classify(d), "topic": topic, "sample": k,
-                               "message": str(d)})
-            if k is not None:
-                refused.add(k)
-            stream.refused(k, now)
-            continue
-        stream.stamped(orders[topic], names[topic], int(d.stamp or 0), d.values, now)
-    where[0] = _UY
-    stream.release(math.inf)                     # the end of the bag: every wait is over
-
-
-def _policy_stream(required: Sequence[str], rep: InputReport, refused: set[int],
-                   where: list[str], step: Callable[[Sample], bool],
-                   max_gap: int = MAX_GAP) -> InputStream:
-    """The nodes' input policy (an entry :class:`~fd_monitor.wire.join.StampJoin` with the
-    nodes' defaults) reporting into ``rep``: holes as ``missing`` less the ``refused`` stamps
-    (reported already with their own kind), restarts in ``rep.restarts``, bridges in
-    ``rep.bridges``, used samples counted; ``where[0]`` is the topic a report names."""
-    join = StampJoin(required, gap_timeout=GAP_TIMEOUT, horizon=STAMP_HORIZON,
-                     restart_after=RESTART_AFTER, max_gap=max_gap)
-    processed = [False]
-
-    def note(kind: str, line: str, stamp: Any) -> None:
-        if kind == "hole":                       # its stamps minus the refused ones
-            a, b = stamp
-            inside = sorted(j for j in refused if a <= j <= b)
-            decided = line.split("; ", 1)[1].split(" (", 1)[0]   # bridged / restarted at k
-            for lo, hi in _gaps([a - 1, b + 1], inside):
-                rep.errors.append({"kind": "missing", "topic": where[0], "sample": [lo, hi],
-                                   "message": f"no message for stamps {lo}..{hi} "
-                                              f"({hi - lo + 1} samples); {decided}"})
-        elif kind not in ("new_run", "feedback_lost", "bridge"):  # in rep.restarts, bridges
-            rep.errors.append({"kind": kind, "topic": where[0], "sample": stamp,
-                               "message": line})
-
-    def run(s: Sample) -> bool:
-        if s.restart and processed[0]:
-            rep.restarts.append(s.k)
-        elif s.bridge:
-            rep.bridges.append(s.k)
-        ok = step(s)
-        processed[0] = processed[0] or ok
-        rep.used += ok
-        return ok
-
-    return InputStream(join, run, note)
-
-
-@contextlib.contextmanager
-def _bag_errors(bag: str | Path) -> Iterator[None]:
-    """Turn the bag decoders' own errors (zstd, lz4, CDR, struct, rosbags) on corrupted
-    bytes into one :class:`BagError` naming the bag: they are no stable API to list."""
-    try:
-        yield
-    except FdMonitorError:
-        raise
-    except Exception as exc:
-        raise BagError(f"{bag}: unreadable bag data ({type(exc).__name__}: "
-                       f"{str(exc).splitlines()[0] if str(exc) else 'no detail'})") from None
-
-
-def _gaps(ks: Sequence[int], rejected: Sequence[int]) -> list[tuple[int, int]]:
-    """Inclusive runs of stamps between the sorted valid stamps ``ks`` that are neither valid
-    nor in the sorted ``rejected``; computed per gap, never per stamp (stamps may be 2^53
-    apart)."""
-    out: list[tuple[int, int]] = []
-    for a, b in itertools.pairwise(ks):
-        lo = a + 1
-        i = bisect.bisect_left(rejected, lo)
-        while lo < b:
-            r = rejected[i] if i < len(rejected) and rejected[i] < b else b
-            if r > lo:
-                out.append((lo, r - 1))
-            lo, i = r + 1, i + 1
-    return out
-
-
-def stamp_runs(ks: Sequence[int]) -> list[tuple[int, int]]:
-    """Sorted stamps -> inclusive runs ``(first, last)`` of consecutive stamps."""
-    out: list[tuple[int, int]] = []
-    for k in ks:
-        if out and k == out[-1][1] + 1:
-            out[-1] = (out[-1][0], k)
-        else:
-            out.append((k, k))
-    return out
+    return Series(str(bag), tuple(system.inputs), tuple(system.outputs),
+                  np.asarray(ks, dtype=np.int64), stacked("u", system.nu),
+                  stacked("y", system.ny), float(system.sample_time),
+                  side={n: np.asarray(cols[n]) for n in side}), rep
 
 
 @dataclass
@@ -579,15 +282,17 @@ def _load_system_for(bag: str | Path, gains_source: str | Path) -> tuple[Any, An
 
 
 def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
-            system: Any = None, agei: bool = True, scan: BagScan | None = None,
-            adapter: Any = None, **options: Any) -> BagRun:
+            system: Any = None, agei: bool = True, adapter: Any = None,
+            keep: str = "all", checks: Callable[[BagScan], None] | None = None,
+            **options: Any) -> BagRun:
     """Run the runtime of a gain file over a bag's ``/plant/u`` and ``/plant/y``.
 
     The runtime comes from the registry (:func:`fd_monitor.core.methods.runtime_for`), so
     every gain-file method runs; the side signals it needs are read from
     ``/plant/<name>`` (:func:`~fd_monitor.wire.topics.side_topic`). The runtime bridges a
     hole in the stamps of at most ``MAX_GAP`` samples (``bridge``) and restarts (``reset``) after a
-    longer one.
+    longer one. The bag is read once, in chunks (:func:`fd_monitor.analysis.reader.read_pass`),
+    and the runtime's outputs are stacked every :data:`CHUNK` samples into arrays.
 
     Parameters
     ----------
@@ -600,11 +305,16 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     system : System, optional
     agei : bool
         ``thresholds`` only: run with the AGEI module (False: the ablation).
-    scan : BagScan, optional
-        The bag already read once (:func:`scan_bag`); default: read it here, once.
     adapter : Adapter or str, optional
         Read u and y from the robot's topics through this adapter
         (:func:`fd_monitor.wire.adapters.read_adapted`) instead of ``/plant/u``, ``/plant/y``.
+    keep : str
+        ``"all"``: every per-sample output (what ``report`` plots); ``"summary"``: only what
+        :func:`~fd_monitor.analysis.summary.analyze_run` reads (stamps, mode, alarm flags, the
+        rows outside the certified region, the last estimates, the truth's mode: ~30 bytes a
+        sample; ``signal``, ``threshold`` and ``traces`` are left empty).
+    checks : callable, optional
+        ``checks(scan)``: a command's own checks of the bag's census, before the reader's.
     **options
         Further runtime options (:func:`~fd_monitor.core.methods.runtime_for`).
 
@@ -629,43 +339,147 @@ def run_bag(bag: str | Path, gains: str | Path | Any, *, transient: float = 0.0,
     if not agei:
         options["agei"] = False
     rt = runtime_for(system, gf, **options)
-    if scan is None:
-        scan = scan_bag(bag)
-    truth = scan.truth()
-    outs: list[Any] = []
     refused: list[tuple[int, MessageError]] = []
+    red = _Reducer(rt, full=keep == "all")
+    step = _runtime_step(rt, system.nu, red, refused)
     if adapter is not None:
         if rt.side_inputs:
             raise BagError(f"{bag}: the {gf.method} runtime needs "
                            f"{', '.join(rt.side_inputs)}, which an adapter does not map")
-        us, _ys, sides, rep = _adapted_streams(bag, adapter, system,
-                                              _runtime_step(rt, system.nu, outs, refused))
-        if not us:
+        scan = read_pass(bag, [], {}, InputReport(),
+                         truth=True if keep == "all" else ("mode",))
+        rep = adapted_streams(bag, adapter, system=system, step=step)[1]
+        truth = scan.truth
+        if not rep.used and not refused:
             raise BagError(f"{bag}: no valid (u, y) sample")
     else:
-        us, _ys, sides, rep = read_streams(bag, system, {n: rt.side_labels[n]
-                                                        for n in rt.side_inputs}, scan,
-                                          _runtime_step(rt, system.nu, outs, refused))
-        if not us:
+        side = {n: rt.side_labels[n] for n in rt.side_inputs}
+        topics, labels, names = _plant_topics(system, side)
+        rep = InputReport()
+        scan = read_pass(bag, topics, labels, rep, step, names=names, max_gap=MAX_GAP,
+                         truth=True if keep == "all" else ("mode",), checks=checks)
+        truth = scan.truth
+        if not rep.used and not refused:
             raise BagError(f"{bag}: no valid (u, y) sample on {PLANT_U.absolute} and "
                            f"{PLANT_Y.absolute}"
-                           + "".join(f" and {_side_topic(n).absolute}" for n in sides))
-    if not outs:        # every sample refused by the runtime (implausible): nothing to show
+                           + "".join(f" and {_side_topic(n).absolute}" for n in side))
+    if not rep.used:        # every sample refused by the runtime (implausible): nothing to show
         why = ", ".join(f"{n} {k}" for k, n in rep.sample_counts()["skipped"].items())
         raise BagError(f"{bag}: no usable sample: every one was refused ({why}; e.g. "
                        f"{refused[0][1] if refused else 'see the input errors'})")
-    out = _fields(rt, rt.stack(outs, list(rep.restarts), list(rep.bridges)), truth, refused,
-                  rep)
+    for k, exc in refused:                   # reported after the stream's own reports
+        _refused(rep, k, exc)
+    fields = red.fields(truth, rep)
     return BagRun(bag=str(bag), gains=str(gf.path), system=system, truth=truth, inputs=rep,
-                  transient=float(transient), integrity=integrity(scan, rep), **out)
+                  transient=float(transient), integrity=integrity(scan, rep), **fields)
 
 
-def _runtime_step(rt: Any, nu: int, outs: list[Any],
+class _Reducer:
+    """A runtime's outputs, stacked every :data:`CHUNK` samples into arrays: all of them
+    (``full``), or only what ``analyze`` reads (the ``summary`` of :func:`run_bag`)."""
+
+    def __init__(self, rt: Any, full: bool = True) -> None:
+        self.rt, self.full = rt, full
+        self.outs: list[Any] = []
+        self.parts: list[Any] = []               # full: RuntimeTrace per chunk
+        self.k: list[np.ndarray] = []
+        self.mode: list[np.ndarray] = []
+        self.alarm: list[np.ndarray] = []
+        self.nz_index: list[np.ndarray] = []
+        self.nz_rows: list[np.ndarray] = []
+        self.n = 0
+        self.last: dict[str, np.ndarray] = {}
+
+    def append(self, out: Any) -> None:
+        self.outs.append(out)
+        if len(self.outs) >= CHUNK:
+            self.flush()
+
+    def flush(self) -> None:
+        outs = self.outs
+        if not outs:
+            return
+        tr = self.rt.stack(outs, [], [])
+        self.outs = []
+        if self.full:
+            self.parts.append(tr)
+            return
+        self.k.append(tr.k)
+        # a mode index is small: int32 halves what a long run keeps (the values are equal)
+        self.mode.append(tr.mode.astype(np.int32) if tr.mode.size and
+                         int(np.abs(tr.mode).max()) < 2 ** 31 else tr.mode)
+        self.alarm.append(tr.alarm.copy())       # alone: not a view of a larger block
+        if tr.outside is not None:
+            hit = np.flatnonzero(np.any(tr.outside != 0.0, axis=1))
+            self.nz_index.append(hit + self.n)
+            self.nz_rows.append(tr.outside[hit].copy())
+        # copies: a view would keep the chunk's whole arrays
+        self.last = {name: v[-1:].copy() for name, v in tr.estimates.items()}
+        self.n += len(tr.k)
+
+    def fields(self, truth: Any, rep: InputReport) -> dict[str, Any]:
+        """The per-sample fields of a :class:`BagRun`."""
+        self.flush()
+        rt = self.rt
+        if self.full:
+            tr = _concat(rt, self.parts, list(rep.restarts), list(rep.bridges))
+            self.parts = []
+            return _fields(rt, tr, truth)
+        m = len(rt.channels)
+        iso = self.last.get("isolated")
+        outside: Any = None                      # SparseRows (region_mark reads it as dense)
+        if rt.region_names:
+            r = len(rt.region_names)
+            outside = SparseRows(
+                np.concatenate(self.nz_index) if self.nz_index else np.zeros(0, np.int64),
+                np.concatenate(self.nz_rows) if self.nz_rows else np.zeros((0, r)),
+                self.n, r)
+        k, alarm, mode = (np.concatenate(x) for x in (self.k, self.alarm, self.mode))
+        self.k, self.alarm, self.mode = [], [], []          # one copy, not two
+        return {"method": rt.method, "k": k, "channels": tuple(rt.channels),
+                "units": tuple(rt.units), "signal": np.zeros((0, m)),
+                "threshold": np.zeros((0, m)), "alarm": alarm, "mode_hat": mode,
+                "estimate": rt.bias_estimates(self.last),
+                "isolated": None if iso is None else iso.astype(bool), "outside": outside,
+                "region_names": tuple(rt.region_names), "qb": {}, "signed": rt.SIGNED,
+                "estimate_kind": rt.ESTIMATE_KIND, "traces": {},
+                "isolating": tuple(rt.isolating)}
+
+
+def _concat(rt: Any, parts: list[Any], restarts: list[int], bridges: list[int]) -> Any:
+    """One :class:`~fd_monitor.core.runtime.RuntimeTrace` of chunks stacked by
+    :meth:`~fd_monitor.core.runtime.Runtime.stack` (the arrays ``stack`` gives for all
+    outputs at once: an estimate takes the dtype of its first appearance, zeros where a
+    chunk has none)."""
+    if len(parts) == 1:
+        tr = parts[0]
+        tr.restarts, tr.bridges = restarts, bridges
+        return tr
+    if not parts:
+        return rt.stack([], restarts, bridges)
+    est: dict[str, np.ndarray] = {}
+    names = list(dict.fromkeys(n for p in parts for n in p.estimates))
+    for name in names:
+        ref = next(p.estimates[name] for p in parts if name in p.estimates)
+        est[name] = np.concatenate([
+            p.estimates[name].astype(ref.dtype, copy=False) if name in p.estimates
+            else np.zeros((len(p.k), *ref.shape[1:]), ref.dtype) for p in parts])
+    outside = (None if parts[0].outside is None
+               else np.concatenate([p.outside for p in parts]))
+    tr = type(parts[0])(np.concatenate([p.k for p in parts]),
+                        np.concatenate([p.residual for p in parts]),
+                        np.concatenate([p.threshold for p in parts]),
+                        np.concatenate([p.alarm for p in parts]), outside,
+                        np.concatenate([p.mode for p in parts]), est, restarts, bridges)
+    return tr
+
+
+def _runtime_step(rt: Any, nu: int, outs: _Reducer,
                   refused: list[tuple[int, MessageError]]) -> Callable[[Sample], bool]:
-    """``step(sample) -> bool`` for :func:`read_streams`: one runtime step on a released
-    sample (reset first at a restart, bridged first at a bridge), its output appended to
-    ``outs``; an implausible sample is appended to ``refused`` (False: the stream counts it
-    lost)."""
+    """``step(sample) -> bool`` for :func:`~fd_monitor.analysis.reader.read_pass`: one
+    runtime step on a released sample (reset first at a restart, bridged first at a bridge),
+    its output appended to ``outs``; an implausible sample is appended to ``refused`` (False:
+    the stream counts it lost)."""
     no_u = np.zeros(0)
 
     def step(s: Sample) -> bool:
@@ -689,25 +503,56 @@ def _runtime_step(rt: Any, nu: int, outs: list[Any],
     return step
 
 
-def _adapted_streams(bag: str | Path, adapter: Any, system: Any,
-                     step: Callable[[Sample], bool] | None = None
-                     ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray],
-                                dict[str, dict[int, np.ndarray]], InputReport]:
-    """:func:`read_streams` of a robot's bag through an adapter: the time base's events
-    (:func:`~fd_monitor.wire.adapters.read_adapted`) fed, at their log times, into the
-    nodes' input policy exactly as the live node feeds them
-    (:func:`~fd_monitor.wire.adapters.feed`); gaps, late and bad messages in the report."""
+def adapted_streams(bag: str | Path, adapter: Any, *, system: Any = None,
+                    sample_time: float | None = None,
+                    step: Callable[[Sample], bool] | None = None, keep: bool = False
+                    ) -> tuple[Any, InputReport]:
+    """:func:`read_streams` of a robot's bag through an adapter (``analyze --adapter``,
+    ``report --adapter``, ``identify --adapter``): the time base's events
+    (:func:`~fd_monitor.wire.adapters.adapted_events`, read in bounded memory) fed, at their
+    log times, into the nodes' input policy exactly as the live node feeds them
+    (:func:`~fd_monitor.wire.adapters.feed`); gaps, late and bad messages in the report,
+    every released sample to ``step``.
+
+    Returns
+    -------
+    (AdaptedStreams or AdaptedRun, InputReport)
+        With ``keep`` the adapter's samples (:class:`~fd_monitor.wire.adapters.
+        AdaptedStreams`, as :func:`~fd_monitor.wire.adapters.read_adapted`), else the run's
+        sample time, notes and counts only; and what the policy and the adapter did not use
+        (with :func:`~fd_monitor.wire.input_checks.integrity` of the bag's census: the
+        contract's record).
+    """
 
     ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
-    s = read_adapted(bag, ad, system=system)
-    rep = InputReport(timebase={**s.counts, "sample_time": s.sample_time,
-                                "sample_time_note": s.sample_time_note})
+    run = adapted_events(bag, ad, sample_time, system)
+    ad = run.adapter
+    nu = len(ad.inputs)
+    policy = InputReport()                       # the policy's reports, after the adapter's
+    refused: set[int] = set()                    # samples the time base could not fill
+    gaps: list[tuple[int, str, str]] = []
+    kept: list[tuple[float, Any]] = []
+    stream = policy_stream(["u", "y"] if nu else ["y"], policy, refused, [ad.clock_topic],
+                           step or (lambda _s: True))
+    for now, e in run.events:
+        if keep:
+            kept.append((now, e))
+        if isinstance(e, Gap):
+            gaps.append((e.k, e.reason, e.channel))
+            refused.add(e.k)
+        if stream.join.pending or stream.join.held:
+            stream.release(now)
+        feed(stream, e, now, bool(nu))
+    stream.release(math.inf)
+    rep = InputReport(timebase={**run.counts, "sample_time": run.sample_time,
+                                "sample_time_note": run.note},
+                      restarts=policy.restarts, bridges=policy.bridges, used=policy.used)
     topic_of = {c.name: c.topic for c in (*ad.inputs, *ad.outputs)}
-    for kind, line in s.errors:
+    for kind, line in run.errors:
         rep.errors.append({"kind": kind, "topic": line.split(" ", 1)[0].rstrip(":"),
                            "sample": None, "message": line})
     runs: list[list[Any]] = []                   # gap runs [first, last, reason, channel]
-    for k, reason, ch in s.gaps:
+    for k, reason, ch in gaps:
         if runs and runs[-1][1] == k - 1 and runs[-1][2:] == [reason, ch]:
             runs[-1][1] = k
         else:
@@ -717,25 +562,19 @@ def _adapted_streams(bag: str | Path, adapter: Any, system: Any,
                            "message": f"samples {a}..{b}: {ch} "
                                       + ("never received" if reason == "no_value" else
                                          "not received within its max_hold")})
-    us: dict[int, np.ndarray] = {}
-    ys: dict[int, np.ndarray] = {}
-    nu = len(s.inputs)
-    no_u = np.zeros(0)
-
-    def keep(smp: Sample) -> bool:
-        us[smp.k] = smp.inputs["u"] if nu else no_u
-        ys[smp.k] = smp.inputs["y"]
-        return True if step is None else step(smp)
-
-    refused = {k for k, _r, _c in s.gaps}
-    where = [s.clock_topic]
-    stream = _policy_stream(["u", "y"] if nu else ["y"], rep, refused, where, keep)
-    for now, e in s.events:
-        if stream.join.pending or stream.join.held:
-            stream.release(now)
-        feed(stream, e, now, bool(nu))
-    stream.release(math.inf)
-    return us, ys, {}, rep
+    rep.errors += policy.errors
+    if not keep:
+        return run, rep
+    samples = [e for _, e in kept if isinstance(e, AdaptedSample)]
+    t0 = samples[0].t_ns
+    return AdaptedStreams(
+        str(bag), tuple(c.name for c in ad.inputs), tuple(c.name for c in ad.outputs),
+        np.array([s.k for s in samples], dtype=np.int64),
+        np.array([s.u for s in samples]).reshape(len(samples), nu),
+        np.array([s.y for s in samples]).reshape(len(samples), len(ad.outputs)),
+        run.sample_time, np.array([(s.t_ns - t0) * 1e-9 for s in samples]), ad.clock_topic,
+        run.errors, gaps, [e.k for _, e in kept if isinstance(e, NewRun)], run.counts,
+        run.note, kept), rep
 
 
 def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
@@ -779,13 +618,8 @@ def run_runtime(rt: Any, ks: Sequence[int], us: Any, ys: Any, rep: InputReport,
     return _fields(rt, tr, truth)
 
 
-def _fields(rt: Any, tr: Any, truth: Any, refused: Sequence[tuple[int, MessageError]] = (),
-            rep: InputReport | None = None) -> dict[str, Any]:
-    """The per-sample fields of a :class:`BagRun` from a runtime's trace; ``refused``
-    samples reported into ``rep``."""
-    for k, exc in refused:
-        assert rep is not None
-        _refused(rep, k, exc)
+def _fields(rt: Any, tr: Any, truth: Any) -> dict[str, Any]:
+    """The per-sample fields of a :class:`BagRun` from a runtime's trace."""
     iso = tr.estimates.get("isolated")
     return {"method": rt.method, "k": tr.k, "channels": tuple(rt.channels),
             "units": tuple(rt.units), "signal": tr.residual, "threshold": tr.threshold,
@@ -804,5 +638,5 @@ def run_thresholds(system: Any, gf: Any, ks: Sequence[int], us: Any, ys: Any,
 
 def _refused(rep: InputReport, k: int, exc: MessageError) -> None:
     """Report sample k refused by the runtime (implausible) as an input error."""
-    rep.errors.append({"kind": _classify(exc), "topic": _UY, "sample": k,
+    rep.errors.append({"kind": classify(exc), "topic": UY, "sample": k,
                        "message": str(exc)})

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.core.envelope import describe_excess
-from fd_monitor.wire.bags import read_bag
+from fd_monitor.wire.bag_reader import read_bag
 from fd_monitor.wire.topics import ALARM, BIAS_ESTIMATE, PLANT_TRUTH, STATE_ESTIMATE
 
 __all__ = ["Outputs", "SparseRows", "analyze_run", "collapse", "episodes", "first_alarms",
@@ -226,8 +226,8 @@ def outputs_of_run(run: Any) -> Outputs:
 @dataclass
 class SparseRows:
     """A (n_rows, width) array that is zero but at rows ``index`` (the runtime's ``outside``
-    of a long run, kept by :mod:`fd_monitor.analysis.streaming`: a run is mostly inside its
-    region). :func:`region_mark` reads it as it reads the dense array.
+    of a long run, kept by :func:`fd_monitor.analysis.offline.run_bag` for ``analyze``: a
+    run is mostly inside its region). :func:`region_mark` reads it as it reads the dense array.
 
     Attributes
     ----------
@@ -403,8 +403,8 @@ def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
     Parameters
     ----------
     topics : mapping
-        topic -> :class:`~fd_monitor.wire.bags.TopicArrays`
-        (:func:`fd_monitor.wire.bags.read_bag` of the recorded bag).
+        topic -> :class:`~fd_monitor.wire.bag_reader.TopicArrays`
+        (:func:`fd_monitor.wire.bag_reader.read_bag` of the recorded bag).
     system : System
     """
     al, st = topics[ALARM.absolute], topics[STATE_ESTIMATE.absolute]
@@ -428,7 +428,7 @@ def recorded_outputs(topics: Mapping[str, Any], system: Any) -> Outputs:
 
 
 def read_bag_truth(bag: str | Path) -> Any:
-    """``/plant/truth`` of a bag as :class:`~fd_monitor.wire.bags.TopicArrays`."""
+    """``/plant/truth`` of a bag as :class:`~fd_monitor.wire.bag_reader.TopicArrays`."""
 
     return read_bag(bag, [PLANT_TRUTH.absolute])[PLANT_TRUTH.absolute]
 
@@ -463,7 +463,7 @@ def truth_facts(truth: Any, system: Any) -> dict[str, Any]:
 
     Parameters
     ----------
-    truth : fd_monitor.wire.bags.TopicArrays
+    truth : fd_monitor.wire.bag_reader.TopicArrays
         ``/plant/truth``.
     system : System
 

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from fd_monitor.analysis.integrity import add_strict_flag, describe, enforce_strict
-from fd_monitor.analysis.offline import BagRun, InputReport, run_bag, run_runtime, scan_bag
+from fd_monitor.analysis.offline import BagRun, BagScan, InputReport, run_bag, run_runtime
 from fd_monitor.analysis.summary import analyze_run
 from fd_monitor.commands._common import add_json_flag, print_json, print_table
 from fd_monitor.commands.fleet import add_fleet_arguments, is_fleet, run_fleet
@@ -103,7 +103,7 @@ def analyze_arrays(system: System, gains: Any, k: np.ndarray, u: np.ndarray, y: 
     MessageError
         An invalid sample (its index is named); nothing after it is processed.
     """
-    from fd_monitor.wire.bags import TopicArrays
+    from fd_monitor.wire.bag_reader import TopicArrays
 
     ks = [int(v) for v in np.asarray(k).reshape(-1)]
     us = dict(zip(ks, np.asarray(u, dtype=float).reshape(len(ks), -1)))
@@ -150,26 +150,29 @@ def analyze_bag(bag: str, gains_source: str, system_source: str | None = None,
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     if adapter is not None:                     # the robot's topics (wire/adapters.py)
-        run = run_bag(bag, gains, system=system, agei=agei, adapter=adapter)
+        run = run_bag(bag, gains, system=system, agei=agei, adapter=adapter, keep="summary")
         return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
                 "method": gains.method, "agei": agei, "adapter": str(adapter),
                 **analyze_run(run), "integrity": run.integrity}
-    scan = scan_bag(bag)                        # the one read of the bag
-    present = scan.present
-    needed = [PLANT_Y.absolute] + ([PLANT_U.absolute] if system.nu else [])
-    for t in needed:
-        if t not in present:
-            raise BagError(f"{bag}: topic {t} missing (topics: "
-                           f"{', '.join(sorted(present)) or 'none'})")
-    # A bag of another plant would have every message rejected: say so at once instead.
-    for t, names, what in ((PLANT_U.absolute, system.inputs, "inputs"),
-                           (PLANT_Y.absolute, system.outputs, "outputs")):
-        labels = scan.first_labels(t) if t in present else None
-        if labels and tuple(labels) != tuple(names):
-            raise BagError(f"{bag}: {t} has channels {list(labels)} but plant {system.name} "
-                           f"(gain file {gains.path}) has {what} {list(names)}: wrong gain "
-                           f"file for this bag?")
-    run = run_bag(bag, gains, system=system, agei=agei, scan=scan)
+
+    def checks(scan: BagScan) -> None:
+        present = scan.present
+        needed = [PLANT_Y.absolute] + ([PLANT_U.absolute] if system.nu else [])
+        for t in needed:
+            if t not in present:
+                raise BagError(f"{bag}: topic {t} missing (topics: "
+                               f"{', '.join(sorted(present)) or 'none'})")
+        # A bag of another plant would have every message rejected: say so at once.
+        for t, names, what in ((PLANT_U.absolute, system.inputs, "inputs"),
+                               (PLANT_Y.absolute, system.outputs, "outputs")):
+            labels = scan.first_labels(t) if t in present else None
+            if labels and tuple(labels) != tuple(names):
+                raise BagError(f"{bag}: {t} has channels {list(labels)} but plant "
+                               f"{system.name} (gain file {gains.path}) has {what} "
+                               f"{list(names)}: wrong gain file for this bag?")
+
+    # one pass over the bag, in chunks; only what the summary reads is kept
+    run = run_bag(bag, gains, system=system, agei=agei, keep="summary", checks=checks)
     return {"bag": str(bag), "gains": str(gains.path), "plant": system.name,
             "method": gains.method, "agei": agei, **analyze_run(run),
             "integrity": run.integrity}

@@ -42,12 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check or recover; print messages per topic (and damage as warnings)."""
-    from fd_monitor.wire.bags import (
-        BagDamage,
-        BagDamageWarning,
-        BagUncheckedWarning,
-        recover_bag,
-    )
+    from fd_monitor.wire.bag_scanner import BagDamage, BagDamageWarning, BagUncheckedWarning
+    from fd_monitor.wire.bag_writer import recover_bag
 
     damage: list[BagDamage]
     if args.action == "check":

@@ -275,7 +275,7 @@ def summarize(bag: str | Path, scenario: Any, gains: str | Path) -> dict[str, An
         truth_facts,
     )
     from fd_monitor.analysis.summary import summarize as summarize_outputs
-    from fd_monitor.wire.bags import read_bag
+    from fd_monitor.wire.bag_reader import read_bag
 
     b = read_bag(bag, list(TOPICS))
     sys_ = scenario.system

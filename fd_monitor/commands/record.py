@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     """Record until a stop condition; print per-topic counts."""
     from fd_monitor.nodes.bag_nodes import KNOWN_TYPES, RecorderNode
     from fd_monitor.nodes.process import run_node
-    from fd_monitor.wire.bags import FLUSH_SECONDS, BagWriter
+    from fd_monitor.wire.bag_writer import FLUSH_SECONDS, BagWriter
 
     types = dict(KNOWN_TYPES)
     types.update(_pairs(args.type, "--type"))

@@ -346,7 +346,7 @@ class Runtime:
 
     def offline_extra(self, trace: RuntimeTrace, truth: Any) -> dict[str, Any]:
         """Method-specific figures of an offline run (default none); ``truth`` is the bag's
-        recorded truth (:class:`~fd_monitor.wire.bags.TopicArrays`) or None."""
+        recorded truth (:class:`~fd_monitor.wire.bag_reader.TopicArrays`) or None."""
         return {}
 
     @classmethod

@@ -27,7 +27,8 @@ from fd_monitor.nodes.qos import (
     sub_events,
 )
 from fd_monitor.wire.adapters import ADAPTER_TYPES
-from fd_monitor.wire.bags import BagWriter, bag_topics, read_raw
+from fd_monitor.wire.bag_scanner import bag_topics, read_raw
+from fd_monitor.wire.bag_writer import BagWriter
 from fd_monitor.wire.topics import CHAIN_DATA, DIAGNOSTIC_ARRAY, DIAGNOSTICS, FLOAT64_MULTI_ARRAY
 
 __all__ = ["KNOWN_TYPES", "RecorderNode", "ReplayNode", "message_class"]
@@ -57,8 +58,8 @@ class RecorderNode(Node):
     """Subscribe to topics and write every message to an MCAP bag.
 
     With a writer made with ``flush_seconds`` (``record`` uses
-    :data:`fd_monitor.wire.bags.FLUSH_SECONDS`), every message is in the file within about that
-    long of its arrival, so a killed recorder loses at most the last second.
+    :data:`fd_monitor.wire.bag_writer.FLUSH_SECONDS`), every message is in the file within
+    about that long of its arrival, so a killed recorder loses at most the last second.
 
     Parameters
     ----------

@@ -52,8 +52,10 @@ being changed by other work.
 from __future__ import annotations
 
 import contextlib
+import heapq
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from array import array
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -63,12 +65,15 @@ import numpy as np
 from fd_monitor.model.errors import BagError, FdMonitorError, MessageError
 from fd_monitor.model.paths import find_config_file
 from fd_monitor.model.system import read_yaml
-from fd_monitor.wire.bags import _typestore, messages_from_raw, read_raw
+from fd_monitor.wire.bag_reader import _typestore, messages_from_raw
+from fd_monitor.wire.bag_scanner import read_raw
+from fd_monitor.wire.series import Series
 from fd_monitor.wire.timebase import WAIT, Gap, GridSample, GridSampler, NewRun, snap_sample_time
 
 __all__ = ["ADAPTER_TYPES", "Adapter", "AdapterError", "AdapterJoin", "AdaptedMessageError",
-           "AdaptedEvent", "AdaptedSample", "AdaptedStreams", "Channel", "HOLD_WAIT", "Reading",
-           "decode_message", "encode", "feed", "stamp_sample_time",
+           "AdaptedEvent", "AdaptedRun", "AdaptedSample", "AdaptedStreams", "Channel",
+           "HOLD_WAIT", "Reading",
+           "adapted_events", "decode_message", "encode", "feed", "stamp_sample_time",
            "load_adapter", "parse_adapter", "read_adapted", "rosbags_make", "write_adapted"]
 
 
@@ -643,23 +648,18 @@ def feed(stream: Any, event: AdaptedEvent, now: float, with_u: bool = True) -> b
 # -- offline: a bag through the join ------------------------------------------------------------
 
 
-@dataclass
-class AdaptedStreams:
-    """A bag's robot topics as the monitor's samples (:func:`read_adapted`).
+@dataclass(frozen=True)
+class AdaptedStreams(Series):
+    """A bag's robot topics as the monitor's samples (:func:`read_adapted`): a
+    :class:`~fd_monitor.wire.series.Series` (``name`` the bag, ``inputs``/``outputs`` the
+    channels, ``k`` (K,) int64 sample indices (gaps are holes), ``u`` (K, nu), ``y``
+    (K, ny), ``sample_time`` s: given, the plant's, or the clock's median step snapped to a
+    round value) with the adapter's time base.
 
     Attributes
     ----------
-    bag : str
-    inputs, outputs : tuple of str
-        Channel names (u and y columns).
-    k : numpy.ndarray
-        (K,) int64 sample indices (gaps are holes).
     t : numpy.ndarray
         (K,) s since the first sample (the grid instants).
-    u, y : numpy.ndarray
-        (K, nu), (K, ny)
-    sample_time : float
-        s (given, the plant's, or the clock's median step snapped to a round value).
     clock_topic : str
         The sample clock's topic.
     errors : list of (str, str)
@@ -675,21 +675,21 @@ class AdaptedStreams:
         One line: where the sample time came from.
     """
 
-    bag: str
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    k: np.ndarray
-    t: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    sample_time: float
-    clock_topic: str
+    #: always known here (given, the plant's, or from the clock), unlike a Series'
+    sample_time: float = 0.0
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    clock_topic: str = ""
     errors: list[tuple[str, str]] = field(default_factory=list)
     gaps: list[tuple[int, str, str]] = field(default_factory=list)
     new_runs: list[int] = field(default_factory=list)
     counts: dict[str, Any] = field(default_factory=dict)
     sample_time_note: str = ""
     events: list[tuple[float, Any]] = field(default_factory=list, repr=False)
+
+    @property
+    def bag(self) -> str:
+        """The bag read (:attr:`name`)."""
+        return self.name
 
 
 def stamp_sample_time(stamps_ns: Sequence[int], topic: str) -> tuple[float, str]:
@@ -714,7 +714,8 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
     """Read a robot's bag through an adapter: the samples the live node would process.
 
     The messages go, in log-time order with the log time as ``now``, through
-    :class:`AdapterJoin` (the live node's code); see :mod:`fd_monitor.wire.timebase`.
+    :class:`AdapterJoin` (the live node's code); see :mod:`fd_monitor.wire.timebase`, and
+    :func:`adapted_events` (the same, one event at a time, in bounded memory).
 
     Parameters
     ----------
@@ -733,7 +734,65 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
     AdapterError
         Bad adapter file, or channels that are not the plant's.
     """
+    run = adapted_events(bag, adapter, sample_time, system)
+    events = list(run.events)
+    samples = [e for _, e in events if isinstance(e, AdaptedSample)]
+    ad = run.adapter
+    t0 = samples[0].t_ns
+    return AdaptedStreams(
+        str(bag), tuple(c.name for c in ad.inputs), tuple(c.name for c in ad.outputs),
+        np.array([s.k for s in samples], dtype=np.int64),
+        np.array([s.u for s in samples]).reshape(len(samples), len(ad.inputs)),
+        np.array([s.y for s in samples]).reshape(len(samples), len(ad.outputs)),
+        run.sample_time, np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
+        ad.clock_topic, run.errors,
+        [(e.k, e.reason, e.channel) for _, e in events if isinstance(e, Gap)],
+        [e.k for _, e in events if isinstance(e, NewRun)], run.counts, run.note, events)
 
+
+@dataclass
+class AdaptedRun:
+    """:func:`adapted_events`' result: ``events`` yields ``(now, event)`` as the bag is read;
+    ``errors`` and ``counts`` are filled when it is exhausted.
+
+    Attributes
+    ----------
+    adapter : Adapter
+        For the plant's channels when a system was given.
+    sample_time : float
+        s.
+    note : str
+        Where the sample time came from.
+    events : iterator
+        ``(now s, AdaptedSample | Gap | NewRun)`` in order (``now = inf``: at the end).
+    errors : list of (str, str)
+        :meth:`AdapterJoin.take_errors`, at the end.
+    counts : dict
+        :meth:`AdapterJoin.counts`, at the end.
+    """
+
+    adapter: Adapter
+    sample_time: float
+    note: str
+    events: Iterator[tuple[float, Any]] = field(default_factory=lambda: iter(()))
+    errors: list[tuple[str, str]] = field(default_factory=list)
+    counts: dict[str, Any] = field(default_factory=dict)
+
+
+def adapted_events(bag: str | Path, adapter: Adapter | str | Path,
+                   sample_time: float | None = None, system: Any = None) -> AdaptedRun:
+    """:func:`read_adapted`'s events one at a time, in memory that does not grow with the
+    bag: the records' log times are read first (8 bytes a record), then the messages are
+    read again and put in log-time order through a heap that holds only the ones a later
+    record could still precede (a recorder writes one topic's backlog before the next's).
+    Without ``sample_time`` and ``system`` the clock topic's stamps are read first too.
+
+    Raises
+    ------
+    BagError, AdapterError
+        As :func:`read_adapted` (a missing topic, a type other than the adapter's, before
+        the first event; no sample, when the events are exhausted).
+    """
     ad = adapter if isinstance(adapter, Adapter) else load_adapter(adapter)
     note = ""
     if system is not None:
@@ -746,48 +805,54 @@ def read_adapted(bag: str | Path, adapter: Adapter | str | Path,
     if not Path(bag).exists():
         raise BagError(f"{bag}: no such bag")
     want = ad.topics
-    records = []
-    for rec in read_raw(bag, list(want)):
-        if rec[1] != want[rec[0]]:
-            raise BagError(f"{bag}: {rec[0]} is recorded as {rec[1]}, the adapter "
-                           f"{ad.source} maps it as {want[rec[0]]}")
-        records.append(rec)
-    # in log-time order, as a player replays them (a recorder under a backlog writes one
-    # topic's queue before the next's)
-    messages = sorted(messages_from_raw(bag, records), key=lambda m: m[1])
-    if sample_time is None:
-        stamps = []
-        for topic, t, msg in messages:
-            if topic == ad.clock_topic:
+    times = array("q")
+    stamps = array("q")
+    for topic, ty, t, raw in read_raw(bag, list(want)):
+        if ty != want[topic]:
+            raise BagError(f"{bag}: {topic} is recorded as {ty}, the adapter "
+                           f"{ad.source} maps it as {want[topic]}")
+        times.append(t)
+        if sample_time is None and topic == ad.clock_topic:
+            for _tp, tt, msg in messages_from_raw(bag, [(topic, ty, t, raw)]):
                 with contextlib.suppress(AttributeError, TypeError, ValueError):
-                    stamps.append(_stamp_ns(msg) if ad.header_topic(topic) else t)
+                    stamps.append(_stamp_ns(msg) if ad.header_topic(topic) else tt)
+    if sample_time is None:
         try:
             sample_time, note = stamp_sample_time(stamps, ad.clock_topic)
         except BagError as exc:
             raise BagError(f"{bag}: {exc}") from None
-    join = AdapterJoin(ad, sample_time)
-    events: list[tuple[float, Any]] = []
-    for topic, t, msg in messages:
-        now = t * 1e-9
-        join.put(topic, msg, t, now)
-        events += ((now, e) for e in join.events())
-    join.advance(None)
-    events += ((math.inf, e) for e in join.events(final=True))
-    errors = join.take_errors()
-    samples = [e for _, e in events if isinstance(e, AdaptedSample)]
-    if not samples:
-        raise BagError(f"{bag}: no sample from {ad.clock_topic} through {ad.source}"
-                       + (f" ({errors[0][1]})" if errors else ""))
-    t0 = samples[0].t_ns
-    return AdaptedStreams(
-        str(bag), tuple(c.name for c in ad.inputs), tuple(c.name for c in ad.outputs),
-        np.array([s.k for s in samples], dtype=np.int64),
-        np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
-        np.array([s.u for s in samples]).reshape(len(samples), len(ad.inputs)),
-        np.array([s.y for s in samples]).reshape(len(samples), len(ad.outputs)),
-        float(sample_time), ad.clock_topic, errors,
-        [(e.k, e.reason, e.channel) for _, e in events if isinstance(e, Gap)],
-        [e.k for _, e in events if isinstance(e, NewRun)], join.counts(), note, events)
+    del stamps
+    # after record i, a buffered record of log time <= the least later log time is next
+    later = np.minimum.accumulate(np.asarray(times, np.int64)[::-1])[::-1]
+    later = np.append(later[1:], np.iinfo(np.int64).max)
+    del times
+    run = AdaptedRun(ad, float(sample_time), note)
+
+    def events() -> Iterator[tuple[float, Any]]:
+        join = AdapterJoin(ad, float(sample_time))
+        heap: list[tuple[int, int, tuple[str, str, int, bytes]]] = []
+        got = False
+        for i, rec in enumerate(read_raw(bag, list(want))):
+            heapq.heappush(heap, (rec[2], i, rec))
+            while heap and heap[0][0] <= later[i]:
+                for topic, t, msg in messages_from_raw(bag, [heapq.heappop(heap)[2]]):
+                    now = t * 1e-9
+                    join.put(topic, msg, t, now)
+                    for e in join.events():
+                        got = got or isinstance(e, AdaptedSample)
+                        yield now, e
+        join.advance(None)
+        for e in join.events(final=True):
+            got = got or isinstance(e, AdaptedSample)
+            yield math.inf, e
+        run.errors = join.take_errors()
+        run.counts = join.counts()
+        if not got:
+            raise BagError(f"{bag}: no sample from {ad.clock_topic} through {ad.source}"
+                           + (f" ({run.errors[0][1]})" if run.errors else ""))
+
+    run.events = events()
+    return run
 
 
 # -- encoding: (u, y) as the robot's messages ----------------------------------------------
@@ -902,7 +967,7 @@ def rosbags_make(msgtype: str, **fields: Any) -> Any:
 def write_adapted(writer: Any, adapter: Adapter, k: Sequence[int], u: np.ndarray,
                   y: np.ndarray, stamps_ns: Sequence[int]) -> None:
     """Write samples as the robot's messages into an open
-    :class:`~fd_monitor.wire.bags.BagWriter` (``simulate --adapter``): per sample the
+    :class:`~fd_monitor.wire.bag_writer.BagWriter` (``simulate --adapter``): per sample the
     outputs' topics, then the inputs' (:func:`encode`), header stamps and bag times
     ``stamps_ns``.
 

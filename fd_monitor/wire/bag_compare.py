@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fd_monitor.wire.bags import read_raw
+from fd_monitor.wire.bag_scanner import read_raw
 from fd_monitor.wire.conversions import cdr_shape
 from fd_monitor.wire.topics import FLOAT64_MULTI_ARRAY
 

@@ -14,7 +14,7 @@ stamps it on arrival with a per-topic :class:`ArrivalStamper`.
 
 Pure functions over duck-typed messages: the same code decodes rclpy messages and the
 dataclasses ``rosbags`` deserialises, so this module imports no ROS package at import time
-(``fd_monitor.wire.bags`` uses it offline). :func:`to_msg` imports ``std_msgs`` when called.
+(``fd_monitor.wire.bag_reader`` uses it offline). :func:`to_msg` imports ``std_msgs`` when called.
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None)
         (m,) values.
     msg_type : type, optional
         The message class and its layout classes' owner; default ``std_msgs.msg`` (rclpy).
-        ``fd_monitor.wire.bags`` passes the ``rosbags`` classes.
+        ``fd_monitor.wire.bag_reader`` passes the ``rosbags`` classes.
     """
     data = encode_data(stamp, values)
     if len(data) - 1 != len(labels):
@@ -314,7 +314,7 @@ def cdr_shape(raw: bytes) -> tuple[bytes, CdrLayout, int, int] | None:
     offline reader decodes thousands of these per bag, and loading the type store costs more
     than reading a bag. None for anything that is not a well-formed little-endian message
     (big-endian, truncated, a bad count or string, more than 3 trailing bytes): the caller
-    then asks rosbags (:mod:`fd_monitor.wire.bags`) or rclpy, which gives the canonical error.
+    then asks rosbags (:mod:`fd_monitor.wire.bag_reader`) or rclpy, which gives the canonical error.
     Positions are counted from the end of the 4-byte encapsulation header, as CDR aligns them.
     """
     n = len(raw)

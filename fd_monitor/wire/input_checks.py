@@ -5,16 +5,15 @@ record of what was not used (see :mod:`fd_monitor.analysis.integrity` for the co
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 from fd_monitor.model.errors import BagError, FdMonitorError
 from fd_monitor.model.yaml_io import read_yaml
 
-__all__ = ["MAX_DISTINCT_LABELS", "MAX_LABEL_CHARS", "bounded_labels", "describe", "integrity",
-           "metadata_problems", "tap"]
+__all__ = ["MAX_DISTINCT_LABELS", "MAX_LABEL_CHARS", "describe", "integrity",
+           "metadata_problems"]
 
 #: Longest channel-label string (``layout.dim[0].label``) of a message read offline,
 #: characters; a longer one is refused as ``malformed`` (a label is a few channel names).
@@ -130,38 +129,3 @@ def describe(doc: Mapping[str, Any]) -> str:
                      + (f" (and {len(doc['metadata']) - 1} more)"
                         if len(doc["metadata"]) > 1 else ""))
     return "; ".join(parts) or "every message and sample used"
-
-
-def tap(messages: Iterable[tuple[str, int, Any]], f: Callable[[str, int, Any], Any]
-         ) -> Iterator[tuple[str, int, Any]]:
-    for m in messages:
-        f(*m)
-        yield m
-
-
-def bounded_labels(messages: Iterable[tuple[str, int, Any]], bag: Any
-                   ) -> Iterator[tuple[str, int, Any]]:
-    """``(topic, log time, message)`` with the label limits of offline reading checked:
-    more than :data:`MAX_DISTINCT_LABELS` label strings on a topic refuse the bag (BagError);
-    a label longer than :data:`MAX_LABEL_CHARS` is replaced by a short marker, so the message
-    is refused for its channels with a short line (and no long string is kept)."""
-    seen: dict[str, set[str]] = {}
-    for topic, t, msg in messages:
-        dims = msg.layout.dim
-        label = str(dims[0].label) if dims else ""
-        if len(label) > MAX_LABEL_CHARS:
-            # one name per value, so the message is refused for its channels (malformed)
-            marker = ",".join([f"<label of {len(label)} characters over {MAX_LABEL_CHARS}>"]
-                              + ["?"] * max(int(dims[0].size) - 1, 0))
-            msg = SimpleNamespace(data=msg.data, layout=SimpleNamespace(
-                dim=[SimpleNamespace(label=marker, size=dims[0].size, stride=dims[0].stride)],
-                data_offset=msg.layout.data_offset))
-            label = marker
-        got = seen.setdefault(topic, set())
-        if label not in got:
-            got.add(label)
-            if len(got) > MAX_DISTINCT_LABELS:
-                raise BagError(f"{bag}: {topic}: more than {MAX_DISTINCT_LABELS} distinct "
-                               f"channel label strings (limit MAX_DISTINCT_LABELS: one topic "
-                               f"carries one plant's channels)")
-        yield topic, t, msg
