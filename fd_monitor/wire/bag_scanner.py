@@ -9,8 +9,10 @@ damage, said once as ``unchecked``. The pages read are dropped from the process'
 memory as it goes, so reading a bag does not grow the process by the bag's size.
 
 The writer is :mod:`fd_monitor.wire.bag_writer`; messages and arrays are
-:mod:`fd_monitor.wire.bag_reader`. (Why one module of ~520 lines: the scan's damage cases -- a torn chunk, a
-resync to the next intact one, a summary without a footer -- are one state machine.)
+:mod:`fd_monitor.wire.bag_reader`.
+
+Why one module of ~520 lines: the scan's damage cases -- a torn chunk, a resync to the next
+intact one, a summary without a footer -- are one state machine.
 """
 
 from __future__ import annotations
