@@ -19,7 +19,7 @@ Anything else is one line (:class:`~fd_monitor.model.errors.FdMonitorError`); th
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import rclpy
@@ -34,6 +34,10 @@ __all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params
 
 #: The remap rules that rename a node (``__name`` is the older spelling rcl still reads).
 _NODE_REMAPS = ("__node:=", "__name:=")
+#: ROS options whose value is the next argument (rcl's arguments.c): a value is never read
+#: as an option.
+_WITH_VALUE = frozenset(("--params-file", "-r", "--remap", "-p", "--param", "-e", "--enclave",
+                         "--log-level", "--log-config-file", "--log-file-name"))
 
 
 def find_params_file(name: str) -> Path:
@@ -84,23 +88,34 @@ def _check_params_tree(path: Path, tree: dict, where: str) -> None:
         _check_params_tree(path, value, f"{at}.")
 
 
-def resolve_params_files(args: Sequence[str]) -> list[str]:
-    """``args`` with every ``--params-file`` inside ``--ros-args`` resolved and checked."""
-    out = list(args)
+def _ros_option_pairs(args: Sequence[str]) -> Iterator[tuple[int, str, str | None]]:
+    """``(i, option, value)`` for every option inside ``--ros-args`` (up to a ``--``): the
+    one walk of the ROS arguments; ``value`` is the next argument (None: none), which the
+    caller may take (the walk does not look inside values)."""
     in_ros = False
     i = 0
-    while i < len(out):
-        a = out[i]
+    while i < len(args):
+        a = args[i]
         if a == "--ros-args":
             in_ros = True
         elif a == "--":
             in_ros = False
-        elif in_ros and a == "--params-file":
-            if i + 1 >= len(out):
-                raise FdMonitorError("--params-file: expected a file name after it")
-            out[i + 1] = str(find_params_file(out[i + 1]))
-            i += 1
+        elif in_ros:
+            value = args[i + 1] if i + 1 < len(args) else None
+            yield i, a, value
+            if a in _WITH_VALUE:
+                i += 1
         i += 1
+
+
+def resolve_params_files(args: Sequence[str]) -> list[str]:
+    """``args`` with every ``--params-file`` inside ``--ros-args`` resolved and checked."""
+    out = list(args)
+    for i, opt, value in _ros_option_pairs(out):
+        if opt == "--params-file":
+            if value is None:
+                raise FdMonitorError("--params-file: expected a file name after it")
+            out[i + 1] = str(find_params_file(value))
     return out
 
 
@@ -114,26 +129,15 @@ def take_node_name(args: Sequence[str]) -> tuple[list[str], str | None]:
     called ``det1`` would make rcl warn "Publisher already registered" and collide in the
     graph. A rule for one node only (``observer:__node:=x``) is left to rcl.
     """
-    out: list[str] = []
-    name: str | None = None
-    in_ros = False
-    i = 0
     argv = list(args)
-    while i < len(argv):
-        a = argv[i]
-        if a == "--ros-args":
-            in_ros = True
-        elif a == "--":
-            in_ros = False
-        elif (in_ros and a in ("-r", "--remap") and i + 1 < len(argv)
-              and argv[i + 1].startswith(_NODE_REMAPS)):
-            name = argv[i + 1].split(":=", 1)[1]
-            i += 2
-            continue
-        out.append(a)
-        i += 1
+    drop: set[int] = set()
+    name: str | None = None
+    for i, opt, value in _ros_option_pairs(argv):
+        if opt in ("-r", "--remap") and value is not None and value.startswith(_NODE_REMAPS):
+            name = value.split(":=", 1)[1]
+            drop.update((i, i + 1))
     # "--ros-args" left empty is still valid for rcl
-    return out, name
+    return [a for i, a in enumerate(argv) if i not in drop], name
 
 
 def init_ros(args: Sequence[str] | None = None) -> None:
