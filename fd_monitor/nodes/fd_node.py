@@ -83,8 +83,8 @@ from fd_monitor.nodes.common import (
 )
 from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.join import Sample, StampJoin
-from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
 from fd_monitor.wire.stream import (
+    BATCH_PACE,
     MAX_GAP,
     MAX_LAG,
     RESTART_AFTER,
@@ -92,6 +92,7 @@ from fd_monitor.wire.stream import (
     InputStream,
     TopicOrder,
 )
+from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
 from fd_monitor.wire.topics import RESET, Layout, Topic
 
 __all__ = ["COMMON_PARAMS", "FAULT_PARAMS", "MAX_GAP_PARAM", "RUNTIME_PARAMS", "FdNode",
@@ -137,8 +138,12 @@ COMMON_PARAMS = (
           high=10000000),
     Param("max_lag", MAX_LAG, "s a complete sample may wait behind a backlog before the "
           "node sheds load: it skips to the newest complete sample (counted: shed_samples "
-          "on /diagnostics); at least gap_timeout; 0.0: never (every sample processed, "
-          "however late: flat-out replays are lossless)", low=0.0, high=3600.0),
+          "on /diagnostics); at least gap_timeout; never for a batch (batch_pace); 0.0: "
+          "never", low=0.0, high=3600.0),
+    Param("batch_pace", BATCH_PACE, "x real time: a backlog that came faster than this "
+          "(a flat-out replay or simulation, lossless) is a batch: processed completely, "
+          "never shed; 0.0: nothing is a batch (every backlog older than max_lag is shed)",
+          low=0.0, high=1.0e9),
 )
 
 #: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes
@@ -647,7 +652,9 @@ class FdNode(LifecycleNode):
                               horizon=self.params.stamp_horizon,
                               restart_after=self.params.restart_after,
                               feedback_source=self._feedback_source,
-                              max_gap=max_gap, max_lag=self.params.max_lag or None)
+                              max_gap=max_gap, max_lag=self.params.max_lag or None,
+                              sample_time=float(self.system.sample_time),
+                              batch_pace=self.params.batch_pace)
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, self._run, self._note)
         self._stamper = ArrivalStamper()
@@ -798,6 +805,7 @@ class FdNode(LifecycleNode):
         """Load shed and lost feedback (wire/join.py), for the ``input`` status."""
         j = self.join
         return {"shed_samples": j.shed, "shed_episodes": j.shed_episodes,
+                "batch_waits": j.batch_waits,
                 "feedback_lost": j.feedback_losses,
                 "feedback_not_waited_for": ",".join(sorted(j.lost_feedback)) or "none"}
 
