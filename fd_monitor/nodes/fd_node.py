@@ -236,14 +236,6 @@ class Input:
         return cls(name, topic.name, layout.labels, layout=layout, **kwargs)
 
 
-def received(info: Any, now: float) -> float | None:
-    """When a message was received by DDS, on the ``time.monotonic()`` clock of ``now`` (it
-    may have waited in the reader before the executor took it: a load shed counts its lag
-    from then); None without a MessageInfo or a reception time."""
-    rx = int(info["received_timestamp"]) if info is not None else 0
-    return now - max(0.0, (time.time_ns() - rx) * 1e-9) if rx > 0 else None
-
-
 def load_plant_and_gains(system_src: str, gains_src: str) -> tuple[System, GainFile]:
     """Load the plant and its gain file (certificate re-verified); one-line errors."""
     system = load_system(system_src)
@@ -740,11 +732,9 @@ class FdNode(LifecycleNode):
                                           d.values))
                 self._pair_plain()
                 return
-            now = time.monotonic()
-            if stream.stamped(order, inp.name, int(d.stamp), d.values, now,
+            if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
                               inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
-                              bool(inp.sequence and d.values[i_bridge] > 0.5),
-                              received(info, now)):
+                              bool(inp.sequence and d.values[i_bridge] > 0.5)):
                 self._input_ok()
         return cb
 
