@@ -362,33 +362,6 @@ def test_a_batch_that_turns_into_a_live_stream_is_shed_once_the_live_part_domina
     assert shed_at is not None and 2.4 <= shed_at[0] <= 2.6 and shed_at[1] == 30 + i, shed_at
 
 
-def test_the_lag_and_pace_count_from_reception_when_the_caller_knows_it():
-    """``arrived`` (the DDS reception time) instead of the take time: 30 samples received at
-    real time while the node's process was stalled, all taken at t = 3 s, are a live
-    backlog 3 s old (shed at once), not a burst; 30 received flat out but taken at 2 a
-    second by a starved node stay a batch (never shed)."""
-    def join():
-        j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=0.5, max_lag=2.0,
-                      sample_time=0.1, batch_pace=2.0)
-        feed(j, 0)
-        release(j)
-        return j
-
-    j = join()
-    for k in range(1, 31):
-        for n in ("u", "y"):
-            j.put(n, k, f"{n}{k}", 3.0, arrived=0.1 * k - 0.05)
-    j.put("fb", 1, "fb1", 3.0)
-    assert [(s.k, s.shed) for s in j.ready(3.0)] == [(30, 29)]
-    j = join()
-    for k in range(1, 31):
-        for n in ("u", "y"):
-            j.put(n, k, f"{n}{k}", 0.5 * k, arrived=0.001 * k)
-    j.put("fb", 1, "fb1", 15.0)
-    assert [(s.k, s.shed) for s in j.ready(15.0)] == [(1, 0)]
-    assert j.batch_waits > 0
-
-
 def test_downstream_batch_is_not_shed():
     """A downstream node behind a fast entry node (est 0.01 s apart, Ts 0.1 s) processes
     every est however late; the same backlog at real time is shed."""

@@ -230,10 +230,6 @@ class StampJoin:
         self.rejected: set[int] = set()
         #: Stamps whose required inputs are all here -> time they became complete.
         self._complete_since: dict[int, float] = {}
-        #: Complete stamps -> when their completing input was received (the DDS reception
-        #: time when the caller knows it, else the time put): what the lag and the pace of
-        #: a backlog are measured from (load shed), a backlog held in DDS included.
-        self._rx: dict[int, float] = {}
         self._seq: deque[int] = deque()        # downstream: sequence stamps, arrival order
         self._restart_at: set[int] = set()     # downstream: stamps flagged restart
         self._bridge_at: set[int] = set()      # downstream: stamps flagged bridge
@@ -292,12 +288,8 @@ class StampJoin:
     # -- input ---------------------------------------------------------------------------------
 
     def put(self, name: str, stamp: int, value: Any, now: float = 0.0,
-            restart: bool = False, bridge: bool = False,
-            arrived: float | None = None) -> Note | None:
+            restart: bool = False, bridge: bool = False) -> Note | None:
         """Store one input. Returns a one-line reason when it is ignored, else None.
-
-        ``arrived``: when the message was received (before ``now`` when it waited in DDS
-        for the node to take it; the same clock), for the load shed; default ``now``.
 
         ``restart``, ``bridge`` (downstream role, sequence input only): the entry node
         restarted, or bridged a gap, at ``stamp``. A late input for a stamp inside a hole is
@@ -331,9 +323,8 @@ class StampJoin:
                 self._bridge_at.add(stamp)
         if name in self.required and all(n in slot for n in self.required):
             self._complete_since[stamp] = now
-            rx = self._rx[stamp] = now if arrived is None else min(arrived, now)
             if stamp > self._newest:
-                self._newest, self._newest_t = stamp, rx
+                self._newest, self._newest_t = stamp, now
         if len(self.pending) > self.max_pending:
             oldest = min(self.pending)
             self._forget(oldest)
@@ -380,7 +371,6 @@ class StampJoin:
         brg = self._held_bridge
         count = self.held_messages
         self.pending, self._complete_since, self._seq = {}, {}, deque()
-        self._rx = {}
         self._restart_at, self.rejected = set(), set()
         self.held, self._held_t, self._held_seq, self._held_restart = {}, {}, deque(), set()
         self._held_bridge = set()
@@ -394,7 +384,7 @@ class StampJoin:
         for stamp, slot in held.items():
             self.pending[stamp] = slot
             if all(n in slot for n in self.required):
-                self._complete_since[stamp] = self._rx[stamp] = held_t[stamp]
+                self._complete_since[stamp] = held_t[stamp]
                 if stamp > self._newest:
                     self._newest, self._newest_t = stamp, held_t[stamp]
         self._seq = seq
@@ -498,7 +488,6 @@ class StampJoin:
 
     def _forget(self, k: int) -> dict[str, Any]:
         self._complete_since.pop(k, None)
-        self._rx.pop(k, None)
         self._restart_at.discard(k)
         self._bridge_at.discard(k)
         return self.pending.pop(k, {})
@@ -515,8 +504,8 @@ class StampJoin:
                 return None
             return self._release(min(self._complete_since), True, None)
         t = self._complete_since.get(k)
-        if t is not None and self.max_lag is not None and now - self._rx[k] > self.max_lag:
-            newest = self._shed_to(k, self._rx[k])
+        if t is not None and self.max_lag is not None and now - t > self.max_lag:
+            newest = self._shed_to(k, t)
             if newest is not None:
                 return self._shed(k, newest)
         if t is not None:
@@ -553,7 +542,7 @@ class StampJoin:
         return self._release(s, False, (k, s - 1), bridge=fb)
 
     def _shed_to(self, k: int, t: float) -> int | None:
-        """The node is more than ``max_lag`` s behind at ``k`` (received at ``t``): the
+        """The node is more than ``max_lag`` s behind at ``k`` (complete since ``t``): the
         newest complete stamp to skip to, or None when there is none beyond ``k`` or the
         backlog ``k .. newest`` is a batch (it came faster than ``batch_pace`` x real time:
         its stamps span more plant time than ``batch_pace`` x the wall time between the
@@ -561,7 +550,7 @@ class StampJoin:
         newest = self._newest
         if newest not in self._complete_since:     # released or dropped since: look again
             newest = max(self._complete_since)
-            self._newest, self._newest_t = newest, self._rx[newest]
+            self._newest, self._newest_t = newest, self._complete_since[newest]
         if newest <= k:
             return None
         if self.batch_pace and self.sample_time and (
@@ -609,8 +598,8 @@ class StampJoin:
             s, slot = later, self.pending[later]
             skipped = True
         t = self._complete_since.get(s)
-        if t is not None and self.max_lag is not None and now - self._rx[s] > self.max_lag:
-            newest = self._shed_to(s, self._rx[s])
+        if t is not None and self.max_lag is not None and now - t > self.max_lag:
+            newest = self._shed_to(s, t)
             if newest is not None:
                 # behind by more than max_lag: skip to the newest complete sequence stamp
                 # (a restart of this node there; the entry node's own stamps go on)

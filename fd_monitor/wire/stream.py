@@ -132,11 +132,9 @@ class InputStream:
             self.release(now)
 
     def stamped(self, order: TopicOrder, name: str, stamp: int, values: Any, now: float,
-                offset: int = 0, restart: bool = False, bridge: bool = False,
-                arrived: float | None = None) -> bool:
+                offset: int = 0, restart: bool = False, bridge: bool = False) -> bool:
         """One decoded stamped message of input ``name`` (its topic's ``order``), joined at
-        ``stamp + offset``; ``restart``, ``bridge``: the flags of a sequence input;
-        ``arrived``: when it was received, if before ``now`` (it waited in DDS). True when
+        ``stamp + offset``; ``restart``, ``bridge``: the flags of a sequence input. True when
         joined (samples released), False when reported and dropped or held."""
         line, duplicate = order.check(stamp)
         if line is not None:
@@ -144,7 +142,7 @@ class InputStream:
             if duplicate:
                 return False
         stamp += offset
-        return stamp >= 0 and self.put(name, stamp, values, now, restart, bridge, arrived)
+        return stamp >= 0 and self.put(name, stamp, values, now, restart, bridge)
 
     def new_run(self, k: int, line: str) -> None:
         """The source says its stream restarted (an adapter's clock jumped): forget the
@@ -153,12 +151,11 @@ class InputStream:
         self.note("new_run", line, k)
 
     def put(self, name: str, stamp: int, values: Any, now: float,
-            restart: bool = False, bridge: bool = False,
-            arrived: float | None = None) -> bool:
+            restart: bool = False, bridge: bool = False) -> bool:
         """Join one input (already order-checked, or paired by sample-and-hold) and release
         what became ready; False when the join reported and did not join it."""
         join = self.join
-        line = join.put(name, stamp, values, now, restart, bridge, arrived)
+        line = join.put(name, stamp, values, now, restart, bridge)
         if join.resumed:
             for n in join.resumed:
                 self.note("feedback_back", f"{n}: feedback came again (stamp {stamp}): waiting "
