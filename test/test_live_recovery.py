@@ -3,14 +3,15 @@
 The three blinding cases of issue 26, each with the recovery time that
 doc/howto/overload-and-recovery.md states, waited for on conditions with deadlines:
 
-* a restarted peer: SIGKILL of the ``agei`` and ``bias_estimator`` processes of the chain and
-  a restart: the in-process observer and detector go on after ``gap_timeout`` /
-  ``restart_after`` (1 s), the restarted processes rejoin the running chain, a bias injected
-  afterwards is alarmed and estimated, no alarm before it (before: one sample a second, every
-  output stopped, the bias never alarmed);
-* overload: a burst far faster than the chain: it sheds load (counted, on /diagnostics) and a
-  sample published after the burst is processed within ``max_lag`` + 1 s (before: the
-  backlog drained at the chain's pace, 84 s for 10 s of 10 kHz input);
+* a restarted peer: SIGKILL of the ``agei`` and ``bias_estimator`` processes of the chain
+  (after the guard crossing) and a restart: the in-process observer and detector go on
+  after ``gap_timeout`` / ``restart_after`` (1 s), the restarted processes rejoin the
+  running chain, a bias injected afterwards is alarmed and estimated, no alarm before it
+  (before: one sample a second, every output stopped, the bias never alarmed);
+* overload: a flood far faster than the chain (with ``batch_pace`` 0: by default a source
+  faster than twice real time is a batch, processed completely): it sheds load (counted, on
+  /diagnostics) and a sample published after the burst is processed within ``max_lag`` +
+  2 s (before: the backlog drained at the chain's pace, 84 s for 10 s of 10 kHz input);
 * the label attack: 1 MB labels, each one new, into a ``monitor`` and a ``monitor -p
   layout:=nodes`` process (the chain's four nodes): refused in one line each, counted, and
   their resident memory stays bounded: 50 more such labels add less than 16 MB (before:
@@ -68,14 +69,17 @@ def stamps(col, topic: str) -> list[int]:
 
 
 def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
-    """SIGKILL agei and bias_estimator mid-run, start them again: the running observer and
-    detector stop waiting for their feedback after 1 s (no restart: no fresh state), the new
-    processes' first feedback makes the observer wait for it again (rejoined within 1 s of
-    it), and a +5 cm bias on h1 injected after that is alarmed at once and estimated."""
+    """After the guard crossing (AGEI switches the observer at about sample 1017), SIGKILL
+    agei and bias_estimator, start them again: the running observer and detector stop
+    waiting for their feedback after 1 s (no restart: no fresh state), the new processes'
+    first feedback makes the observer wait for it again (rejoined within 1 s of it), a +5 cm
+    bias on h1 injected after that is alarmed at once and estimated, and nothing alarms
+    before it (an outage *across* the crossing alarms there: test_agei_outage.py). Default
+    parameters: the sources here are faster than real time, so nothing is shed."""
     from fd_monitor.nodes.detector import DetectorNode
     from fd_monitor.nodes.observer import ObserverNode
 
-    u, y = nominal_run(900)
+    u, y = nominal_run(1700)
     peers = ("agei", "bias_estimator")
     old = [Proc(["run", n]) for n in peers]
     new: list[Proc] = []
@@ -87,23 +91,39 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
         col, sent = rig.col, [0]
 
         def pace(cond, timeout: float, procs=(), every: float = 0.01) -> bool:
-            """Publish the next sample every ``every`` s (100 Hz: 10 x real time) until
-            ``cond`` holds or ``timeout`` s pass."""
+            """Publish the next sample every ``every`` s (100 Hz: 10 x real time; 0: as fast
+            as the chain takes them, at most 20 ahead of its alarms) until ``cond`` holds or
+            ``timeout`` s pass."""
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline and sent[0] < len(u):
                 if cond():
                     return True
-                rig.send(u, y, [sent[0]])
-                sent[0] += 1
-                spin_until(rig.ex, lambda: False, every, procs)
+                if every:
+                    rig.send(u, y, [sent[0]])
+                    sent[0] += 1
+                    spin_until(rig.ex, lambda: False, every, procs)
+                    continue
+                top = max(stamps(col, "/fd/alarm"), default=-1)
+                ahead = max(sent[0], min(len(u), top + 21))
+                rig.send(u, y, range(sent[0], ahead))
+                sent[0] = ahead
+                spin_until(rig.ex, lambda top=top: max(stamps(col, "/fd/alarm"),
+                                                       default=-1) > top, 0.5, procs)
             return cond()
+
+        def switched() -> int | None:
+            """The first stamp at which the observer's mode differs from its first one."""
+            est = col.msgs["/fd/state_estimate"]
+            return next((int(m.data[0]) for m in est if m.data[1] != est[0].data[1]), None)
 
         try:
             fed_back = [obs._data_inputs[n].sub for n in ("sigma", "guard")]
             assert rig.spin(lambda: all(s.get_publisher_count() for s in fed_back)
                             and rig.matched(2, 0.0), 60.0, ), [p.output() for p in old]
-            # in lock step with the peers: their feedback for the samples sent
-            assert pace(lambda: len(col.msgs["/fd/bias_estimate"]) >= 30, 30.0, old)
+            # in lock step with the peers, across the guard crossing and 20 samples on
+            assert pace(lambda: switched() is not None and max(stamps(col, "/fd/alarm"))
+                        > switched() + 20, 60.0, old, every=0.0), [p.output() for p in old]
+            k_cross = switched()
             for p in old:
                 p.signal(signal.SIGKILL)
             for p in old:
@@ -123,8 +143,7 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
                     first_new[0] = time.monotonic()
                 return bool(first_new[0]) and not obs.join.lost_feedback \
                     and not det.join.lost_feedback
-            # 50 Hz while the processes start (a slow start must not use up the samples
-            # before the guard crossing at 936)
+            # 50 Hz while the processes start
             assert pace(back, 60.0, new, 0.02), (obs.join.lost_feedback,
                                                  [p.output() for p in new])
             t_rejoin = time.monotonic() - first_new[0]
@@ -139,8 +158,10 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
             for p in [*old, *new]:
                 p.stop()
             rig.close()
-        print(f"kill at sample {k_kill}: outputs on {t_on:.2f} s later; restarted peers "
-              f"rejoined {t_rejoin:.2f} s after their first feedback; bias at {kb}")
+        print(f"guard crossing in the observer at {k_cross}; kill at sample {k_kill}: outputs "
+              f"on {t_on:.2f} s later; restarted peers rejoined {t_rejoin:.2f} s after their "
+              f"first feedback; bias at {kb}")
+        assert 936 < k_cross < 1100                     # the plant's crossing is at 936
         # gap_timeout (1 s) per dead feedback source of the observer (the two peers may die
         # one sample apart); the detector's wait for agei's override counts from its own
         # last output, so it adds nothing; + 1.5 s for a loaded machine
@@ -159,17 +180,20 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
 
 
 def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
-    """4,000 samples unpaced into the four chain nodes (one executor, as ``monitor -p
-    layout:=nodes``): more than max_lag (1 s here) behind, the observer skips to the newest sample
-    (counted: shed on /diagnostics); a sample published after the burst is processed within
-    max_lag + 2 s."""
+    """The issue's flood: 4,000 samples unpaced into the four chain nodes (one executor, as
+    ``monitor -p layout:=nodes``), with ``batch_pace`` 0.0 (what a user sets when a source far
+    faster than real time is a flood, not a batch: by default it would be processed
+    completely, as a flat-out replay is). More than ``max_lag`` (default 2 s) behind, the
+    observer skips to the newest sample (counted: shed on /diagnostics); a sample published
+    after the burst is processed within max_lag + 2 s."""
     from fd_monitor.nodes.monitor import make_chain
     from fd_monitor.nodes.qos import data_pub_qos
+    from fd_monitor.wire.stream import MAX_LAG
 
     u, y = nominal_run(4200)
     burst = 4000      # below Fast DDS's KEEP_ALL reader limit (5,000): no DDS loss here
     with ros_context() as ctx:
-        nodes = make_chain(context=ctx, parameter_overrides=params(max_lag=1.0,
+        nodes = make_chain(context=ctx, parameter_overrides=params(batch_pace=0.0,
                                                                    diagnostics_period=0.2))
         rig = Rig(ctx, nodes, topics=("fd/state_estimate",), driver_qos=data_pub_qos(burst + 200))
         events_executor(rig, ctx)
@@ -185,10 +209,10 @@ def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
                 t = time.monotonic()
                 rig.send(u, y, [k])
                 ok = rig.spin(lambda k=k: max(stamps(rig.col, "/fd/state_estimate"),
-                                              default=-1) >= k, 1.0 + 2.0)
+                                              default=-1) >= k, MAX_LAG + 2.0)
                 delays.append(time.monotonic() - t)
                 assert ok, (k, obs.join.k_next, obs.join.shed, max(delays))
-                if k >= burst + 20 and time.monotonic() - t_sent > 3.0:
+                if k >= burst + 20 and time.monotonic() - t_sent > MAX_LAG + 1.0:
                     break
             assert obs.join.shed > 0 and obs.join.shed_episodes >= 1
             assert rig.spin(lambda: any("behind by more than" in s.message

@@ -293,6 +293,90 @@ def test_downstream_behind_by_more_than_max_lag_restarts_at_the_newest_sample():
     assert release(j, 1.2) == [(30, False, None, "fb30")]
 
 
+def lagging_entry(spacing: float, n: int = 60) -> StampJoin:
+    """An entry join (Ts 0.1 s, max_lag 2 s, batch_pace 2) whose samples 1..n arrived
+    ``spacing`` s apart while it waited for the feedback of sample 1 (the chain in lock step
+    behind a backlog)."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=0.5, max_lag=2.0, sample_time=0.1,
+                  batch_pace=2.0)
+    feed(j, 0)
+    assert release(j) == [(0, True, None, FB0)]
+    for k in range(1, n + 1):
+        feed(j, k, now=spacing * k)
+    return j
+
+
+def test_a_backlog_that_came_faster_than_real_time_is_a_batch_and_never_shed():
+    """Issue 26 item 0 without losing a flat-out replay's samples: 60 samples 0.01 s apart
+    (10 x real time at Ts 0.1 s) wait 3 s behind a feedback: more than max_lag behind, but a
+    batch (their stamps span 6 s of plant time, they came within 0.6 s): every one is
+    processed in order, also once the source has stopped (the end of a replay)."""
+    j = lagging_entry(0.01)
+    j.put("fb", 1, "fb1", 3.0)
+    assert release(j, 3.0) == [(1, False, None, "fb1")]
+    for k in range(2, 61):
+        j.put("fb", k, f"fb{k}", 3.0 + k)
+        assert release(j, 3.0 + k) == [(k, False, None, f"fb{k}")]
+    assert (j.shed, j.shed_episodes) == (0, 0) and j.batch_waits > 0
+
+
+def test_a_backlog_that_came_at_real_time_is_shed_and_batch_pace_0_sheds_any():
+    """The same wait on a live stream (samples 0.1 s apart: real time) sheds to the newest
+    sample; so does a batch with ``batch_pace`` 0 (nothing is a batch: what a user sets for
+    a simulation far faster than real time where latency matters)."""
+    j = lagging_entry(0.1)
+    j.put("fb", 1, "fb1", 6.05)                 # sample 1 complete at 0.1: 5.95 s ago
+    out = [(s.k, s.restart, s.hole, s.shed) for s in j.ready(6.05)]
+    assert out == [(60, True, (1, 59), 59)]
+    j = lagging_entry(0.01)
+    j.batch_pace = 0.0
+    j.put("fb", 1, "fb1", 3.0)
+    out = [(s.k, s.restart, s.hole, s.shed) for s in j.ready(3.0)]
+    assert out == [(60, True, (1, 59), 59)]
+    assert j.batch_waits == 0
+
+
+def test_a_batch_that_turns_into_a_live_stream_is_shed_once_the_live_part_dominates():
+    """30 samples at once (a burst: 3 s of plant time), then real time (10 Hz), into a node
+    that processes 2 samples a second: more than max_lag behind from t = 2 s, the backlog is
+    a batch while its stamps span more than twice its arrival time, then it is shed (a burst
+    after a stall delays a shed by about its own length)."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=0.5, max_lag=2.0, sample_time=0.1,
+                  batch_pace=2.0)
+    feed(j, 0)
+    release(j)
+    for k in range(1, 31):
+        feed(j, k, now=0.0)                     # the burst
+    shed_at = None
+    for i in range(1, 60):
+        t = 0.1 * i
+        feed(j, 30 + i, now=t)
+        if i % 5 == 0:                          # the node's pace: 2 samples a second
+            j.put("fb", j.k_next, "fb", t)
+        out = [(t, s.k, s.shed) for s in j.ready(t) if s.shed]
+        if out:
+            shed_at = out[0]
+            break
+    # lagging > 2 s; shed when (newest - k) * 0.1 <= 2 t, newest = 30 + 10 t, k ~ 1 + 2 t:
+    # 2.9 + 0.8 t <= 2 t, t >= 2.42 (batch_pace 0 would have shed at 2.1)
+    assert shed_at is not None and 2.4 <= shed_at[0] <= 2.6 and shed_at[1] == 30 + i, shed_at
+
+
+def test_downstream_batch_is_not_shed():
+    """A downstream node behind a fast entry node (est 0.01 s apart, Ts 0.1 s) processes
+    every est however late; the same backlog at real time is shed."""
+    for spacing, expected in ((0.01, [(1, 0)]), (0.1, [(29, 28)])):
+        j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0, max_lag=1.0,
+                      sample_time=0.1, batch_pace=2.0)
+        j.put("est", 0, "e0", 0.0, restart=True)
+        release(j)
+        for k in range(1, 30):
+            j.put("est", k, f"e{k}", spacing * k)
+        j.put("fb", 1, "fb1", 4.0)
+        out = [(s.k, s.shed) for s in j.ready(4.0)]
+        assert out == expected, (spacing, out)
+
+
 def test_max_lag_is_at_least_the_feedback_timeout_and_offline_never_sheds():
     assert StampJoin(["u"], {"fb": 0}, gap_timeout=1.0, max_lag=0.1).max_lag == 1.0
     assert StampJoin(["est"], sequence="est", restart_after=2.0, max_lag=1.0).max_lag == 2.0

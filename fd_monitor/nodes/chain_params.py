@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from fd_monitor.nodes.params import Param
 from fd_monitor.nodes.qos import DEFAULT_DEPTH
+from fd_monitor.wire.stream import BATCH_PACE, MAX_GAP, MAX_LAG, RESTART_AFTER, STAMP_HORIZON
 from fd_monitor.wire.stream import GAP_TIMEOUT as GAP_TIMEOUT_S
-from fd_monitor.wire.stream import MAX_GAP, MAX_LAG, RESTART_AFTER, STAMP_HORIZON
 
 __all__ = ["COMMON_PARAMS", "FAULT_PARAMS", "GAP_TIMEOUT", "MAX_GAP_PARAM", "RUNTIME_PARAMS",
            "WARN_SHARE"]
@@ -51,8 +51,12 @@ COMMON_PARAMS = (
           high=10000000),
     Param("max_lag", MAX_LAG, "s a complete sample may wait behind a backlog before the "
           "node sheds load: it skips to the newest complete sample (counted: shed_samples "
-          "on /diagnostics); at least gap_timeout; 0.0: never (every sample processed, "
-          "however late: flat-out replays are lossless)", low=0.0, high=3600.0),
+          "on /diagnostics); at least gap_timeout; never for a batch (batch_pace); 0.0: "
+          "never", low=0.0, high=3600.0),
+    Param("batch_pace", BATCH_PACE, "x real time: a backlog that came faster than this "
+          "(a flat-out replay or simulation, lossless) is a batch: processed completely, "
+          "never shed; 0.0: nothing is a batch (every backlog older than max_lag is shed)",
+          low=0.0, high=1.0e9),
 )
 
 #: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes

@@ -81,7 +81,9 @@ class InputPath:
                               horizon=params.stamp_horizon,
                               restart_after=params.restart_after,
                               feedback_source=self.feedback_source,
-                              max_gap=max_gap, max_lag=params.max_lag or None)
+                              max_gap=max_gap, max_lag=params.max_lag or None,
+                              sample_time=float(node.system.sample_time),
+                              batch_pace=params.batch_pace)
         node.input_status.join = self.join
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, node._run, node.input_status.note)

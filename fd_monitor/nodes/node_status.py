@@ -128,6 +128,7 @@ class InputStatus:
         """Load shed and lost feedback (wire/join.py), for the ``input`` status."""
         j = self.join
         return {"shed_samples": j.shed, "shed_episodes": j.shed_episodes,
+                "batch_waits": j.batch_waits,
                 "feedback_lost": j.feedback_losses,
                 "feedback_not_waited_for": ",".join(sorted(j.lost_feedback)) or "none"}
 

@@ -55,7 +55,13 @@ counted in :attr:`StampJoin.shed`); the entry role bridges the newest (at most `
 skipped) or restarts the run there, a downstream node restarts there (the entry node's
 stream goes on: its flags are followed again from the next sample). Live, a sample is
 therefore processed at most ``max_lag`` s (plus one check period) after it was complete,
-whatever came before it.
+whatever came before it -- unless the backlog is a *batch*: a backlog whose stamps span more
+than ``batch_pace`` times the wall time over which it arrived (``sample_time`` s per stamp)
+came faster than a plant produces samples, from a source that asked for every one (a
+flat-out replay or simulation, which pace by acknowledgements and promise no loss); it is
+processed completely, however late (counted in :attr:`StampJoin.batch_waits`). A robot's
+data come at real time, so its backlog is shed; a batch that turns into a live stream is
+shed once the live part dominates the backlog.
 
 A stamp cannot blind the join. A stamp below the next one (a source that restarted its
 stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
@@ -186,6 +192,13 @@ class StampJoin:
         newest complete one (load shed); at least ``gap_timeout`` (downstream:
         ``restart_after``; a smaller value is raised to it, so a dead feedback source is
         declared lost before load is shed). None: never shed (offline reading).
+    sample_time : float, optional
+        s of plant time per stamp (the plant's Ts), for ``batch_pace``.
+    batch_pace : float
+        A backlog that came faster than ``batch_pace`` times real time is a *batch* and is
+        never shed: its stamps span more than ``batch_pace`` x the wall time between the
+        arrival of the next sample and of the newest one (a flat-out replay or simulation,
+        which asked for every sample). 0 (or no ``sample_time``): nothing is a batch.
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
@@ -193,8 +206,11 @@ class StampJoin:
                  gap_timeout: float | None = None, horizon: int | None = None,
                  restart_after: float = 1.0,
                  feedback_source: Callable[[str], bool] | None = None,
-                 max_gap: int = 0, max_lag: float | None = None) -> None:
+                 max_gap: int = 0, max_lag: float | None = None,
+                 sample_time: float | None = None, batch_pace: float = 0.0) -> None:
         self.required = tuple(required)
+        self.sample_time = sample_time
+        self.batch_pace = float(batch_pace) if sample_time else 0.0
         self.max_gap = int(max_gap)
         self.max_lag = (None if max_lag is None else max(
             float(max_lag), gap_timeout or 0.0, restart_after if sequence is not None else 0.0))
@@ -253,6 +269,10 @@ class StampJoin:
         self.feedback_losses = 0
         self.shed = 0
         self.shed_episodes = 0
+        #: The newest complete stamp and when it became complete (the backlog's pace).
+        self._newest, self._newest_t = -1, 0.0
+        #: Checks that found the node more than ``max_lag`` s behind on a batch (not shed).
+        self.batch_waits = 0
 
     def reset(self) -> None:
         """Forget everything: the next complete sample starts a run (a reset service)."""
@@ -262,7 +282,8 @@ class StampJoin:
                       sequence=self.sequence, gap_timeout=self.gap_timeout,
                       horizon=self.horizon, restart_after=self.restart_after,
                       feedback_source=self.feedback_source, max_gap=self.max_gap,
-                      max_lag=self.max_lag)
+                      max_lag=self.max_lag, sample_time=self.sample_time,
+                      batch_pace=self.batch_pace)
 
     # -- input ---------------------------------------------------------------------------------
 
@@ -302,6 +323,8 @@ class StampJoin:
                 self._bridge_at.add(stamp)
         if name in self.required and all(n in slot for n in self.required):
             self._complete_since[stamp] = now
+            if stamp > self._newest:
+                self._newest, self._newest_t = stamp, now
         if len(self.pending) > self.max_pending:
             oldest = min(self.pending)
             self._forget(oldest)
@@ -357,10 +380,13 @@ class StampJoin:
         self._restart_next = False
         self._missing, self._carry = 0, None
         self.new_runs += 1
+        self._newest = -1
         for stamp, slot in held.items():
             self.pending[stamp] = slot
             if all(n in slot for n in self.required):
                 self._complete_since[stamp] = held_t[stamp]
+                if stamp > self._newest:
+                    self._newest, self._newest_t = stamp, held_t[stamp]
         self._seq = seq
         self._restart_at = rst
         self._bridge_at = brg
@@ -496,8 +522,8 @@ class StampJoin:
             return self._release(min(self._complete_since), True, None)
         t = self._complete_since.get(k)
         if t is not None and self.max_lag is not None and now - t > self.max_lag:
-            newest = max(self._complete_since)
-            if newest > k:
+            newest = self._shed_to(k, t)
+            if newest is not None:
                 return self._shed(k, newest)
         if t is not None:
             if self._restart_next or self._missing > self.max_gap:
@@ -531,6 +557,24 @@ class StampJoin:
             return self._release(s, False, (k, s - 1), lost=True,
                                  bridge=self._lose(k, self.pending.get(k, {})))
         return self._release(s, False, (k, s - 1), bridge=fb)
+
+    def _shed_to(self, k: int, t: float) -> int | None:
+        """The node is more than ``max_lag`` s behind at ``k`` (complete since ``t``): the
+        newest complete stamp to skip to, or None when there is none beyond ``k`` or the
+        backlog ``k .. newest`` is a batch (it came faster than ``batch_pace`` x real time:
+        its stamps span more plant time than ``batch_pace`` x the wall time between the
+        arrivals of ``k`` and ``newest``)."""
+        newest = self._newest
+        if newest not in self._complete_since:     # released or dropped since: look again
+            newest = max(self._complete_since)
+            self._newest, self._newest_t = newest, self._complete_since[newest]
+        if newest <= k:
+            return None
+        if self.batch_pace and self.sample_time and (
+                (newest - k) * self.sample_time > self.batch_pace * (self._newest_t - t)):
+            self.batch_waits += 1
+            return None
+        return newest
 
     def _shed(self, k: int, s: int) -> Sample:
         """The node is more than ``max_lag`` s behind at ``k``: skip to the newest complete
@@ -572,8 +616,8 @@ class StampJoin:
             skipped = True
         t = self._complete_since.get(s)
         if t is not None and self.max_lag is not None and now - t > self.max_lag:
-            newest = max(self._complete_since)
-            if newest > s:
+            newest = self._shed_to(s, t)
+            if newest is not None:
                 # behind by more than max_lag: skip to the newest complete sequence stamp
                 # (a restart of this node there; the entry node's own stamps go on)
                 n = 0

@@ -30,9 +30,10 @@ lost) is not a new run: the sample goes on without it (its initial value) and th
 waiting for that feedback until it comes again (``feedback_back``: a restarted peer rejoins).
 
 No input pattern blinds a node for good (doc/howto/overload-and-recovery.md): a node more
-than ``max_lag`` s behind (when set) sheds load (``shed``: skips to the newest complete sample, as
-across a hole), a dead feedback source costs ``gap_timeout`` s once, a stopped or restarted
-source is a hole or a new run.
+than ``max_lag`` s behind a live stream sheds load (``shed``: skips to the newest complete
+sample, as across a hole; a backlog that came faster than ``batch_pace`` x real time is a
+batch, processed completely), a dead feedback source costs ``gap_timeout`` s once, a stopped
+or restarted source is a hole or a new run.
 
 Reports go to the caller's ``note(kind, line, stamp)``; ``kind`` is the step's kind above,
 ``hole`` (``stamp`` is the inclusive ``(first, last)``; bridged or restarted), ``bridge`` (a
@@ -44,8 +45,8 @@ monotonic clock; offline it is each bag record's log time in s, and ``+inf`` at 
 the bag (every decision that waits for time is taken).
 
 The defaults of the time and stamp limits (:data:`GAP_TIMEOUT`, :data:`STAMP_HORIZON`,
-:data:`RESTART_AFTER`, :data:`MAX_GAP`) are declared here once: the nodes' parameters and the
-offline reader take them from here.
+:data:`RESTART_AFTER`, :data:`MAX_GAP`, :data:`MAX_LAG`, :data:`BATCH_PACE`) are declared
+here once: the nodes' parameters and the offline reader take them from here.
 """
 
 from __future__ import annotations
@@ -55,8 +56,8 @@ from typing import Any
 
 from fd_monitor.wire.join import Sample, StampJoin
 
-__all__ = ["GAP_TIMEOUT", "InputStream", "MAX_GAP", "MAX_LAG", "RESTART_AFTER",
-           "STAMP_HORIZON", "TopicOrder"]
+__all__ = ["BATCH_PACE", "GAP_TIMEOUT", "InputStream", "MAX_GAP", "MAX_LAG",
+           "RESTART_AFTER", "STAMP_HORIZON", "TopicOrder"]
 
 #: s a later sample must have been complete before a missing one is declared lost.
 GAP_TIMEOUT = 1.0
@@ -67,9 +68,14 @@ RESTART_AFTER = 1.0
 #: Lost samples in a row that are bridged (the run goes on, its memory kept); more: a restart.
 MAX_GAP = 10
 #: s a complete sample may wait (behind a backlog) before the node skips to the newest one;
-#: 0: never (the default: a source faster than the node -- ``replay --rate 0``, ``plant_sim``
-#: flat out -- is processed completely, as those sources promise; a live robot sets it).
-MAX_LAG = 0.0
+#: 0: never. A batch (see :data:`BATCH_PACE`) is never shed.
+MAX_LAG = 2.0
+#: x real time: a backlog that came faster than this is a batch -- ``replay --rate 0``,
+#: ``plant_sim`` flat out, which pace by acknowledgements and promise that no sample is
+#: lost -- and is processed completely, however late; 0: nothing is a batch (every backlog
+#: older than ``max_lag`` is shed, e.g. a simulation run far faster than real time where
+#: latency matters more than completeness).
+BATCH_PACE = 2.0
 
 #: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
 NoteFn = Callable[[str, str, Any], None]
