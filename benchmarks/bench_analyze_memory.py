@@ -27,21 +27,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_fleet import ROSBAGS_READ  # the one rosbags reading script (same folder)
+
 REPO = Path(__file__).resolve().parent.parent
 PY = sys.executable
-
-ROSBAGS_READ = """
-import sys
-from pathlib import Path
-from rosbags.highlevel import AnyReader
-from rosbags.typesys import Stores, get_typestore
-n = 0
-with AnyReader([Path(sys.argv[1])], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as r:
-    for con, _t, raw in r.messages():
-        r.deserialize(raw, con.msgtype)
-        n += 1
-print(n)
-"""
 
 #: Profile groups: (label, function-name suffix of the cumulative entry).
 _GROUPS = (("read MCAP (CRC, zstd, records)", "bag_scanner.py:"),
