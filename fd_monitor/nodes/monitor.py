@@ -290,7 +290,9 @@ class MonitorNode(FdNode):
         pays: Any = None                 # built for the first topic someone subscribes to
         if self._plan is None:
             pays = (*rt.payloads(out), {"restart": self.restarting, "bridge": self.bridging})
-            self._plan = [(pub.get_subscription_count, pub.publish,
+            # the count of rclpy's C++ publisher (rclpy's wrapper adds a use count around
+            # it: 3-4 calls per topic and sample; the GIL keeps the handle alive meanwhile)
+            self._plan = [(pub.handle.get_subscription_count, pub.publish,
                            SerializedArray(lay.labels).encode, lay.sources(pays), t.next_sample)
                           for pub, t, lay in zip(self.pubs, self.outputs, self._layouts(out))]
         stamps = (k, k + 1)

@@ -428,7 +428,9 @@ class RawDecoder:
                 ok = 0.0 <= s < MAX_STAMP and s == math.floor(s)      # NaN: False
                 stamp = int(s) if ok else None
                 values = data[1:]
-            if ok and (not np.isfinite(values).all() if self._finite_only
+            # finite: math.isfinite over the few values (numpy's isfinite().all() costs more
+            # than the rest of the decode for a message of a few values)
+            if ok and (not all(map(math.isfinite, values.tolist())) if self._finite_only
                        else self._bad is not None and self._bad(values).any()):
                 ok = False
             if ok:
