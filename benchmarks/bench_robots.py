@@ -24,8 +24,20 @@ Printed per N (the 1-minute load average with each line):
 * below each row, the first process's CPU per sample by thread name (the Python main thread,
   Fast DDS's threads).
 
+Side by side (``--tree LABEL=DIR``, repeatable): the monitors of each N are also run from
+another source tree (e.g. the base commit, ``git archive BASE | tar -x -C DIR``) on
+``PYTHONPATH``, alternating with this tree, each ``--repeat`` times; the best run of each tree
+(least CPU per sample) is printed last, with its load. ``--profile FILE``: the first monitor
+runs under cProfile during the measured window only (enabled on SIGUSR1, written to FILE on
+SIGUSR2: start-up is left out; the profiler's own cost inflates its CPU figures).
+``--path SAMPLES``: the monitor node's own Python path per sample without DDS
+(:data:`NODE_PATH`: its subscription callbacks called directly), back to back (``warm``) and
+one sample every 1/rate s (``paced``, as live), per tree: the figure a change to the node's
+Python is seen in without the 10-30 % run-to-run noise of the DDS figures.
+
 Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
-[--seconds 10] [--floor]``. Isolated ROS_DOMAIN_ID, loopback discovery.
+[--seconds 10] [--floor] [--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]``.
+Isolated ROS_DOMAIN_ID, loopback discovery.
 """
 
 from __future__ import annotations
@@ -34,6 +46,7 @@ import argparse
 import json
 import os
 import random
+import signal
 import subprocess
 import sys
 import time
@@ -149,6 +162,78 @@ except BaseException:
     pass
 """
 
+#: ``python -c PROFILED FILE <fd_monitor arguments>``: the fd_monitor CLI with cProfile on the
+#: main thread (where rclpy's EventsExecutor runs every callback) between SIGUSR1 and SIGUSR2;
+#: the statistics go to FILE at SIGUSR2.
+PROFILED = r"""
+import cProfile, signal, sys, time
+out = sys.argv[1]
+sys.argv = ["fd_monitor", *sys.argv[2:]]
+prof = cProfile.Profile(time.thread_time)  # the main thread's CPU, not the wall clock
+signal.signal(signal.SIGUSR1, lambda *a: prof.enable())
+def stop(*a):
+    prof.disable()
+    prof.dump_stats(out)
+signal.signal(signal.SIGUSR2, stop)
+from fd_monitor.commands.cli import main
+sys.exit(main())
+"""
+
+#: ``python -c NODE_PATH <samples> <rate>``: the monitor node's own Python path per sample,
+#: without DDS delivery: a MonitorNode (three_tank thresholds, one in-process subscriber of
+#: ``fd/alarm``) whose u and y subscription callbacks are called directly with the driver's
+#: serialized messages; main-thread CPU (``time.thread_time``) per sample, best of 3 passes,
+#: ``warm`` back to back and ``paced`` one sample every 1/rate s (as live: caches cold).
+#: Prints one JSON line.
+NODE_PATH = r"""
+import json, sys, time
+import rclpy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Float64MultiArray
+from fd_monitor.core.simulator import simulate
+from fd_monitor.model.scenario import load_scenario
+from fd_monitor.nodes.monitor import MonitorNode
+from fd_monitor.wire.conversions import to_msg
+n, rate = int(sys.argv[1]), float(sys.argv[2])
+rclpy.init()
+sc = load_scenario("three_tank_bias_h1")
+K = 10 + 6 * n
+tr = simulate(sc, None, K)
+U = [serialize_message(to_msg(sc.system.inputs, k, tr.u[0][k].tolist())) for k in range(K)]
+Y = [serialize_message(to_msg(sc.system.outputs, k, tr.y[0][k].tolist())) for k in range(K)]
+node = MonitorNode(namespace="/robot0")
+rx = rclpy.create_node("rx", namespace="/robot0")
+rx.create_subscription(Float64MultiArray, "fd/alarm", lambda m: None, QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT),
+    raw=True)
+alarm = [p for p in node.pubs if p.topic_name.endswith("/fd/alarm")][0]
+t0 = time.monotonic()
+while alarm.get_subscription_count() < 1 and time.monotonic() - t0 < 10:
+    time.sleep(0.01)
+cu, cy = node._data_inputs["u"].callback, node._data_inputs["y"].callback
+for k in range(10):
+    cu(U[k]); cy(Y[k])
+out, k = {"warm": [], "paced": []}, 10
+for _ in range(3):
+    t = time.thread_time()
+    for j in range(k, k + n):
+        cu(U[j]); cy(Y[j])
+    out["warm"].append((time.thread_time() - t) / n * 1e6)
+    k += n
+    tot = 0.0
+    for j in range(k, k + n):
+        time.sleep(1.0 / rate)
+        t = time.thread_time()
+        cu(U[j]); cy(Y[j])
+        tot += time.thread_time() - t
+    out["paced"].append(tot / n * 1e6)
+    k += n
+assert node.processed == k, node.processed
+print(json.dumps({w: min(v) for w, v in out.items()}))
+node.destroy_node(); rx.destroy_node(); rclpy.try_shutdown()
+"""
+
 #: The floor variants ``--floor`` measures: (executor, messages, imports).
 FLOORS = (("single", "msg", "ros"), ("events", "msg", "ros"), ("events", "raw", "ros"),
           ("events", "raw", "numpy"), ("events", "decode", "monitor"),
@@ -217,8 +302,11 @@ def rss_mb(pid: int) -> float:
 
 
 def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
-              floor: tuple[str, str, str] | None = None) -> dict:
-    """One N: start, drive, measure, stop."""
+              floor: tuple[str, str, str] | None = None, tree: str | None = None,
+              profile: str | None = None) -> dict:
+    """One N: start, drive, measure, stop. ``tree``: the monitors' source tree (first on
+    ``PYTHONPATH``; default this one); ``profile``: cProfile the first monitor's measured
+    window into this file."""
     import rclpy
     from std_msgs.msg import Float64MultiArray
 
@@ -226,13 +314,19 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
     from fd_monitor.nodes.qos import data_sub_qos
     from fd_monitor.wire.topics import ALARM
 
+    if profile and os.path.exists(profile):
+        os.remove(profile)
     if floor:
         procs = [subprocess.Popen([sys.executable, "-c", BARE, *floor], env=e,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     else:
-        procs = [subprocess.Popen([sys.executable, "-m", "fd_monitor", "run", "monitor",
-                                   "--ros-args", "-r", f"__ns:=/robot{i}"], env=e,
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        me = ({**e, "PYTHONPATH": tree + os.pathsep + e.get("PYTHONPATH", "")} if tree
+              else e)
+        procs = [subprocess.Popen([sys.executable,
+                                   *(["-c", PROFILED, profile] if profile and i == 0
+                                     else ["-m", "fd_monitor"]),
+                                   "run", "monitor", "--ros-args", "-r", f"__ns:=/robot{i}"],
+                                  env=me, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
                  for i in range(n_robots)]
     node = rclpy.create_node(f"robots_rx_{n_robots}")
     arrivals: list[dict[int, float]] = [{} for _ in range(n_robots)]
@@ -248,7 +342,7 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
                             str(seconds)], env=e, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                            text=True)
     assert drv.stdin is not None and drv.stdout is not None
-    row: dict = {"robots": n_robots, "floor": floor}
+    row: dict = {"robots": n_robots, "floor": floor, "tree": tree}
     try:
         if drv.stdout.readline().strip() != "ready":
             raise RuntimeError("driver did not start")
@@ -261,6 +355,8 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         pids = [p.pid for p in procs]
         cpu0, t0 = cpu_seconds(pids), time.perf_counter()
         threads0 = thread_cpu(pids[0])
+        if profile and not floor:
+            procs[0].send_signal(signal.SIGUSR1)
         drv.stdin.write("go\n")
         drv.stdin.flush()
         import select
@@ -274,6 +370,12 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         while time.perf_counter() < end:
             ex.spin_once(timeout_sec=0.01)
         cpu = cpu_seconds(pids) - cpu0
+        if profile and not floor:
+            procs[0].send_signal(signal.SIGUSR2)
+            deadline = time.monotonic() + 30
+            while not os.path.exists(profile) and time.monotonic() < deadline:
+                time.sleep(0.1)
+            time.sleep(0.5)                  # written
         threads = {n: v - threads0.get(n, 0.0) for n, v in thread_cpu(pids[0]).items()}
         wall = time.perf_counter() - t0 - 2.0
         sent = json.loads(line)["sent"][10:]
@@ -305,12 +407,21 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
     return row
 
 
+def node_path(samples: int, rate: float, e: dict[str, str], tree: str | None = None) -> dict:
+    """The monitor node's Python path per sample without DDS (:data:`NODE_PATH`), us."""
+    me = {**e, "PYTHONPATH": tree + os.pathsep + e.get("PYTHONPATH", "")} if tree else e
+    out = subprocess.run([sys.executable, "-c", NODE_PATH, str(samples), str(rate)], env=me,
+                         capture_output=True, text=True, check=True).stdout
+    return dict(json.loads(out.strip().splitlines()[-1]), load=round(load(), 2))
+
+
 def _fmt(r: dict) -> str:
     def f(v, spec=".2f"):
         return "-" if v is None else format(v, spec)
 
     rss = r.get("rss_mb") or [float("nan")]
-    what = f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
+    what = (f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
+            + (f" [{r['label']}]" if r.get("label") else ""))
     per_thread = ", ".join(f"{n} {v}" for n, v in list(r.get("threads", {}).items())[:5])
     return (f"{what:28} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
             f"{f(r.get('p50_ms')):>7} {f(r.get('p99_ms')):>7} {f(r.get('max_ms')):>7} "
@@ -322,11 +433,25 @@ def _fmt(r: dict) -> str:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--robots", type=int, nargs="+", default=[1, 8, 16, 32])
+    ap.add_argument("--robots", type=int, nargs="*", default=[1, 8, 16, 32],
+                    help="N of each fleet run (none: only --path/--floor)")
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--floor", action="store_true", help="also measure a bare rclpy node")
+    ap.add_argument("--tree", action="append", default=[], metavar="LABEL=DIR",
+                    help="also run the monitors from source tree DIR (side by side)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="runs per N and tree (alternating); the best is printed last")
+    ap.add_argument("--profile", metavar="FILE",
+                    help="cProfile the first monitor's measured window into FILE")
+    ap.add_argument("--path", type=int, metavar="SAMPLES", default=0,
+                    help="also time the monitor node's Python path without DDS, SAMPLES per "
+                         "pass (warm and paced at --rate; per tree)")
     args = ap.parse_args()
+    trees: list[tuple[str, str | None]] = [
+        (t.split("=", 1)[0], str(Path(t.split("=", 1)[1]).resolve())) for t in args.tree]
+    if trees:
+        trees.append(("this", None))
     e = env()
     import rclpy
 
@@ -336,12 +461,31 @@ def main() -> int:
     print(f"{'what':28} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'max ms':>7} {'cpu us/s.':>9} {'%core':>6} {'RSS':>6} {'max':>6}")
     try:
+        if args.path:
+            for label, tree in trees or [("", None)]:
+                r = node_path(args.path, args.rate, e, tree)
+                print(f"node path{f' [{label}]' if label else '':22} warm {r['warm']:.0f} us, "
+                      f"paced at {args.rate:g} Hz {r['paced']:.0f} us per sample (main "
+                      f"thread, best of 3, no DDS delivery)  load {r['load']:.2f}", flush=True)
         if args.floor:
             for variant in FLOORS:
                 print(_fmt(run_fleet(1, args.rate, args.seconds, e, floor=variant)),
                       flush=True)
         for n in args.robots:
-            print(_fmt(run_fleet(n, args.rate, args.seconds, e)), flush=True)
+            best: dict[str, dict] = {}
+            for _ in range(args.repeat):
+                for label, tree in trees or [("", None)]:
+                    r = run_fleet(n, args.rate, args.seconds, e, tree=tree,
+                                  profile=args.profile)
+                    r["label"] = label
+                    print(_fmt(r), flush=True)
+                    if (label not in best or r["cpu_us_per_sample"]
+                            < best[label]["cpu_us_per_sample"]):
+                        best[label] = r
+            if args.repeat > 1 or trees:
+                print(f"best of {args.repeat} (least CPU per sample):")
+                for r in best.values():
+                    print(_fmt(r), flush=True)
     finally:
         rclpy.try_shutdown()
     print(f"load average {load():.2f} after")

@@ -102,8 +102,10 @@ class InputPath:
             self.data_inputs[inp.name] = node.subscribe(inp.topic, self.callback(inp),
                                                         inp.plain_ok, raw=True)
         self._open_loop: set[str] = set()
-        if self.pairing:
-            node._entities.append(node.create_timer(HOLD_WAIT / 2, self._on_hold_timer))
+        # The hold rule's timer (a plain sample whose held input never comes is released
+        # after HOLD_WAIT) starts with the first plain message: a stamped stream never waits,
+        # and a 20 Hz timer costs an idle node's executor more than its samples' bookkeeping.
+        self._hold_timer: Any = None
         # A hole, lost feedback or a new run must be declared even when no further message
         # arrives.
         period = min(0.25, max(0.01, min(gap_timeout or 1.0, params.restart_after) / 4))
@@ -164,6 +166,9 @@ class InputPath:
                     stream.refused(k + inp.stamp_offset, time.monotonic())
                 return
             if d.stamp is None:
+                if self._hold_timer is None and pairing:
+                    self._hold_timer = node.create_timer(HOLD_WAIT / 2, self._on_hold_timer)
+                    node._entities.append(self._hold_timer)
                 t = int(info["source_timestamp"]) if info is not None else time.time_ns()
                 if inp.hold:
                     pairing.hold(inp.name, t, d.values)

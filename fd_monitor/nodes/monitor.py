@@ -241,9 +241,11 @@ class MonitorNode(FdNode):
         #: /diagnostics status (and alarm log) name of each of the runtime's channels
         self.channels = [f"residual {c}" for c in rt.channels]
         self.outputs = CHAIN_OUTPUTS if rt.CHAIN else RUNTIME_OUTPUTS
-        #: per topic: publisher, serializer, which payload holds each field, k or k + 1
-        #: (resolved at the first sample from the runtime's payloads)
-        self._plan: list[tuple[Any, SerializedArray, Any, bool]] | None = None
+        #: per topic: its publisher's subscription count and publish, its serializer's
+        #: encode, which payload holds each field, k or k + 1 (resolved at the first sample
+        #: from the runtime's payloads)
+        self._plan: list[tuple[Callable[[], int], Callable[[bytes], None],
+                               Callable[[int, Any], bytes], Any, bool]] | None = None
 
     def reset(self) -> None:
         """Fresh runtime state (a new run: first sample, after a hole, ``~/reset``), as the
@@ -288,13 +290,16 @@ class MonitorNode(FdNode):
         pays: Any = None                 # built for the first topic someone subscribes to
         if self._plan is None:
             pays = (*rt.payloads(out), {"restart": self.restarting, "bridge": self.bridging})
-            self._plan = [(pub, SerializedArray(lay.labels), lay.sources(pays), t.next_sample)
+            # the count of rclpy's C++ publisher (rclpy's wrapper adds a use count around
+            # it: 3-4 calls per topic and sample; the GIL keeps the handle alive meanwhile)
+            self._plan = [(pub.handle.get_subscription_count, pub.publish,
+                           SerializedArray(lay.labels).encode, lay.sources(pays), t.next_sample)
                           for pub, t, lay in zip(self.pubs, self.outputs, self._layouts(out))]
         stamps = (k, k + 1)
-        for pub, ser, src, nxt in self._plan:
+        for subscribed, publish, encode, src, nxt in self._plan:
             # nobody subscribed: DDS would drop the message; skip building it (a count
             # costs ~1 us, a message 5-10 us to assemble, pack and hand to DDS)
-            if not pub.get_subscription_count():
+            if not subscribed():
                 continue
             if pays is None:
                 pays = (*rt.payloads(out), {"restart": self.restarting,
@@ -307,7 +312,7 @@ class MonitorNode(FdNode):
                     data.append(v)
                 else:
                     data.extend(v.tolist())
-            pub.publish(ser.encode(stamps[nxt], data))
+            publish(encode(stamps[nxt], data))
         self._diagnose(k, out)
         # the stored lists: no array made for the verdict's few values
         fault = self.fault
@@ -332,8 +337,7 @@ class MonitorNode(FdNode):
                                                                     "isolated")))
         now = time.monotonic()
         if key == self._last_key and now < self._next_report:
-            for ch in self._channels_all:
-                self.diag.touch(ch)
+            self.diag.touch_all(self._channels_all)
             return
         self._last_key, self._next_report = key, now + DIAG_REFRESH
         rt = self.runtime

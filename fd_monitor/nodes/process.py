@@ -79,7 +79,9 @@ def run_node(factory: Callable[..., Node | Sequence[Node]], args: Sequence[str] 
             executor.add_node(n)
         done = getattr(nodes[0], "done", None)
         if events:
-            while rclpy.ok() and (done is None or not done.done()):
+            # rclpy.ok() of the nodes' context, bound once (the loop turns once per message)
+            ok = nodes[0].context.ok
+            while ok() and (done is None or not done.done()):
                 executor.spin_once(timeout_sec=0.1)
         elif done is not None:
             executor.spin_until_future_complete(done)
