@@ -251,6 +251,10 @@ class HybridObserver:
             (r.state_lo[q].tolist() + r.input_lo[q].tolist(),
              r.state_hi[q].tolist() + r.input_hi[q].tolist()) for q in range(s)]
         self._excess1 = [excess_map(lo, hi) for lo, hi in self._box]
+        self._trig1 = self._trig.tolist()
+        self._steps1 = self.f._steps1            # compiled f(q, x, u) per mode ([]: none)
+        self._enter0 = self.plausibility.compensator(False)
+        self._enter1 = self.plausibility.compensator(True)
         self.reset()
 
     def reset(self) -> None:
@@ -275,21 +279,31 @@ class HybridObserver:
         Returns the output and its x^_k and y~_k as lists (for the next component).
         """
         q_mid = self._q_mid1
-        # Refuse an implausible sample before any state changes (core/plausibility.py).
+        # Refuse an implausible sample before any state changes (core/plausibility.py); the
+        # usual case (C = I) in one compiled test that also gives y~ = y - sigma^.
+        first = self.k_next is None
         y_pred = None
-        if self.k_next is not None:
+        if first:
+            y_t = self._enter0(y, u, sg)
+        elif self._C[q_mid] is None:
+            y_t = self._enter1(y, u, sg, self._x_next1)
+            if y_t is None:
+                y_pred = [a + b for a, b in zip(self._x_next1, sg)]
+        else:
+            y_t = None
             C = self._C[q_mid]
-            xp = self._x_next1 if C is None else (C @ np.array(self._x_next1)).tolist()
-            y_pred = [a + b for a, b in zip(xp, sg)]
-        self.plausibility.check(k, u, y, y_pred)
-        y_t = [a - b for a, b in zip(y, sg)]
+            y_pred = [a + b for a, b in zip((C @ np.array(self._x_next1)).tolist(), sg)]
+        if y_t is None:
+            self.plausibility.check(k, u, y, y_pred)
+            y_t = [a - b for a, b in zip(y, sg)]
         q = q_mid
         if trigger >= 0:
-            tgt = int(self._trig[trigger, q_mid])
+            tgt = self._trig1[trigger][q_mid]
             if tgt >= 0:
                 q = tgt
-        x_hat = y_t if self.k_next is None else self._x_next1
-        self._x_next1 = self.f.step1(q, y_t, u)
+        x_hat = y_t if first else self._x_next1
+        steps = self._steps1
+        self._x_next1 = steps[q](y_t, u) if steps else self.f.step1(q, y_t, u)
         qn = q
         for target, conds in self._controlled1[q]:      # the first guard whose test holds
             for i, op, v in conds:
@@ -301,9 +315,7 @@ class HybridObserver:
                     break
         self._q_mid1 = qn
         self.k_next = k + 1
-        out = None
-        if self._box:
-            out = self._excess1[q](x_hat + u)
+        out = self._excess1[q](x_hat + u) if self._excess1 else None
         return ObserverOutput(k, q, x_hat, y_t, out), x_hat, y_t
 
     def _apply_trigger(self, q: np.ndarray, trigger: np.ndarray) -> np.ndarray:

@@ -40,6 +40,7 @@ changes.
 from __future__ import annotations
 
 import math
+from math import isfinite
 from typing import Any
 
 import numpy as np
@@ -181,6 +182,7 @@ class Monitor:
         self.agei = Agei(system, self.gains, enabled=agei)
         self.estimator = BiasEstimator(system, self.gains)
         self._nu, self._ny = system.nu, system.ny
+        self._ftu, self._fty = (float,) * system.nu, (float,) * system.ny
         self.reset()
 
     def reset(self) -> None:
@@ -253,8 +255,16 @@ class Monitor:
         # of the batch path for one run, bit for bit, without numpy calls per sample.
         if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
             k = validate_sample(self.system, k, u, y, self._k_next)[0]
-        uf = sample_floats("u", u, self._nu, k)
-        yf = sample_floats("y", y, self._ny, k)
+        # Lists of exactly nu / ny Python floats with a finite sum (so no NaN/Inf) are taken
+        # as they are (copied); anything else through sample_floats' checks.
+        if type(u) is list and tuple(map(type, u)) == self._ftu and isfinite(sum(u)):
+            uf = [*u]
+        else:
+            uf = sample_floats("u", u, self._nu, k)
+        if type(y) is list and tuple(map(type, y)) == self._fty and isfinite(sum(y)):
+            yf = [*y]
+        else:
+            yf = sample_floats("y", y, self._ny, k)
         obs, x_hat, y_t = self.observer.step1(k, uf, yf, self._sigma, self._trigger)
         q: int = obs.mode                        # type: ignore[assignment]  # one stream: int
         det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
