@@ -192,7 +192,7 @@ class Monitor:
         self._k_next: int | None = None
         self._sigma = [0.0] * self.system.ny
         self._trigger = NO_TRIGGER
-        self._override = [math.nan] * self.system.ny
+        self._override: list[float] | None = None     # AGEI's threshold override (None: none)
 
     def bridge(self, k: int, u: Any, y: Any) -> None:
         """The next sample is ``(k, u_k, y_k)``; the samples since the last one are lost (a
@@ -268,7 +268,8 @@ class Monitor:
         obs, x_hat, y_t = self.observer.step1(k, uf, yf, self._sigma, self._trigger)
         q: int = obs.mode                        # type: ignore[assignment]  # one stream: int
         det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
-        ag, self._override = self.agei.step1(k, q, w, r, nominal)
+        ag, ov = self.agei.step1(k, q, w, r, nominal)
+        self._override = ov if ag.row >= 0 else None     # type: ignore[operator]  # one stream
         hold: bool = ag.mode_uncertain           # type: ignore[assignment]  # one stream
         if self.estimator._fast:
             est, self._sigma = self.estimator.step1(k, uf, yf, q, alarm, hold)
