@@ -155,6 +155,23 @@ def _scalar_linear_steps(plant: SampledPlant) -> list[Callable[[Sequence[float],
     return steps
 
 
+def _controlled_map(q: int, guards: Sequence[tuple[int, Sequence[tuple[int, Any, float]]]]
+                    ) -> Callable[[Sequence[float]], int]:
+    """``u -> q_mid`` of mode q: its controlled guards ``(target, [(index, op, value)])`` in
+    file order as one compiled function (the comparisons of ``_OPS``, constants by repr)."""
+    sym = {operator.lt: "<", operator.le: "<=", operator.gt: ">", operator.ge: ">="}
+    lines = ["def nq(u):"]
+    for target, conds in guards:
+        if target == q:
+            continue                                   # a self-loop leaves q as it is
+        test = " and ".join(f"u[{i}] {sym.get(op, '==')} {v!r}" for i, op, v in conds)
+        lines.append(f"    if {test or 'True'}:\n        return {int(target)}")
+    lines.append(f"    return {int(q)}")
+    ns: dict[str, Any] = {"inf": math.inf, "nan": math.nan}
+    exec("\n".join(lines) + "\n", ns)
+    return cast(Callable[[Sequence[float]], int], ns["nq"])
+
+
 #: A guard condition's comparison by its ``op`` (anything else: ``==``, as
 #: :meth:`~fd_monitor.core.plant.SampledPlant.next_mode` compares).
 _OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
@@ -244,6 +261,9 @@ class HybridObserver:
         self._controlled1 = [[(t, [(i, _OPS.get(op, operator.eq), v) for i, op, v in conds])
                               for src, t, conds in self._controlled if src == q]
                              for q in range(s)]
+        # ... compiled: q_mid_{k+1} = the target of the first guard whose test holds on u_k
+        # and leaves q (a self-loop changes nothing; a later guard may still apply), else q
+        self._next1 = [_controlled_map(q, g) for q, g in enumerate(self._controlled1)]
         self._C = [None if m.C.shape[0] == m.C.shape[1] and np.array_equal(m.C, np.eye(
             m.C.shape[0])) else m.C for m in system.modes]
         r = region
@@ -304,16 +324,7 @@ class HybridObserver:
         x_hat = y_t if first else self._x_next1
         steps = self._steps1
         self._x_next1 = steps[q](y_t, u) if steps else self.f.step1(q, y_t, u)
-        qn = q
-        for target, conds in self._controlled1[q]:      # the first guard whose test holds
-            for i, op, v in conds:
-                if not op(u[i], v):
-                    break
-            else:
-                qn = target
-                if qn != q:                              # a later guard no longer applies
-                    break
-        self._q_mid1 = qn
+        self._q_mid1 = self._next1[q](u)
         self.k_next = k + 1
         out = self._excess1[q](x_hat + u) if self._excess1 else None
         return ObserverOutput(k, q, x_hat, y_t, out), x_hat, y_t
