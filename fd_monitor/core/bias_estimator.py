@@ -385,7 +385,9 @@ class BiasEstimator:
             self._xs1 = f(mode, [a - b for a, b in zip(y, sg)], u)
         else:
             # eps, x^s_{k+1} and (inside the ball) sigma^_{k+1} in one compiled call
-            self._eps1, self._xs1, sig1 = self._learn1(y, xs, sg, f(mode, xs, u), g.M_sigma)
+            st = self.f._steps1                  # the compiled model step, when there is one
+            fx = st[mode](xs, u) if st else f(mode, xs, u)
+            self._eps1, self._xs1, sig1 = self._learn1(y, xs, sg, fx, g.M_sigma)
             if sig1 is None:
                 eps = self._eps1
                 step = self._Gam1(eps)
