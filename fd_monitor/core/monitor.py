@@ -269,7 +269,7 @@ class Monitor:
         q: int = obs.mode                        # type: ignore[assignment]  # one stream: int
         det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
         ag, ov = self.agei.step1(k, q, w, r, nominal)
-        self._override = ov if ag.row >= 0 else None     # type: ignore[operator]  # one stream
+        self._override = ov if ag.row >= 0 else None
         hold: bool = ag.mode_uncertain           # type: ignore[assignment]  # one stream
         if self.estimator._fast:
             est, self._sigma = self.estimator.step1(k, uf, yf, q, alarm, hold)
