@@ -218,6 +218,10 @@ class BiasEstimator:
                 f"abs(s[{i}]) > {t!r}" for i, t in enumerate(self._iso_thr1)) + "]",
                 {"inf": math.inf, "nan": math.nan})
             self._no_iso1 = [False] * system.ny
+            a, m = float(gains.presmoother_gain), min(system.n, system.ny)
+            self._blend1 = eval("lambda z, y: [" + ", ".join(
+                f"z[{i}] + {a!r} * (y[{i}] - z[{i}])" for i in range(m)) + "]",
+                {"inf": math.inf, "nan": math.nan})
         self.reset()
 
     def reset(self) -> None:
@@ -411,8 +415,9 @@ class BiasEstimator:
         self._buf1.append((u, y, mode))
         if len(self._buf1) > g.presmoother_delay:
             uo, yo, qo = self._buf1.popleft()
-            a = g.presmoother_gain
-            self._z1 = self.f.step1(qo, [z + a * (v - z) for z, v in zip(self._z1, yo)], uo)
+            st = self.f._steps1
+            zb = self._blend1(self._z1, yo)              # z + alpha (y - z), alpha written in
+            self._z1 = st[qo](zb, uo) if st else self.f.step1(qo, zb, uo)
 
     def _presmooth(self, u: np.ndarray, y: np.ndarray, mode: np.ndarray) -> None:
         """Delayed small-gain observer: z estimates x at the oldest buffered sample."""
