@@ -135,6 +135,9 @@ class Agei:
                         [i for i in range(ny) if self._affected[j, i]], int(self._guard[j]),
                         int(self._enab[j])) for j in range(len(self.rows))]
         self._same1 = self._same.tolist()
+        # per mode, the rows it enables (in row order) with lambda's numbers
+        self._enabled1 = [[(j, r[0], r[1], r[2], r[3]) for j, r in enumerate(self._rows1)
+                           if r[7] == m] for m in range(s)]
         self._none1 = (_frozen(np.full(ny, np.nan)), [float("nan")] * ny)
         self._star1 = [(_frozen(self._star[j]), self._star[j].tolist())
                        for j in range(len(self.rows))]
@@ -189,8 +192,9 @@ class Agei:
                 elif not self._lam1(j, w):
                     phase, row = MONITORING, -1
         if phase == MONITORING:
-            for jj, r in enumerate(self._rows1):
-                if mode == r[7] and self._lam1(jj, w):
+            for jj, out, op, lo, hi in self._enabled1[mode]:   # lambda (eq. 20), as _lam1
+                aw = abs(w[out])
+                if (lo <= aw <= hi) if op == 4 else (aw >= lo if op >= 2 else aw <= hi):
                     phase, row = EXPECTING, jj
                     break
         self._phase1, self._row1 = phase, row

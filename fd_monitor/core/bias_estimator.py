@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -70,6 +70,37 @@ def _seq_sum(v: Sequence[float]) -> float:
         acc += a
     return acc
 
+
+
+def _learn_step(Lam: np.ndarray, Gam: np.ndarray, n: int, ny: int) -> Callable[..., Any]:
+    """``f(y, xs, sg, fx, M) -> (eps, x^s_{k+1}, sigma^_{k+1} or None)``, compiled once:
+
+    ``eps = y - xs - sg``, ``x^s_{k+1} = fx + Lambda eps``, and ``sigma^_{k+1} = sg +
+    Gamma eps`` unless the projection (eq. 26) applies (``|sg| >= M`` and the step points
+    outward: None, the caller projects). The single-stream step's operations in its order
+    (each row of Lambda eps, Gamma eps, sg.sg and sg.step summed left to right, as
+    :func:`_matvec1` and :func:`_seq_sum` do), so the same bits.
+    """
+    Lam, Gam = np.atleast_2d(Lam), np.atleast_2d(Gam)
+
+    def row(M: np.ndarray, i: int) -> str:
+        return " + ".join(f"({float(M[i, j])!r}) * e{j}" for j in range(M.shape[1]))
+
+    L = [f"s{i} = sg[{i}]" for i in range(ny)]
+    L += [f"e{i} = y[{i}] - xs[{i}] - s{i}" for i in range(ny)]
+    L += [f"t{i} = {row(Gam, i)}" for i in range(Gam.shape[0])]
+    eps = ", ".join(f"e{i}" for i in range(ny))
+    xn = ", ".join(f"fx[{i}] + ({row(Lam, i)})" for i in range(Lam.shape[0]))
+    norm2 = " + ".join(f"s{i} * s{i}" for i in range(ny)) or "0.0"
+    out = " + ".join(f"s{i} * t{i}" for i in range(ny)) or "0.0"
+    sig = ", ".join(f"s{i} + t{i}" for i in range(ny))
+    L += [f"if sqrt({norm2}) >= M and {out} > 0.0:",
+          f"    return [{eps}], [{xn}], None",
+          f"return [{eps}], [{xn}], [{sig}]"]
+    src = "def learn(y, xs, sg, fx, M):\n" + "\n".join("    " + a for a in L) + "\n"
+    ns: dict[str, Any] = {"sqrt": math.sqrt, "inf": math.inf, "nan": math.nan}
+    exec(src, ns)
+    return cast(Callable[..., Any], ns["learn"])
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -182,6 +213,15 @@ class BiasEstimator:
             self._iso_thr1 = np.ravel(gains.isolation_threshold).tolist()
             self._zeros1 = _frozen(np.zeros(system.ny))
             self._false1 = _frozen(np.zeros(system.ny, dtype=bool))
+            self._learn1 = _learn_step(gains.Lambda, gains.Gamma, system.n, system.ny)
+            self._iso1 = eval("lambda s: [" + ", ".join(
+                f"abs(s[{i}]) > {t!r}" for i, t in enumerate(self._iso_thr1)) + "]",
+                {"inf": math.inf, "nan": math.nan})
+            self._no_iso1 = [False] * system.ny
+            a, m = float(gains.presmoother_gain), min(system.n, system.ny)
+            self._blend1 = eval("lambda z, y: [" + ", ".join(
+                f"z[{i}] + {a!r} * (y[{i}] - z[{i}])" for i in range(m)) + "]",
+                {"inf": math.inf, "nan": math.nan})
         self.reset()
 
     def reset(self) -> None:
@@ -348,22 +388,22 @@ class BiasEstimator:
         if hold:
             self._xs1 = f(mode, [a - b for a, b in zip(y, sg)], u)
         else:
-            eps = [a - b - c for a, b, c in zip(y, xs, sg)]
-            self._eps1 = eps
-            fx = f(mode, xs, u)
-            self._xs1 = [a + b for a, b in zip(fx, self._Lam1(eps))]
-            step = self._Gam1(eps)
-            # projection (eq. 26), as project() does it for one run
-            norm = math.sqrt(_seq_sum([a * a for a in sg]))
-            outward = _seq_sum([a * b for a, b in zip(sg, step)])
-            if norm >= g.M_sigma and outward > 0.0:
+            # eps, x^s_{k+1} and (inside the ball) sigma^_{k+1} in one compiled call
+            st = self.f._steps1                  # the compiled model step, when there is one
+            fx = st[mode](xs, u) if st else f(mode, xs, u)
+            self._eps1, self._xs1, sig1 = self._learn1(y, xs, sg, fx, g.M_sigma)
+            if sig1 is None:
+                eps = self._eps1
+                step = self._Gam1(eps)
+                # projection (eq. 26), as project() does it for one run
+                outward = _seq_sum([a * b for a, b in zip(sg, step)])
                 Gs = self._Gam1(sg)
                 c = outward / _seq_sum([a * b for a, b in zip(sg, Gs)])
                 step = [a - b * c for a, b in zip(step, Gs)]
-            self._sigma1 = [a + b for a, b in zip(sg, step)]
+                sig1 = [a + b for a, b in zip(sg, step)]
+            self._sigma1 = sig1
         sig = self._sigma1
-        ran = k - self._k_detect1 >= g.isolation_delay
-        iso = [ran and abs(a) > t for a, t in zip(sig, self._iso_thr1)]
+        iso = self._iso1(sig) if k - self._k_detect1 >= g.isolation_delay else self._no_iso1
         return BiasOutput(k, sig, iso, True, self._k_detect1), sig
 
     def _presmooth1(self, u: list[float], y: list[float], mode: int) -> None:
@@ -375,8 +415,9 @@ class BiasEstimator:
         self._buf1.append((u, y, mode))
         if len(self._buf1) > g.presmoother_delay:
             uo, yo, qo = self._buf1.popleft()
-            a = g.presmoother_gain
-            self._z1 = self.f.step1(qo, [z + a * (v - z) for z, v in zip(self._z1, yo)], uo)
+            st = self.f._steps1
+            zb = self._blend1(self._z1, yo)              # z + alpha (y - z), alpha written in
+            self._z1 = st[qo](zb, uo) if st else self.f.step1(qo, zb, uo)
 
     def _presmooth(self, u: np.ndarray, y: np.ndarray, mode: np.ndarray) -> None:
         """Delayed small-gain observer: z estimates x at the oldest buffered sample."""

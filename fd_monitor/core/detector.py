@@ -105,6 +105,15 @@ class ResidualDetector:
         self._bar_len = int(np.asarray(gains.h_p_bar).size)
         self._b1 = [row.tolist() for row in np.atleast_2d(self._b)]
         self._noise1 = gains.noise_term.tolist()
+        # (H[y~], H[x^]) -> (w, r = w - w^, alarm = |r| > R), compiled once for ny
+        r_ = [f"r{i} = ww[{i}] - ww[{ny + i}]" for i in range(ny)]
+        src = ("def post(ww, R):\n" + "".join(f"    {a}\n" for a in r_) +
+               f"    return [{', '.join(f'ww[{i}]' for i in range(ny))}], "
+               f"[{', '.join(f'r{i}' for i in range(ny))}], "
+               f"[{', '.join(f'abs(r{i}) > R[{i}]' for i in range(ny))}]\n")
+        ns: dict[str, Any] = {}
+        exec(src, ns)
+        self._post1 = ns["post"]
         self.reset()
 
     def reset(self) -> None:
@@ -117,16 +126,14 @@ class ResidualDetector:
         self._nominal1: list[float] = []
 
     def step1(self, k: int, y_tilde: list[float], x_hat: list[float], mode: int,
-              override: list[float]) -> tuple[DetectorOutput, list[float], list[float],
+              override: list[float] | None) -> tuple[DetectorOutput, list[float], list[float],
                                               list[float], list[bool]]:
         """Single stream on Python floats: the arithmetic of :meth:`step_batch` for one run.
 
         Returns the output and its r, w, nominal and alarm as lists (for the next component).
+        ``override`` None: none (as NaN everywhere).
         """
-        ny = self._ny
-        ww = self._fyx.step(y_tilde + x_hat[:ny])
-        w = ww[:ny]
-        r = [a - b for a, b in zip(w, ww[ny:])]
+        ww = self._fyx.step(y_tilde + x_hat[:self._ny])
         # The nominal threshold filters b[q^]: once the window at k and at k - 1 hold
         # b[q^] everywhere (len(h_p_bar) + 1 samples in one mode) its output bits are
         # unchanged; the filter's history, not stepped meanwhile, still holds that window.
@@ -137,8 +144,10 @@ class ResidualDetector:
         else:
             nominal = [a + b for a, b in zip(self._noise1, self._fbar.step(self._b1[mode]))]
             self._nominal1 = nominal
-        R = [n if o != o else (n if n >= o else o) for n, o in zip(nominal, override)]
-        alarm = [abs(a) > b for a, b in zip(r, R)]
+        # no override (None, or NaN everywhere): R is the nominal threshold itself
+        R = nominal if override is None else [
+            n if o != o else (n if n >= o else o) for n, o in zip(nominal, override)]
+        w, r, alarm = self._post1(ww, R)
         return DetectorOutput(k, r, w, R, nominal, alarm), r, w, nominal, alarm
 
     def step_batch(self, k: int, y_tilde: np.ndarray, x_hat: np.ndarray, mode: np.ndarray,

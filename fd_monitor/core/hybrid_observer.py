@@ -155,6 +155,23 @@ def _scalar_linear_steps(plant: SampledPlant) -> list[Callable[[Sequence[float],
     return steps
 
 
+def _controlled_map(q: int, guards: Sequence[tuple[int, Sequence[tuple[int, Any, float]]]]
+                    ) -> Callable[[Sequence[float]], int]:
+    """``u -> q_mid`` of mode q: its controlled guards ``(target, [(index, op, value)])`` in
+    file order as one compiled function (the comparisons of ``_OPS``, constants by repr)."""
+    sym = {operator.lt: "<", operator.le: "<=", operator.gt: ">", operator.ge: ">="}
+    lines = ["def nq(u):"]
+    for target, conds in guards:
+        if target == q:
+            continue                                   # a self-loop leaves q as it is
+        test = " and ".join(f"u[{i}] {sym.get(op, '==')} {v!r}" for i, op, v in conds)
+        lines.append(f"    if {test or 'True'}:\n        return {int(target)}")
+    lines.append(f"    return {int(q)}")
+    ns: dict[str, Any] = {"inf": math.inf, "nan": math.nan}
+    exec("\n".join(lines) + "\n", ns)
+    return cast(Callable[[Sequence[float]], int], ns["nq"])
+
+
 #: A guard condition's comparison by its ``op`` (anything else: ``==``, as
 #: :meth:`~fd_monitor.core.plant.SampledPlant.next_mode` compares).
 _OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
@@ -244,6 +261,9 @@ class HybridObserver:
         self._controlled1 = [[(t, [(i, _OPS.get(op, operator.eq), v) for i, op, v in conds])
                               for src, t, conds in self._controlled if src == q]
                              for q in range(s)]
+        # ... compiled: q_mid_{k+1} = the target of the first guard whose test holds on u_k
+        # and leaves q (a self-loop changes nothing; a later guard may still apply), else q
+        self._next1 = [_controlled_map(q, g) for q, g in enumerate(self._controlled1)]
         self._C = [None if m.C.shape[0] == m.C.shape[1] and np.array_equal(m.C, np.eye(
             m.C.shape[0])) else m.C for m in system.modes]
         r = region
@@ -251,6 +271,10 @@ class HybridObserver:
             (r.state_lo[q].tolist() + r.input_lo[q].tolist(),
              r.state_hi[q].tolist() + r.input_hi[q].tolist()) for q in range(s)]
         self._excess1 = [excess_map(lo, hi) for lo, hi in self._box]
+        self._trig1 = self._trig.tolist()
+        self._steps1 = self.f._steps1            # compiled f(q, x, u) per mode ([]: none)
+        self._enter0 = self.plausibility.compensator(False)
+        self._enter1 = self.plausibility.compensator(True)
         self.reset()
 
     def reset(self) -> None:
@@ -275,35 +299,34 @@ class HybridObserver:
         Returns the output and its x^_k and y~_k as lists (for the next component).
         """
         q_mid = self._q_mid1
-        # Refuse an implausible sample before any state changes (core/plausibility.py).
+        # Refuse an implausible sample before any state changes (core/plausibility.py); the
+        # usual case (C = I) in one compiled test that also gives y~ = y - sigma^.
+        first = self.k_next is None
         y_pred = None
-        if self.k_next is not None:
+        if first:
+            y_t = self._enter0(y, u, sg)
+        elif self._C[q_mid] is None:
+            y_t = self._enter1(y, u, sg, self._x_next1)
+            if y_t is None:
+                y_pred = [a + b for a, b in zip(self._x_next1, sg)]
+        else:
+            y_t = None
             C = self._C[q_mid]
-            xp = self._x_next1 if C is None else (C @ np.array(self._x_next1)).tolist()
-            y_pred = [a + b for a, b in zip(xp, sg)]
-        self.plausibility.check(k, u, y, y_pred)
-        y_t = [a - b for a, b in zip(y, sg)]
+            y_pred = [a + b for a, b in zip((C @ np.array(self._x_next1)).tolist(), sg)]
+        if y_t is None:
+            self.plausibility.check(k, u, y, y_pred)
+            y_t = [a - b for a, b in zip(y, sg)]
         q = q_mid
         if trigger >= 0:
-            tgt = int(self._trig[trigger, q_mid])
+            tgt = self._trig1[trigger][q_mid]
             if tgt >= 0:
                 q = tgt
-        x_hat = y_t if self.k_next is None else self._x_next1
-        self._x_next1 = self.f.step1(q, y_t, u)
-        qn = q
-        for target, conds in self._controlled1[q]:      # the first guard whose test holds
-            for i, op, v in conds:
-                if not op(u[i], v):
-                    break
-            else:
-                qn = target
-                if qn != q:                              # a later guard no longer applies
-                    break
-        self._q_mid1 = qn
+        x_hat = y_t if first else self._x_next1
+        steps = self._steps1
+        self._x_next1 = steps[q](y_t, u) if steps else self.f.step1(q, y_t, u)
+        self._q_mid1 = self._next1[q](u)
         self.k_next = k + 1
-        out = None
-        if self._box:
-            out = self._excess1[q](x_hat + u)
+        out = self._excess1[q](x_hat + u) if self._excess1 else None
         return ObserverOutput(k, q, x_hat, y_t, out), x_hat, y_t
 
     def _apply_trigger(self, q: np.ndarray, trigger: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ changes.
 
 from __future__ import annotations
 
-import math
+from math import isfinite
 from typing import Any
 
 import numpy as np
@@ -53,6 +53,9 @@ from fd_monitor.core.lazy import Output
 from fd_monitor.core.thresholds import DiagnosisGains, as_gains
 from fd_monitor.model.errors import MessageError
 from fd_monitor.model.system import System
+
+#: numpy's float64 dtype (the usual object: an identity test; others compare by value)
+_F64 = np.dtype(np.float64)
 
 __all__ = ["Monitor", "MonitorOutput", "BatchMonitor", "run_batch", "sample_floats",
            "validate_sample", "validate_vector"]
@@ -181,6 +184,8 @@ class Monitor:
         self.agei = Agei(system, self.gains, enabled=agei)
         self.estimator = BiasEstimator(system, self.gains)
         self._nu, self._ny = system.nu, system.ny
+        self._ftu, self._fty = (float,) * system.nu, (float,) * system.ny
+        self._shu, self._shy = (system.nu,), (system.ny,)
         self.reset()
 
     def reset(self) -> None:
@@ -190,7 +195,7 @@ class Monitor:
         self._k_next: int | None = None
         self._sigma = [0.0] * self.system.ny
         self._trigger = NO_TRIGGER
-        self._override = [math.nan] * self.system.ny
+        self._override: list[float] | None = None     # AGEI's threshold override (None: none)
 
     def bridge(self, k: int, u: Any, y: Any) -> None:
         """The next sample is ``(k, u_k, y_k)``; the samples since the last one are lost (a
@@ -253,12 +258,29 @@ class Monitor:
         # of the batch path for one run, bit for bit, without numpy calls per sample.
         if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
             k = validate_sample(self.system, k, u, y, self._k_next)[0]
-        uf = sample_floats("u", u, self._nu, k)
-        yf = sample_floats("y", y, self._ny, k)
+        # Lists of exactly nu / ny Python floats with a finite sum (so no NaN/Inf) are taken
+        # as they are (copied); anything else through sample_floats' checks.
+        # So are float64 vectors of the right shape (as lists).
+        tu, ty = type(u), type(y)
+        if tu is list and tuple(map(type, u)) == self._ftu and isfinite(sum(u)):
+            uf = [*u]
+        elif tu is np.ndarray and u.dtype is _F64 and u.shape == self._shu and \
+                isfinite(sum(uf := u.tolist())):
+            pass
+        else:
+            uf = sample_floats("u", u, self._nu, k)
+        if ty is list and tuple(map(type, y)) == self._fty and isfinite(sum(y)):
+            yf = [*y]
+        elif ty is np.ndarray and y.dtype is _F64 and y.shape == self._shy and \
+                isfinite(sum(yf := y.tolist())):
+            pass
+        else:
+            yf = sample_floats("y", y, self._ny, k)
         obs, x_hat, y_t = self.observer.step1(k, uf, yf, self._sigma, self._trigger)
         q: int = obs.mode                        # type: ignore[assignment]  # one stream: int
         det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
-        ag, self._override = self.agei.step1(k, q, w, r, nominal)
+        ag, ov = self.agei.step1(k, q, w, r, nominal)
+        self._override = ov if ag.row >= 0 else None
         hold: bool = ag.mode_uncertain           # type: ignore[assignment]  # one stream
         if self.estimator._fast:
             est, self._sigma = self.estimator.step1(k, uf, yf, q, alarm, hold)
@@ -281,7 +303,8 @@ def sample_floats(name: str, v: Any, length: int, k: int) -> list[float]:
         out = list(v)
     else:
         return validate_vector(name, v, length, k).tolist()
-    if not all(map(math.isfinite, out)):
+    # a finite sum has no NaN/Inf term (a sum that overflows: each value checked)
+    if not isfinite(sum(out)) and not all(map(isfinite, out)):
         validate_vector(name, v, length, k)         # raises, naming the index
     return out
 

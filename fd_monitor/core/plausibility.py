@@ -25,8 +25,10 @@ implausible value is one no plant can produce.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from operator import le, sub
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -62,6 +64,31 @@ class Plausibility:
         self._y_lo, self._y_hi = self.y_lo.tolist(), self.y_hi.tolist()
         self._u_lo, self._u_hi = self.u_lo.tolist(), self.u_hi.tolist()
         self._tol = self.tolerance.tolist()
+        self._enter: dict[bool, Callable[..., list[float] | None]] = {}
+
+    def compensator(self, predicted: bool) -> Callable[..., list[float] | None]:
+        """The single-stream entry test fused with ``y~ = y - sigma``, compiled once.
+
+        ``predicted=False``: ``f(y, u, s)``; ``True``: ``f(y, u, s, x)`` with ``x`` the
+        predicted state (``y_pred = x + s``, C = I). Returns ``[y_i - s_i]`` when the sample
+        passes the tests :meth:`check` makes (the same comparisons, on the same values, with
+        the bounds written in as constants), else None: then :meth:`check` words the refusal
+        (or, for values it accepts, e.g. a NaN prediction, the caller goes on as before).
+        """
+        if predicted not in self._enter:
+            terms = [f"{a!r} <= y[{i}] <= {b!r}"
+                     for i, (a, b) in enumerate(zip(self._y_lo, self._y_hi))]
+            terms += [f"{a!r} <= u[{i}] <= {b!r}"
+                      for i, (a, b) in enumerate(zip(self._u_lo, self._u_hi))]
+            if predicted:
+                terms += [f"abs(y[{i}] - (x[{i}] + s[{i}])) <= {t!r}"
+                          for i, t in enumerate(self._tol)]
+            yt = ", ".join(f"y[{i}] - s[{i}]" for i in range(len(self._y_lo)))
+            src = (f"lambda y, u, s{', x' if predicted else ''}: "
+                   f"[{yt}] if {' and '.join(terms) or 'True'} else None")
+            self._enter[predicted] = cast(Callable[..., "list[float] | None"],
+                                          eval(src, {"inf": math.inf, "nan": math.nan}))
+        return self._enter[predicted]
 
     def check(self, k: int, u: Any, y: Any, y_pred: Any = None) -> None:
         """Raise :class:`~fd_monitor.model.errors.ImplausibleError` unless sample k is plausible.

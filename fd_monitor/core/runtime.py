@@ -151,6 +151,11 @@ class _ChainEstimates(Mapping[str, Any]):
             return self._o.estimator.isolated
         raise KeyError(name)
 
+    def stored(self) -> tuple[tuple[str, Any], ...]:
+        """(name, stored value) pairs: lists on a single stream, arrays not made."""
+        ob, e = self._o.observer, self._o.estimator
+        return (("x_hat", ob._x_hat), ("sigma_hat", e._sigma_hat), ("isolated", e._isolated))
+
     def __iter__(self) -> Iterator[str]:
         return iter(self._NAMES)
 
@@ -445,11 +450,13 @@ class Runtime:
             res[j], thr[j], alarm[j], mode[j] = o._residual, o._threshold, o._alarm, o.mode
             if outside is not None and o._outside is not None:
                 outside[j] = o._outside
-            for name, v in o.estimates.items():
-                a = np.asarray(v)
+            e = o.estimates
+            # the chain's stored lists written into the rows as their arrays would be
+            for name, v in (e.stored() if type(e) is _ChainEstimates else e.items()):
                 if name not in est:
+                    a = np.asarray(v)
                     est[name] = np.zeros((K, *a.shape), dtype=a.dtype)
-                est[name][j] = a
+                est[name][j] = v
         return RuntimeTrace(np.array([o.k for o in outs], dtype=int), res, thr, alarm, outside,
                             mode, est, restarts, list(bridges or []))
 

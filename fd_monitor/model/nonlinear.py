@@ -254,8 +254,9 @@ def _three_tank_compile(f: Mapping[str, float], dt: float
 
     body = ["h1, h2, h3 = x[0], x[1], x[2]",
             "q1 = u[0]", "if 0.0 > q1:", "    q1 = 0.0",
-            "q2 = u[1]", "if 0.0 > q2:", "    q2 = 0.0",
-            f"for _ in range({substeps}):"]
+            "q2 = u[1]", "if 0.0 > q2:", "    q2 = 0.0"]
+    # one substep (the shipped modes): its body without the loop
+    body += [f"for _ in range({substeps}):"] if substeps != 1 else ["if True:"]
     stages = rhs("1", "h1", "h2", "h3")
     for s, prev, step in (("2", "1", c), ("3", "2", c), ("4", "3", h)):
         # the stage's state, computed once as the argument of rhs() is
