@@ -37,9 +37,11 @@ and the report of what was not used are one pass over the bag, which every comma
 from __future__ import annotations
 
 import bisect
+import collections
 import contextlib
 import itertools
 import math
+import operator
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -381,20 +383,21 @@ def read_pass(bag: str | Path, topics: Sequence[str],
     with bag_errors(bag):
         records = read_raw(bag, damage=damage)
         for batch in iter(lambda: list(itertools.islice(records, BATCH)), []):
-            mine: list[tuple[str, str, int, bytes]] = []
-            truths: list[tuple[str, str, int, bytes]] = []
-            for rec in batch:
-                topic, ty = rec[0], rec[1]
+            # the census per batch, in C (Counter, dict of pairs): per record only the
+            # comprehensions below; a topic's type is its last record's, as record by record
+            counts = collections.Counter(map(_TOPIC, batch))
+            types = dict(map(_TOPIC_TYPE, batch))
+            for topic, c in counts.items():
                 got = present.get(topic)
-                present[topic] = (ty, 1 if got is None else got[1] + 1)
-                if got is None and topic.startswith(_PLANT) and ty == FLOAT64_MULTI_ARRAY:
-                    first[topic] = _labels_of(bag, rec)
-                if topic in want:
-                    mine.append(rec)
-                elif topic == truth_topic and truth_reader is not None:
-                    truths.append(rec)
-            if truth_reader is not None:
-                truth_reader.add([r for r in truths if r[1] == FLOAT64_MULTI_ARRAY])
+                if got is None:
+                    rec = next(r for r in batch if r[0] == topic)      # its first record
+                    if topic.startswith(_PLANT) and rec[1] == FLOAT64_MULTI_ARRAY:
+                        first[topic] = _labels_of(bag, rec)
+                present[topic] = (types[topic], c if got is None else got[1] + c)
+            mine = [r for r in batch if r[0] in want]
+            if truth_reader is not None and truth_topic in counts and truth_topic not in want:
+                truth_reader.add([r for r in batch if r[0] == truth_topic
+                                  and r[1] == FLOAT64_MULTI_ARRAY])
             if problem is not None or not mine:
                 continue
             try:
@@ -458,6 +461,10 @@ def read_pass(bag: str | Path, topics: Sequence[str],
     return scan
 
 
+_TOPIC = operator.itemgetter(0)
+_TOPIC_TYPE = operator.itemgetter(0, 1)
+
+
 def _in_step(decoded: list[list[Any]], i: int, width: int, k: int | None,
              orders: dict[str, TopicOrder]) -> bool:
     """``decoded[i:i + width]`` is one message of each joined topic, decoded, all of stamp
@@ -509,6 +516,7 @@ class _Decoder:
         #: topic -> (length, the bytes before the data, data start, float64 count)
         self.known: dict[str, tuple[int, bytes, int, int]] = {}
         self.seen: dict[str, set[str]] = {t: set() for t in topics}
+        self.checked: set[str] = set()            # topics whose label checks passed
 
     def check_first(self, scan: BagScan, topic: str) -> None:
         """The topic's first message names the expected channels (a bag of another plant, or
@@ -532,12 +540,15 @@ class _Decoder:
               ) -> list[list[Any]]:
         out: list[Any] = []
         block: dict[str, list[int]] = {}         # topic -> positions in out read as a block
+        checked = self.checked
         for topic, ty, t, raw in records:
             # (the end of the pass says these problems in the words of its checks)
             if ty != FLOAT64_MULTI_ARRAY:
                 raise BagError(f"{self.bag}: {topic} is recorded as {ty}, expected "
                                f"{FLOAT64_MULTI_ARRAY}")
-            if self.labels[topic] is None:
+            if topic in checked:
+                pass
+            elif self.labels[topic] is None:
                 got = first.get(topic)
                 if isinstance(got, BagError):
                     raise got
@@ -547,6 +558,10 @@ class _Decoder:
                 self.labels[topic] = tuple(got)
             elif isinstance(first.get(topic), tuple) and first[topic] != self.labels[topic]:
                 raise BagError(f"{self.bag}: {topic}: other channels than the plant's")
+            else:
+                # first[topic] (set at the topic's first record) and labels[topic] no longer
+                # change: these checks would pass again
+                checked.add(topic)
             known = self.known.get(topic)
             if known is not None and len(raw) == known[0] and raw.startswith(known[1]):
                 block.setdefault(topic, []).append(len(out))

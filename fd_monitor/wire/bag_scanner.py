@@ -17,6 +17,7 @@ intact one, a summary without a footer -- are one state machine.
 
 from __future__ import annotations
 
+import itertools
 import mmap
 import os
 import struct
@@ -168,6 +169,8 @@ def _parse(buf: Any, pos: int, end: int) -> Any:
 
 
 _MESSAGE_HEAD = struct.Struct("<HIQQ")   # channel_id, sequence, log_time, publish_time
+#: A record's opcode and length followed by a message's fixed fields.
+_RECORD_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
 
 
 def _message_index_ok(buf: Any, pos: int, end: int) -> bool:
@@ -220,11 +223,14 @@ class _Scan:
         self.statistics: Statistics | None = None
         self.messages = 0
         self.unchecked_chunks = 0
+        self._parsed: dict[bytes, Any] = {}      # declaration bytes -> parsed record
 
     def report(self, offset: int, what: str) -> None:
         self.damage.append(BagDamage(str(self.file), offset, what))
 
-    def __iter__(self) -> Iterator[tuple[_Conn, int, bytes]]:
+    def __iter__(self) -> Iterator[list[tuple[_Conn, int, bytes]]]:
+        """The messages in file order, one list per chunk (per-record generator frames were
+        the reader's largest cost after decoding)."""
         try:
             with self.file.open("rb") as f:
                 size = os.fstat(f.fileno()).st_size
@@ -268,7 +274,7 @@ class _Scan:
             self.report(foot, f"summary unusable ({exc}); read without it")
             self.statistics = None
 
-    def _scan(self, buf: Any) -> Iterator[tuple[_Conn, int, bytes]]:
+    def _scan(self, buf: Any) -> Iterator[list[tuple[_Conn, int, bytes]]]:
         n = len(buf)
         if n < 8 or bytes(buf[:8]) != MCAP_MAGIC:
             raise BagError(f"{self.file}: not an MCAP file (its first bytes are not the MCAP "
@@ -294,7 +300,9 @@ class _Scan:
                                              f"of the file")
                 continue
             if op == Opcode.CHUNK:
-                yield from self._chunk(buf, pos, end)
+                part = self._chunk(buf, pos, end)
+                if part:
+                    yield part
             elif op == Opcode.DATA_END:
                 self._data_end(buf, pos, end)
                 ended = True
@@ -307,7 +315,7 @@ class _Scan:
                     continue
                 conn = self._channel(m.channel_id, pos)
                 if conn is not None:
-                    yield conn, m.log_time, m.data
+                    yield [(conn, m.log_time, m.data)]
             elif op == Opcode.MESSAGE_INDEX and _message_index_ok(buf, pos, end):
                 pass
             elif op in _RECORDS:
@@ -393,6 +401,18 @@ class _Scan:
                     pass
             q += 1
 
+    def _parse_declaration(self, data: bytes, i: int, j: int) -> Any:
+        """:func:`_parse` of a record inside a chunk, remembered by its bytes: a writer
+        repeats its schemas and channels in every chunk (a bag cut short stays readable), and
+        the strict parse of the same bytes gives the same record."""
+        raw = data[i:j]
+        rec = self._parsed.get(raw)
+        if rec is None:
+            rec = _parse(raw, 0, len(raw))
+            if len(self._parsed) < 256 and len(raw) < 65536:   # a few small declarations
+                self._parsed[raw] = rec
+        return rec
+
     def _declare(self, rec: Schema | Channel) -> None:
         if isinstance(rec, Schema):
             self.schemas[rec.id] = (rec.name, rec.data.decode())
@@ -409,54 +429,63 @@ class _Scan:
         self.messages += 1
         return conn
 
-    def _chunk(self, buf: Any, pos: int, end: int) -> Iterator[tuple[_Conn, int, bytes]]:
+    def _chunk(self, buf: Any, pos: int, end: int) -> list[tuple[_Conn, int, bytes]]:
+        """The readable messages of a chunk, in order (none when it is damaged: reported)."""
         try:
             chunk = _parse(buf, pos, end)
         except _PARSE_ERRORS as exc:
             self.report(pos, f"malformed chunk record ({exc}): its messages skipped")
-            return
+            return []
         span = (f"chunk of messages {chunk.message_start_time * 1e-9:.3f}.."
                 f"{chunk.message_end_time * 1e-9:.3f} s")
         try:
             data = _decompress(chunk)
         except _PARSE_ERRORS as exc:
             self.report(pos, f"{span}: cannot decompress ({exc}): its messages skipped")
-            return
+            return []
         if len(data) != chunk.uncompressed_size:
             self.report(pos, f"{span}: {len(data)} bytes, header says "
                              f"{chunk.uncompressed_size}: its messages skipped")
-            return
+            return []
         if not chunk.uncompressed_crc:
             self.unchecked_chunks += 1
         elif zlib.crc32(data) != chunk.uncompressed_crc:
             self.report(pos, f"{span}: CRC mismatch (corrupted): its messages skipped")
-            return
+            return []
         out: list[tuple[int, int, bytes]] = []     # (channel id, log time, data)
-        i = 0
+        i, n = 0, len(data)
         size, message = _MESSAGE_HEAD.size, Opcode.MESSAGE
+        head, hsize = _RECORD_MESSAGE_HEAD, _RECORD_MESSAGE_HEAD.size
+        append = out.append
+        channel_id = log_time = 0
         try:
-            while i < len(data):
-                j = i + 9 + struct.unpack_from("<Q", data, i + 1)[0]
-                if j > len(data):
+            while i < n:
+                if i + hsize <= n:      # opcode, length and a message's fixed fields at once
+                    op, length, channel_id, _seq, log_time, _pub = head.unpack_from(data, i)
+                else:                   # (a record this short is no whole message)
+                    op, length = data[i], struct.unpack_from("<Q", data, i + 1)[0]
+                j = i + 9 + length
+                if j > n:
                     raise ValueError("record runs past the chunk")
-                op = data[i]
                 if op == message:       # the hot path: fixed fields, then the data
-                    if j - i - 9 < size:
+                    if length < size:
                         raise ValueError("message record shorter than its fixed fields")
-                    channel_id, _seq, log_time, _pub = _MESSAGE_HEAD.unpack_from(data, i + 9)
-                    out.append((channel_id, log_time, data[i + 9 + size:j]))
+                    append((channel_id, log_time, data[i + hsize:j]))
                 elif op in _RECORDS:
-                    rec = _parse(data, i, j)
+                    rec = self._parse_declaration(data, i, j)
                     if isinstance(rec, (Schema, Channel)):
                         self._declare(rec)
                 i = j
         except _PARSE_ERRORS as exc:
             self.report(pos, f"{span}: malformed record at byte {i} of its content ({exc}): "
                              f"the rest of the chunk skipped")
-        for channel_id, log_time, payload in out:
-            conn = self._channel(channel_id, pos)
-            if conn is not None:
-                yield conn, log_time, payload
+        channels = self.channels
+        if all(c in channels for c in {c for c, _t, _p in out}):   # the usual case: one lookup
+            found = [(channels[c], t, p) for c, t, p in out]        # per message, no call
+            self.messages += len(found)
+            return found
+        return [(conn, t, p) for c, t, p in out
+                if (conn := self._channel(c, pos)) is not None]
 
 
 def _scan(path: str | Path, damage: list[BagDamage] | None
@@ -465,12 +494,27 @@ def _scan(path: str | Path, damage: list[BagDamage] | None
     found: list[BagDamage] = [] if damage is None else damage
     scan = _Scan(mcap_file(path), found)
     try:
-        yield from scan
+        for part in scan:
+            yield from part
     finally:
         if damage is None:
             for d in found:
                 # one location, so Python's default filter says each damage once even when
                 # a command reads the bag several times
+                warnings.warn(str(d), BagDamageWarning if d.kind == "damage"
+                              else BagUncheckedWarning, stacklevel=1)
+
+
+def _parts(path: str | Path, damage: list[BagDamage] | None
+           ) -> Iterator[list[tuple[str, str, int, bytes]]]:
+    """:func:`_scan`'s messages one list per chunk, as ``(topic, msgtype, t, data)``."""
+    found: list[BagDamage] = [] if damage is None else damage
+    try:
+        for part in _Scan(mcap_file(path), found):
+            yield [(c.topic, c.msgtype, t, d) for c, t, d in part]
+    finally:
+        if damage is None:
+            for d in found:     # as in _scan (one location: each said once)
                 warnings.warn(str(d), BagDamageWarning if d.kind == "damage"
                               else BagUncheckedWarning, stacklevel=1)
 
@@ -501,6 +545,16 @@ def read_raw(path: str | Path, topics: Sequence[str] | None = None, *,
     BagError
         Missing bag, not an MCAP file, a topic missing or of another type.
     """
+    if topics is None and msgtype is None:
+        # every message: the chunks' lists chained in C (no generator frame per message);
+        # as lazy as the generator below (nothing is read before the first next())
+        return itertools.chain.from_iterable(_parts(path, damage))
+    return _read_raw(path, topics, msgtype, damage)
+
+
+def _read_raw(path: str | Path, topics: Sequence[str] | None, msgtype: str | None,
+              damage: list[BagDamage] | None) -> Iterator[tuple[str, str, int, bytes]]:
+    """:func:`read_raw` with a topic or type filter."""
     want = None if topics is None else set(topics)
     seen: set[str] = set()
     for conn, t, data in _scan(path, damage):
