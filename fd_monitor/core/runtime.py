@@ -440,6 +440,10 @@ class Runtime:
         """The :class:`RuntimeTrace` of outputs of :meth:`step` in processing order (a caller
         that decides holes itself, e.g. the offline bag reader, steps and then stacks)."""
         m, K = len(self.channels), len(outs)
+        fast = _stack_columns(outs, m, len(self.region_names) if self.region_names else None)
+        if fast is not None:
+            return RuntimeTrace(np.array([o.k for o in outs], dtype=int), *fast[:4], fast[4],
+                                fast[5], restarts, list(bridges or []))
         res, thr = np.zeros((K, m)), np.zeros((K, m))
         alarm = np.zeros((K, m), bool)
         mode = np.zeros(K, int)
@@ -594,6 +598,53 @@ class ThresholdsRuntime(Runtime):
     def run_batch(cls, system: System, gains: Any, traj: Any, **options: Any) -> BatchResult:
         """N runs in lock step (:func:`fd_monitor.core.monitor.run_batch`, same arithmetic)."""
         return monitor_run_batch(system, gains, traj, **options)
+
+
+def _column(values: list[Any], shape: tuple[int, ...], dtype: Any) -> np.ndarray | None:
+    """``values`` as one (K, *shape) array of ``dtype`` (one conversion in C), or None when
+    they do not all have that shape (the caller then writes them row by row)."""
+    try:
+        a = np.array(values, dtype=dtype)
+    except (ValueError, TypeError):
+        return None
+    return a if a.shape == (len(values), *shape) else None
+
+
+def _stack_columns(outs: Sequence[Any], m: int, r: int | None) -> tuple[Any, ...] | None:
+    """:meth:`Runtime.stack`'s arrays, a column at a time: (residual, threshold, alarm,
+    outside, mode, estimates), the values :meth:`Runtime.stack` writes row by row, or None
+    when a row would need that (another shape, an output without its region row)."""
+    if not outs:
+        return None
+    res = _column([o._residual for o in outs], (m,), float)
+    thr = _column([o._threshold for o in outs], (m,), float)
+    alarm = _column([o._alarm for o in outs], (m,), bool)
+    mode = _column([o.mode for o in outs], (), int)
+    if res is None or thr is None or alarm is None or mode is None:
+        return None
+    outside = None
+    if r is not None:
+        rows = [o._outside for o in outs]
+        if any(v is None for v in rows):
+            return None
+        outside = _column(rows, (r,), float)
+        if outside is None:
+            return None
+    est: dict[str, np.ndarray] = {}
+    columns: dict[str, list[Any]] = {}
+    for o in outs:
+        e = o.estimates
+        for name, v in (e.stored() if type(e) is _ChainEstimates else e.items()):
+            columns.setdefault(name, []).append(v)
+    for name, vals in columns.items():
+        if len(vals) != len(outs):               # an estimate missing at some sample
+            return None
+        first = np.asarray(vals[0])
+        col = _column(vals, first.shape, first.dtype)
+        if col is None:
+            return None
+        est[name] = col
+    return res, thr, alarm, outside, mode, est
 
 
 def _sumsq(v: Sequence[float]) -> float:
