@@ -481,16 +481,19 @@ def _runtime_step(rt: Any, nu: int, outs: _Reducer,
     its output appended to ``outs``; an implausible sample is appended to ``refused`` (False:
     the stream counts it lost)."""
     no_u = np.zeros(0)
+    side_names = tuple(rt.side_inputs)
+    rt_step, append = rt.step, outs.append
 
     def step(s: Sample) -> bool:
         v = s.inputs
         if s.restart:
             rt.reset()
-        u, side = v["u"] if nu else no_u, {n: v[n] for n in rt.side_inputs} or None
+        u = v["u"] if nu else no_u
+        side = {n: v[n] for n in side_names} if side_names else None
         try:
             if s.bridge:
                 rt.bridge(s.k, u, v["y"], side)
-            o = rt.step(s.k, u, v["y"], side)
+            o = rt_step(s.k, u, v["y"], side)
         except MessageError as exc:
             # an implausible sample is refused like a NaN message (read_streams has already
             # left every other invalid message out)
@@ -498,7 +501,7 @@ def _runtime_step(rt: Any, nu: int, outs: _Reducer,
                 raise
             refused.append((s.k, exc))
             return False
-        outs.append(o)
+        append(o)
         return True
     return step
 

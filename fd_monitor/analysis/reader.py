@@ -406,21 +406,21 @@ def read_pass(bag: str | Path, topics: Sequence[str],
                 problem = exc
                 continue
             i, n = 0, len(decoded)
+            release, step_sample, lost = join.release_complete, stream.step, join.lost
             while i < n:
                 if i + width <= n and _in_step(decoded, i, width, join.k_next, orders):
                     # the next stamp's messages together: released at once (the sample and
                     # join state putting them one by one gives; nothing to report)
                     grp = decoded[i:i + width]
                     k = grp[0][3]
-                    s = join.release_complete(k, {names[e[0]]: e[2] for e in grp},
-                                              grp[-1][1] * 1e-9)
+                    s = release(k, {names[e[0]]: e[2] for e in grp}, grp[-1][1] * 1e-9)
                     if s is not None:
                         for e in grp:
                             orders[e[0]].last = k
                             if on_message is not None:
                                 on_message(e[0], e[1], k)
-                        if not stream.step(s):
-                            join.lost(k)
+                        if not step_sample(s):
+                            lost(k)
                         i += width
                         continue
                 topic, t_ns, d, k = decoded[i]
@@ -472,9 +472,12 @@ def _in_step(decoded: list[list[Any]], i: int, width: int, k: int | None,
     if k is None:
         return False
     seen = set()
+    ndarray = np.ndarray
     for e in decoded[i:i + width]:
+        if e[3] != k or type(e[2]) is not ndarray:
+            return False
         last = orders[e[0]].last
-        if e[3] != k or type(e[2]) is not np.ndarray or (last is not None and last >= k):
+        if last is not None and last >= k:
             return False
         seen.add(e[0])
     return len(seen) == width
