@@ -582,13 +582,17 @@ class _Decoder:
         """Read the entries' values as one block (stamp in data[0], finite values), in
         place; an entry that would not decode keeps its bytes (decoded one by one)."""
         n, _head, start, size = self.known[topic]
-        data = np.frombuffer(b"".join(e[2] for e in entries), np.uint8).reshape(
+        data = np.frombuffer(b"".join([e[2] for e in entries]), np.uint8).reshape(
             len(entries), n)[:, start:start + 8 * size].copy().view("<f8")
         s = data[:, 0]
         vals = data[:, 1:]
         ok = (s >= 0) & (s < MAX_STAMP) & (s == np.floor(s)) & np.isfinite(vals).all(axis=1)
         stamps = s.astype(np.int64, copy=False) if ok.all() else np.where(ok, s, 0).astype(
             np.int64)
+        if ok.all():                              # the usual case: rows in order
+            for e, row, k in zip(entries, vals, stamps.tolist()):
+                e[2], e[3] = row, k
+            return
         for i in np.flatnonzero(ok).tolist():
             e = entries[i]
             e[2], e[3] = vals[i], int(stamps[i])

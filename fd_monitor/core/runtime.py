@@ -442,8 +442,9 @@ class Runtime:
         m, K = len(self.channels), len(outs)
         fast = _stack_columns(outs, m, len(self.region_names) if self.region_names else None)
         if fast is not None:
-            return RuntimeTrace(np.array([o.k for o in outs], dtype=int), *fast[:4], fast[4],
-                                fast[5], restarts, list(bridges or []))
+            f_res, f_thr, f_alarm, f_outside, f_mode, f_est = fast
+            return RuntimeTrace(np.array([o.k for o in outs], dtype=int), f_res, f_thr, f_alarm,
+                                f_outside, f_mode, f_est, restarts, list(bridges or []))
         res, thr = np.zeros((K, m)), np.zeros((K, m))
         alarm = np.zeros((K, m), bool)
         mode = np.zeros(K, int)

@@ -215,7 +215,7 @@ class _Scan:
     itself is damaged, at the next intact chunk found by scanning forward).
     """
 
-    def __init__(self, file: Path, damage: list[BagDamage]) -> None:
+    def __init__(self, file: Path, damage: list[BagDamage], flat: bool = False) -> None:
         self.file = file
         self.damage = damage
         self.schemas: dict[int, tuple[str, str]] = {}
@@ -224,11 +224,14 @@ class _Scan:
         self.messages = 0
         self.unchecked_chunks = 0
         self._parsed: dict[bytes, Any] = {}      # declaration bytes -> parsed record
+        #: Messages as ``(topic, msgtype, t, data)`` (:func:`read_raw`), not ``(_Conn, t,
+        #: data)`` (:func:`recover_bag` needs the definitions).
+        self.flat = flat
 
     def report(self, offset: int, what: str) -> None:
         self.damage.append(BagDamage(str(self.file), offset, what))
 
-    def __iter__(self) -> Iterator[list[tuple[_Conn, int, bytes]]]:
+    def __iter__(self) -> Iterator[list[Any]]:
         """The messages in file order, one list per chunk (per-record generator frames were
         the reader's largest cost after decoding)."""
         try:
@@ -274,7 +277,7 @@ class _Scan:
             self.report(foot, f"summary unusable ({exc}); read without it")
             self.statistics = None
 
-    def _scan(self, buf: Any) -> Iterator[list[tuple[_Conn, int, bytes]]]:
+    def _scan(self, buf: Any) -> Iterator[list[Any]]:
         n = len(buf)
         if n < 8 or bytes(buf[:8]) != MCAP_MAGIC:
             raise BagError(f"{self.file}: not an MCAP file (its first bytes are not the MCAP "
@@ -315,7 +318,7 @@ class _Scan:
                     continue
                 conn = self._channel(m.channel_id, pos)
                 if conn is not None:
-                    yield [(conn, m.log_time, m.data)]
+                    yield self._flat([(conn, m.log_time, m.data)])
             elif op == Opcode.MESSAGE_INDEX and _message_index_ok(buf, pos, end):
                 pass
             elif op in _RECORDS:
@@ -429,7 +432,7 @@ class _Scan:
         self.messages += 1
         return conn
 
-    def _chunk(self, buf: Any, pos: int, end: int) -> list[tuple[_Conn, int, bytes]]:
+    def _chunk(self, buf: Any, pos: int, end: int) -> list[Any]:
         """The readable messages of a chunk, in order (none when it is damaged: reported)."""
         try:
             chunk = _parse(buf, pos, end)
@@ -480,12 +483,21 @@ class _Scan:
             self.report(pos, f"{span}: malformed record at byte {i} of its content ({exc}): "
                              f"the rest of the chunk skipped")
         channels = self.channels
-        if all(c in channels for c in {c for c, _t, _p in out}):   # the usual case: one lookup
-            found = [(channels[c], t, p) for c, t, p in out]        # per message, no call
+        ids = {c for c, _t, _p in out}
+        if all(c in channels for c in ids):      # the usual case: one lookup per message
+            if self.flat:                        # (topic, msgtype, t, data) made here at once
+                pairs = {c: (channels[c].topic, channels[c].msgtype) for c in ids}
+                found: list[Any] = [pairs[c] + (t, p) for c, t, p in out]
+            else:
+                found = [(channels[c], t, p) for c, t, p in out]
             self.messages += len(found)
             return found
-        return [(conn, t, p) for c, t, p in out
-                if (conn := self._channel(c, pos)) is not None]
+        return self._flat([(conn, t, p) for c, t, p in out
+                           if (conn := self._channel(c, pos)) is not None])
+
+    def _flat(self, part: list[tuple[_Conn, int, bytes]]) -> list[Any]:
+        """``part`` as ``(topic, msgtype, t, data)`` when :attr:`flat`."""
+        return [(c.topic, c.msgtype, t, d) for c, t, d in part] if self.flat else part
 
 
 def _scan(path: str | Path, damage: list[BagDamage] | None
@@ -510,8 +522,7 @@ def _parts(path: str | Path, damage: list[BagDamage] | None
     """:func:`_scan`'s messages one list per chunk, as ``(topic, msgtype, t, data)``."""
     found: list[BagDamage] = [] if damage is None else damage
     try:
-        for part in _Scan(mcap_file(path), found):
-            yield [(c.topic, c.msgtype, t, d) for c, t, d in part]
+        yield from _Scan(mcap_file(path), found, flat=True)
     finally:
         if damage is None:
             for d in found:     # as in _scan (one location: each said once)
