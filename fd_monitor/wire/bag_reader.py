@@ -194,23 +194,30 @@ def _arrays_of_one_layout(records: Sequence[tuple[str, str, int, bytes]]
     usual, the data of all as one array, the stamps checked as :func:`decode` checks them.
     None otherwise (the message-by-message loop then reads the bag and names the bad
     message)."""
-    topics: dict[str, list[tuple[int, bytes]]] = {}
-    for topic, _ty, t, raw in records:
-        topics.setdefault(topic, []).append((t, bytes(raw)))
+    topics: dict[str, tuple[list[int], list[bytes]]] = {}
+    if records and len({r[0] for r in records}) == 1:    # one topic: no grouping
+        topics[records[0][0]] = ([r[2] for r in records], [bytes(r[3]) for r in records])
+    else:
+        for topic, _ty, t, raw in records:
+            ts, raws = topics.setdefault(topic, ([], []))
+            ts.append(t)
+            raws.append(bytes(raw))
     out: dict[str, TopicArrays] = {}
-    for topic, msgs in topics.items():
-        raw0 = msgs[0][1]
+    for topic, (times, msgs) in topics.items():
+        raw0 = msgs[0]
         shape = cdr_shape(raw0)
         if shape is None:
             return None
         head, layout, start, size = shape
-        if any(len(raw) != len(raw0) or not raw.startswith(head) for _t, raw in msgs):
+        n0 = len(raw0)
+        if any(len(raw) != n0 for raw in msgs) or not all(
+                [raw.startswith(head) for raw in msgs]):
             return None
         try:
             first = decode(parse_cdr(raw0), topic, allow_nan=True, allow_inf=True)
         except MessageError:
             return None
-        block = np.frombuffer(b"".join(raw for _t, raw in msgs), np.uint8)
+        block = np.frombuffer(b"".join(msgs), np.uint8)
         data = block.reshape(len(msgs), -1)[:, start:start + 8 * size].copy().view("<f8")
         offset = layout.data_offset         # 0 or 1: the first message decoded
         if offset:
@@ -223,7 +230,7 @@ def _arrays_of_one_layout(records: Sequence[tuple[str, str, int, bytes]]
         out[topic] = TopicArrays(
             topic, first.labels or tuple(str(i) for i in range(size - offset)), stamps,
             np.ascontiguousarray(data[:, offset:], np.float64),
-            np.array([t for t, _r in msgs], np.int64))
+            np.array(times, np.int64))
     return out
 
 
