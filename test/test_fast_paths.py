@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_monitor_single_stream import _fields as monitor_fields
 
 from fd_monitor.analysis.library import load_library
 from fd_monitor.core.methods import load_gains, runtime_for
@@ -189,16 +190,6 @@ FAULT_BAGS = {"three_tank_bias_h1", "three_tank_incipient_h3", "three_tank_envel
 THRESHOLD_SAMPLES = 400
 
 
-def _monitor_fields(o) -> dict:
-    """Every field of a MonitorOutput, by the names of BatchMonitor.step."""
-    ob, d, a, e = o.observer, o.detector, o.agei, o.estimator
-    return {"mode": ob.mode, "x_hat": ob.x_hat, "y_tilde": ob.y_tilde,
-            "residual": d.residual, "w": d.w, "threshold": d.threshold, "nominal": d.nominal,
-            "alarm": d.alarm, "trigger": a.trigger, "override": a.override, "phase": a.phase,
-            "row": a.row, "mode_uncertain": a.mode_uncertain, "sigma_hat": e.sigma_hat,
-            "isolated": e.isolated, "active": e.active, "k_detect": e.k_detect}
-
-
 def test_every_shipped_thresholds_file_has_a_library_bag():
     files = {Path(load_gains(LIB[n].gains, verify=False).path).stem for n in THRESHOLD_BAGS}
     assert files | {"three_tank_thresholds"} == set(THRESHOLD_FILES) == {
@@ -235,7 +226,7 @@ def test_monitor_single_stream_equals_batch_on_library_bag(name):
         except MessageError:
             break
         ref = bm.step(k, np.stack([u[k], u[k]]), np.stack([y[k], y[k]]))
-        for field, v in _monitor_fields(o).items():
+        for field, v in monitor_fields(o).items():
             r = ref[field][0]
             assert np.asarray(v).dtype.kind == np.asarray(r).dtype.kind, (k, field)
             assert np.array_equal(v, r, equal_nan=np.asarray(r).dtype.kind == "f"), (k, field)
@@ -328,7 +319,7 @@ def test_monitor_list_entry_and_projection_equal_batch_bit_for_bit():
     for k in range(1100):
         o = mon.step(k, u[k].tolist(), y[k].tolist())
         ref = bm.step(k, np.stack([u[k], u[k]]), np.stack([y[k], y[k]]))
-        for field, v in _monitor_fields(o).items():
+        for field, v in monitor_fields(o).items():
             r = ref[field][0]
             assert np.asarray(v).dtype.kind == np.asarray(r).dtype.kind, (k, field)
             assert np.array_equal(v, r, equal_nan=np.asarray(r).dtype.kind == "f"), (k, field)

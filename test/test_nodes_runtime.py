@@ -64,6 +64,10 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
         want = n if expect is None else expect
         done = spin_until(ex, lambda: all(len(col.msgs[t]) >= want for t in OUT), 60.0)
         assert done, ({t: len(col.msgs[t]) for t in OUT}, node.processed)
+        # what the last samples did is reported at the next diagnostics period: two more
+        # arrays (on a loaded machine the run can end within one period)
+        seen = len(col.diagnostics)
+        assert spin_until(ex, lambda: len(col.diagnostics) >= seen + 2, 10.0)
         # raw values: a threshold is +inf while a bank settles (decode refuses non-finite)
         got = {t: (col.decoded(t) if t != "/fd/threshold" else None,
                    np.array([m.data[1:] for m in col.msgs[t]]),

@@ -184,8 +184,6 @@ class Monitor:
         self.agei = Agei(system, self.gains, enabled=agei)
         self.estimator = BiasEstimator(system, self.gains)
         self._nu, self._ny = system.nu, system.ny
-        self._ftu, self._fty = (float,) * system.nu, (float,) * system.ny
-        self._shu, self._shy = (system.nu,), (system.ny,)
         self.reset()
 
     def reset(self) -> None:
@@ -258,24 +256,8 @@ class Monitor:
         # of the batch path for one run, bit for bit, without numpy calls per sample.
         if type(k) is not int or k < 0 or (self._k_next is not None and k != self._k_next):
             k = validate_sample(self.system, k, u, y, self._k_next)[0]
-        # Lists of exactly nu / ny Python floats with a finite sum (so no NaN/Inf) are taken
-        # as they are (copied); anything else through sample_floats' checks.
-        # So are float64 vectors of the right shape (as lists).
-        tu, ty = type(u), type(y)
-        if tu is list and tuple(map(type, u)) == self._ftu and isfinite(sum(u)):
-            uf = [*u]
-        elif tu is np.ndarray and u.dtype is _F64 and u.shape == self._shu and \
-                isfinite(sum(uf := u.tolist())):
-            pass
-        else:
-            uf = sample_floats("u", u, self._nu, k)
-        if ty is list and tuple(map(type, y)) == self._fty and isfinite(sum(y)):
-            yf = [*y]
-        elif ty is np.ndarray and y.dtype is _F64 and y.shape == self._shy and \
-                isfinite(sum(yf := y.tolist())):
-            pass
-        else:
-            yf = sample_floats("y", y, self._ny, k)
+        uf = sample_floats("u", u, self._nu, k)
+        yf = sample_floats("y", y, self._ny, k)
         obs, x_hat, y_t = self.observer.step1(k, uf, yf, self._sigma, self._trigger)
         q: int = obs.mode                        # type: ignore[assignment]  # one stream: int
         det, r, w, nominal, alarm = self.detector.step1(k, y_t, x_hat, q, self._override)
@@ -292,14 +274,23 @@ class Monitor:
         return MonitorOutput(k, obs, det, ag, est)
 
 
+#: (float,) * n by n: the types of a list of n Python floats
+_FLOATS: dict[int, tuple[type, ...]] = {}
+
+
 def sample_floats(name: str, v: Any, length: int, k: int) -> list[float]:
     """``v`` as ``length`` finite Python floats, or :class:`MessageError` as
     :func:`validate_vector` words it (the single-stream runtimes' entry check: a float64
     array or a list of floats is taken without a numpy call per value)."""
-    if type(v) is np.ndarray and v.dtype == np.float64 and v.shape == (length,):
+    # Lists of exactly ``length`` Python floats, and float64 vectors of that shape, with a
+    # finite sum (so no NaN/Inf) are taken without a check per value.
+    tv = type(v)
+    floats = _FLOATS.get(length) or _FLOATS.setdefault(length, (float,) * length)
+    if tv is list and tuple(map(type, v)) == floats:
+        out = [*v]
+    elif tv is np.ndarray and v.dtype is _F64 and v.shape == (length,):
         out = v.tolist()
-    elif type(v) in (list, tuple) and len(v) == length and \
-            all(type(a) is float for a in v):
+    elif tv is tuple and tuple(map(type, v)) == floats:
         out = list(v)
     else:
         return validate_vector(name, v, length, k).tolist()
