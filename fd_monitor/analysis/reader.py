@@ -39,9 +39,11 @@ from __future__ import annotations
 import bisect
 import collections
 import contextlib
+import gc
 import itertools
 import math
 import operator
+import threading
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -380,7 +382,7 @@ def read_pass(bag: str | Path, topics: Sequence[str],
     orders = {t: TopicOrder(t) for t in topics}
     problem: BagError | None = None              # found on the way: raised after the checks
     width = len(topics)
-    with bag_errors(bag):
+    with bag_errors(bag), _fewer_collections():
         records = read_raw(bag, damage=damage)
         for batch in iter(lambda: list(itertools.islice(records, BATCH)), []):
             # the census per batch, in C (Counter, dict of pairs): per record only the
@@ -674,6 +676,32 @@ def policy_stream(required: Sequence[str], rep: InputReport, refused: set[int],
         return ok
 
     return InputStream(join, run, note)
+
+
+#: The cyclic collector's first threshold during a pass (Python's default is 700): the pass
+#: allocates a few short-lived objects per record and sample, nearly none in cycles, and the
+#: default made ~10 % of ``analyze``'s CPU collections that find nothing (memory unchanged).
+GC_THRESHOLD0 = 100_000
+_gc_lock = threading.Lock()
+_gc_depth = [0, 0]                               # passes running, the threshold before them
+
+
+@contextlib.contextmanager
+def _fewer_collections() -> Iterator[None]:
+    """Raise the collector's first threshold while a pass runs (passes may overlap in
+    threads: the first one in saves the threshold, the last one out restores it)."""
+    with _gc_lock:
+        if _gc_depth[0] == 0:
+            _gc_depth[1] = gc.get_threshold()[0]
+            gc.set_threshold(max(GC_THRESHOLD0, _gc_depth[1]), *gc.get_threshold()[1:])
+        _gc_depth[0] += 1
+    try:
+        yield
+    finally:
+        with _gc_lock:
+            _gc_depth[0] -= 1
+            if _gc_depth[0] == 0:
+                gc.set_threshold(_gc_depth[1], *gc.get_threshold()[1:])
 
 
 @contextlib.contextmanager
