@@ -591,6 +591,17 @@ def test_subprocess_one_line_exit_2(tmp_path, nominal, argv, fragment):
     assert "Traceback" not in p.stderr and "RuntimeWarning" not in p.stderr
 
 
+def _as_from_a_shell() -> None:
+    """In the child before exec: SIGINT at its default and not blocked, as a shell starts a
+    command. A test process's own signal state (an rclpy context's handler, a thread's
+    mask, a disposition a library left) must not reach the command under test: with SIGINT
+    inherited as ignored, the child never sees the Ctrl-C."""
+    import signal
+
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_evaluate_stops_cleanly_on_ctrl_c(tmp_path):
     import signal
 
@@ -603,7 +614,8 @@ def test_evaluate_stops_cleanly_on_ctrl_c(tmp_path):
     p = subprocess.Popen([sys.executable, "-m", "fd_monitor", "evaluate", GAINS, "-s",
                           str(scen), "--runs", "1000000", "--chunk", "1",
                           "--workers", "0"],             # the in-process campaign
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         preexec_fn=_as_from_a_shell)
     try:
         assert p.stderr is not None
         seen = b""
