@@ -216,7 +216,9 @@ def test_monitor_fed_at_the_recorded_pace_matches_offline(plant, tmp_path):
     bag = _bag(tmp_path, sys_, _timeline(tr))
     offline = run_bag(bag, g, system=sys_)
     n = len(offline.k)
-    mon = Proc(["run", "monitor", "--ros-args", "-p", "log_throttle:=0.0"])
+    # max_lag 0: equality with offline needs every sample (a real-time stream on a loaded
+    # machine may put the node more than max_lag behind, and it would shed)
+    mon = Proc(["run", "monitor", "--ros-args", "-p", "log_throttle:=0.0", "-p", "max_lag:=0.0"])
     rec = Proc(["record", "/fd/residual", "-o", str(tmp_path / "rec"),
                 "--until", f"/fd/residual={n}"])
     replay_through([mon], rec, bag, ["/plant/u", "/plant/y"], wait_subscribers=1, rate=1.0)
