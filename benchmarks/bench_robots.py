@@ -552,7 +552,7 @@ def main() -> int:
                             if (key not in best or r["cpu_us_per_sample"]
                                     < best[key]["cpu_us_per_sample"]):
                                 best[key] = r
-            if args.repeat > 1 or trees or len(best) > 1:
+            if args.repeat > 1 or trees:
                 print(f"best of {args.repeat} (least CPU per sample):")
                 for r in best.values():
                     print(_fmt(r), flush=True)
