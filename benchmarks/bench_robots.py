@@ -1,7 +1,8 @@
 """N robots' monitors at 100 Hz on this machine: latency, CPU and memory per robot.
 
-For each N (default 1, 8, 16, 32): N ``monitor`` processes (the fused node, three_tank
-thresholds gain file, namespaces ``/robot0`` ... ``/robot<N-1>``); one driver process
+For each N (default 1, 8, 16, 32): N robots' monitors (the fused node, three_tank
+thresholds gain file, namespaces ``/robot0`` ... ``/robot<N-1>``), a process each or M to a
+process (``--per-process``); one driver process
 publishes every robot's ``plant/u`` and ``plant/y`` at ``--rate`` Hz (default 100; the demo
 scenario, stamped) for ``--seconds`` s; this process subscribes to every robot's
 ``fd/alarm`` (the only output subscribed: the monitor builds no message nobody subscribes
@@ -24,6 +25,16 @@ Printed per N (the 1-minute load average with each line):
 * below each row, the first process's CPU per sample by thread name (the Python main thread,
   Fast DDS's threads).
 
+Robots per process (``--per-process M ...``, one layout per value, run side by side for each
+N): 1 (default) is a ``monitor`` process per robot; M > 1 hosts M robots in each process
+(``monitor --ros-args -p robots:=[robot0, ...]``: one executor and one DDS participant per
+process), so N = 32 with M = 16 is two processes. RSS is then also printed per robot (the
+processes' RSS over the robots they host), and the threads' CPU per sample of the first
+process's robots. ``--subscribe supervisor`` (beside or instead of ``alarm``): the receiver
+subscribes to what a fleet supervisor reads, every robot's ``fd/fault`` and ``/diagnostics``,
+plus the first robot's ``fd/alarm`` for the latency (so the other robots publish no data
+topic per sample).
+
 Side by side (``--tree LABEL=DIR``, repeatable): the monitors of each N are also run from
 another source tree (e.g. the base commit, ``git archive BASE | tar -x -C DIR``) on
 ``PYTHONPATH``, alternating with this tree, each ``--repeat`` times; the best run of each tree
@@ -36,7 +47,8 @@ one sample every 1/rate s (``paced``, as live), per tree: the figure a change to
 Python is seen in without the 10-30 % run-to-run noise of the DDS figures.
 
 Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
-[--seconds 10] [--floor] [--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]``.
+[--seconds 10] [--per-process 1 16] [--subscribe alarm supervisor] [--floor]
+[--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]``.
 Isolated ROS_DOMAIN_ID, loopback discovery.
 """
 
@@ -474,8 +486,9 @@ def _fmt(r: dict) -> str:
         return "-" if v is None else format(v, spec)
 
     rss = r.get("rss_mb") or [float("nan")]
-    # robots per process (a process per robot: nothing), and the supervisor's subscriptions
-    hosted = ((f" {r['per_process']}/proc" if r.get("per_process", 1) > 1 else "")
+    # hosted: the processes the robots share (a process per robot: nothing), and the
+    # supervisor's subscriptions
+    hosted = ((f" in {r['processes']} proc" if r.get("per_process", 1) > 1 else "")
               + (" sup" if r.get("subscribe") == "supervisor" else ""))
     what = (f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
             + hosted + (f" [{r['label']}]" if r.get("label") else ""))
