@@ -164,7 +164,8 @@ def test_each_robot_outputs_equal_its_own_monitor(fleet):
 
 def test_bad_input_is_reported_on_its_robot_only(fleet):
     """robot2's NaN and wrong-length messages: WARN on /robot2/monitor's input status (one
-    line each, saying what and where); robot1's and robot3's input never leave OK. Each
+    line each, saying what and where); robot1's and robot3's statuses never mention them.
+    Each
     robot's statuses carry its own hardware_id (robot3: from its parameter section)."""
     from fd_monitor.nodes.diagnostics import OK, WARN
 
@@ -178,9 +179,12 @@ def test_bad_input_is_reported_on_its_robot_only(fleet):
     assert spin_until(fleet.ex, lambda: all(reported(c) for c in checks), 10.0), \
         [status_text(s) for s in col.statuses("/robot2/monitor: input")]
     for r in ("robot1", "robot3"):
-        seen = col.statuses(f"/{r}/monitor: input")
-        assert seen and all(s.level == OK for s in seen), [status_text(s) for s in seen]
-        assert not any("/robot2/" in status_text(s) for s in col.statuses(f"/{r}/"))
+        # (their levels are not asserted: a loaded machine may make a robot's input late, and
+        # its input turns STALE stale_timeout after the data: statuses of their own)
+        assert any(s.level == OK for s in col.statuses(f"/{r}/monitor: input"))
+        texts = [status_text(s) for s in col.statuses(f"/{r}/")]
+        assert not any("/robot2/" in t or " is nan" in t or "wrong length" in t
+                       for t in texts), texts
     hw = {r: {s.hardware_id for s in col.statuses(f"/{r}/monitor: ")} for r in ROBOTS}
     assert hw == {"robot1": {"robot1/three_tank"}, "robot2": {"robot2/three_tank"},
                   "robot3": {ROBOT3_HW}}
