@@ -69,8 +69,11 @@ class AgeiFallback:
                f"publisher): {own}"
 
     def _report(self, level: bytes, message: str) -> None:
-        log = self.node.get_logger()
-        (log.warning if level == WARN else log.info)(message)
+        # one call site per severity: rclpy refuses a severity change at one call site
+        if level == WARN:
+            self.node.get_logger().warning(message)
+        else:
+            self.node.get_logger().info(message)
         self.node.diag.update("agei", level, message,
                               {"absent_since": "" if self.absent_since is None
                                else self.absent_since,
