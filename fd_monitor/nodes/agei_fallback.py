@@ -82,4 +82,6 @@ class AgeiFallback:
     @property
     def note(self) -> str:
         """A mark for the node's alarms while AGEI is absent ('' otherwise)."""
-        return "" if self.absent_since is None else " (agei absent: own AGEI)"
+        if self.absent_since is None:
+            return ""
+        return " (agei absent: own AGEI)" if self.local is not None else " (agei absent)"
