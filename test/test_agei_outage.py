@@ -70,7 +70,7 @@ def chain(plant: Any, a: int, b: int, fallback: bool = True,
             m.estimator.reset()
         trigger = (obs_agei.trigger if obs_agei else NO_TRIGGER) if absent else m._trigger
         obs, x_hat, y_t = m.observer.step1(k, U[k], Y[k], zero if absent else m._sigma, trigger)
-        q = int(obs.mode)                               # type: ignore[call-overload]
+        q = int(obs.mode)
         if obs_agei:
             obs_agei.observe(k, q, y_t, x_hat)
         override = (det_agei.override if det_agei else None) if absent else m._override
@@ -81,7 +81,7 @@ def chain(plant: Any, a: int, b: int, fallback: bool = True,
         if runs:
             ag, ov = m.agei.step1(k, q, w, r, nominal)
             m._override = ov if ag.row >= 0 else None
-            m._trigger = int(ag.trigger)                # type: ignore[call-overload]
+            m._trigger = int(ag.trigger)
             e, m._sigma = m.estimator.step1(k, U[k], Y[k], q, alarm, bool(ag.mode_uncertain))
             est = (bool(e.active), tuple(e.isolated.tolist()))
         out.append((q, tuple(r), tuple(det.threshold.tolist()), tuple(alarm), est))
