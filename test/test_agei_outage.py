@@ -208,7 +208,11 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
             agei.wait(10.0)
             t_kill = time.monotonic()
             rig.send(u, y, range(kill, end))
-            assert rig.spin(lambda: last("/fd/alarm") >= end - 1, 20.0), last("/fd/alarm")
+            # the first sample without agei's decision comes out after the observer's wait
+            # for the dead peer (gap_timeout); then the rest, open loop
+            assert rig.spin(lambda: last("/fd/alarm") > kill, 10.0), last("/fd/alarm")
+            t_on = time.monotonic() - t_kill
+            assert rig.spin(lambda: last("/fd/alarm") >= end - 1, 30.0), last("/fd/alarm")
             t_done = time.monotonic() - t_kill
         finally:
             agei.stop()
@@ -227,6 +231,9 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
     for node in ("observer", "detector"):
         warn = [s.message for s in col.statuses(f"{node}: agei") if s.level == WARN]
         assert any(f"since sample {kill + 1} " in m for m in warn), (node, warn)
-    print(f"agei killed at sample {kill}: the rest ({end - kill} samples) processed "
-          f"{t_done:.2f} s later; observer switched at {k_switch}")
-    assert t_done <= 2 * 1.0 + 1.5 + (end - kill) * 0.01
+    print(f"agei killed at sample {kill}: outputs on {t_on:.2f} s later, the rest "
+          f"({end - kill} samples) {t_done:.2f} s later; observer switched at {k_switch}")
+    # gap_timeout (1 s) for the observer, the detector's wait counts from its own last
+    # output (doc/howto/overload-and-recovery.md); + 2.5 s for a loaded machine (measured
+    # 1.0-1.1 s at load 2, 1.9 s at load 33)
+    assert t_on <= 1.0 + 2.5
