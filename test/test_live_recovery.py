@@ -74,7 +74,7 @@ def test_killed_chain_peers_restarted_rejoin_and_a_later_bias_is_alarmed():
     waiting for their feedback after 1 s (no restart: no fresh state), the new processes'
     first feedback makes the observer wait for it again (rejoined within 1 s of it), a +5 cm
     bias on h1 injected after that is alarmed at once and estimated, and nothing alarms
-    before it (an outage *across* the crossing alarms there: test_agei_outage.py). Default
+    before it (an outage *across* the crossing: test_agei_outage.py). Default
     parameters: the sources here are faster than real time, so nothing is shed."""
     from fd_monitor.nodes.detector import DetectorNode
     from fd_monitor.nodes.observer import ObserverNode
