@@ -41,6 +41,14 @@ from fd_monitor.wire.topics import RESET
 __all__ = ["InputPath"]
 
 
+def received(info: Any, now: float) -> float | None:
+    """When a message was received by DDS, on the ``time.monotonic()`` clock of ``now`` (it
+    may have waited in the reader before the executor took it: a load shed counts its lag
+    from then); None without a MessageInfo or a reception time."""
+    rx = int(info["received_timestamp"]) if info is not None else 0
+    return now - max(0.0, (time.time_ns() - rx) * 1e-9) if rx > 0 else None
+
+
 class InputPath:
     """The inputs of a configured chain node (see the module docstring).
 
@@ -99,8 +107,10 @@ class InputPath:
             node.input_status.adapter_join = self.adapter.join
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
+            # with the MessageInfo: the DDS reception time (a load shed counts the lag of a
+            # backlog held in DDS from it) and, for plain messages, the source time
             self.data_inputs[inp.name] = node.subscribe(inp.topic, self.callback(inp),
-                                                        inp.plain_ok, raw=True)
+                                                        True, raw=True)
         self._open_loop: set[str] = set()
         # The hold rule's timer (a plain sample whose held input never comes is released
         # after HOLD_WAIT) starts with the first plain message: a stamped stream never waits,
@@ -177,9 +187,11 @@ class InputPath:
                     pairing.sample(t, time.monotonic(), (inp, int(d.stamp or 0), d.values))
                 self.pair_plain()
                 return
-            if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
+            now = time.monotonic()
+            if stream.stamped(order, inp.name, int(d.stamp), d.values, now,
                               inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
-                              bool(inp.sequence and d.values[i_bridge] > 0.5)):
+                              bool(inp.sequence and d.values[i_bridge] > 0.5), d.batch,
+                              received(info, now)):
                 status.ok()
         return cb
 
