@@ -37,7 +37,6 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -194,9 +193,9 @@ def readable_stamp(msg: Any) -> int | None:
     return int(s)
 
 
-@dataclass(frozen=True)
-class Decoded:
-    """A decoded message.
+class Decoded(NamedTuple):
+    """A decoded message (a named tuple: one is made per message, and a frozen dataclass
+    costs more to create than the raw decoder's whole fast path otherwise).
 
     Attributes
     ----------

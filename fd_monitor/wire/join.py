@@ -477,12 +477,10 @@ class StampJoin:
         ``shed``: samples skipped before it (load shed)."""
         if self.rejected:
             self.rejected = {j for j in self.rejected if j > k}
+        marked = k in self._marked
         slot = self._forget(k)
         self._restart_next = False
         adopted, self._adopted = self._adopted, None
-        marked = k in self._marked
-        if marked:
-            self._marked.discard(k)
         if not restart and hole is None and bridge is None:
             # the common case, kept short: the next sample in order
             self.k_next = k + 1
