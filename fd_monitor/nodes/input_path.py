@@ -35,18 +35,10 @@ from fd_monitor.nodes.qos import DEFAULT_DEPTH
 from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.hold import HOLD_WAIT, HeldPairing
 from fd_monitor.wire.join import StampJoin
-from fd_monitor.wire.stream import InputStream, TopicOrder
+from fd_monitor.wire.stream import InputStream, SentTime, TopicOrder
 from fd_monitor.wire.topics import RESET
 
 __all__ = ["InputPath"]
-
-
-def received(info: Any, now: float) -> float | None:
-    """When a message was received by DDS, on the ``time.monotonic()`` clock of ``now`` (it
-    may have waited in the reader before the executor took it: a load shed counts its lag
-    from then); None without a MessageInfo or a reception time."""
-    rx = int(info["received_timestamp"]) if info is not None else 0
-    return now - max(0.0, (time.time_ns() - rx) * 1e-9) if rx > 0 else None
 
 
 class InputPath:
@@ -154,6 +146,7 @@ class InputPath:
         topic = node.resolve_topic_name(inp.topic)
         order = TopicOrder(topic)
         stream = self.stream
+        sent = SentTime()
         # the restart and bridge flags of the sequence input, by field (resolved once)
         i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
         i_bridge = inp.layout.index["bridge"] if inp.sequence and inp.layout else None
@@ -188,10 +181,19 @@ class InputPath:
                 self.pair_plain()
                 return
             now = time.monotonic()
+            src = info["source_timestamp"] if info is not None else 0
+            if src > 0:
+                # when it was published (on our clock): the lag of a load shed counts from
+                # then, wherever the message waited (the join, DDS, the publisher)
+                wall = time.time_ns()
+                arrived: float | None = sent.sent(src * 1e-9, (info["received_timestamp"]
+                                                               or wall) * 1e-9, now, wall * 1e-9)
+            else:
+                arrived = None
             if stream.stamped(order, inp.name, int(d.stamp), d.values, now,
                               inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
                               bool(inp.sequence and d.values[i_bridge] > 0.5), d.batch,
-                              received(info, now)):
+                              arrived):
                 status.ok()
         return cb
 

@@ -59,7 +59,7 @@ from typing import Any
 from fd_monitor.wire.join import Sample, StampJoin
 
 __all__ = ["BATCH_PACE", "GAP_TIMEOUT", "InputStream", "MAX_GAP", "MAX_LAG",
-           "RESTART_AFTER", "STAMP_HORIZON", "TopicOrder"]
+           "RESTART_AFTER", "STAMP_HORIZON", "SentTime", "TopicOrder"]
 
 #: s a later sample must have been complete before a missing one is declared lost.
 GAP_TIMEOUT = 1.0
@@ -81,6 +81,51 @@ BATCH_PACE = 0.0
 
 #: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
 NoteFn = Callable[[str, str, Any], None]
+
+
+class SentTime:
+    """When each message of one topic was published, on the receiver's clock: what the lag
+    of a load shed counts from (:meth:`StampJoin.put <fd_monitor.wire.join.StampJoin.put>`
+    ``arrived``), so a backlog is seen wherever it waits -- in the node's join, in its DDS
+    reader (a node that processes each message in the callback that took it), or in the
+    publisher's history once the reader is full (Fast DDS holds 5,000 samples per reader).
+
+    The publisher stamps each message with its own clock (the DDS source timestamp), which
+    may be offset from ours (another machine). The offset is estimated as the smallest
+    ``receive - source`` difference seen (the transport delay of an unqueued message, plus
+    the clock offset); it may grow by :data:`DRIFT` s per s (clocks drift, NTP steps), so a
+    queued message -- whose difference is larger by the time it waited -- shows its wait.
+    ``sent = now - (now_wall - source - offset)``, never later than ``now``.
+    """
+
+    #: s per s the offset estimate may rise (clock drift; 1 ms/s is far above a crystal's
+    #: and far below a queue's growth under a flood, which is about 1 s/s).
+    DRIFT = 1e-3
+
+    def __init__(self) -> None:
+        self.offset: float | None = None
+        self._t = 0.0
+
+    def sent(self, source: float, received: float, now: float, now_wall: float) -> float:
+        """Publication time of a message on the clock of ``now`` (monotonic, s).
+
+        Parameters
+        ----------
+        source : float
+            The publisher's timestamp of the message (wall clock, s).
+        received : float
+            When DDS received it here (wall clock, s); ``now_wall`` when unknown.
+        now, now_wall : float
+            The receiver's monotonic and wall clocks now (s).
+        """
+        d = received - source
+        off = self.offset
+        if off is None or d < off + self.DRIFT * (now - self._t):
+            off = d
+        else:
+            off += self.DRIFT * (now - self._t)
+        self.offset, self._t = off, now
+        return now - max(0.0, now_wall - source - off)
 
 
 class TopicOrder:
