@@ -232,7 +232,7 @@ def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
 def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_kept():
     """Issue 26's blinding case with default parameters: ``ros2 run fd_monitor detector``
     (the detector node alone, its own process: it processes each ``fd/state_estimate`` in
-    the callback that took it, so its backlog waits in DDS) flooded with 4,800 unmarked
+    the callback that took it, so its backlog waits in DDS) flooded with 10,000 unmarked
     stamped samples published as fast as DDS takes them (about 1,000 x real time at Ts
     0.1 s), then fed 50 Hz input: the flood is processed while the node is less than
     ``max_lag`` (2 s) behind, the rest skipped (counted as shed_samples on /diagnostics,
@@ -254,7 +254,7 @@ def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_k
     est = np.zeros(len(lay.labels))
     est[lay.index["x_hat"]] = (0.4, 0.2, 0.3)              # y~ = 0: residual 0, no alarm
     live, marked = SerializedArray(lay.labels), SerializedArray(lay.labels, batch=True)
-    n = 8_000         # more than the detector processes in max_lag s (~3,500 here)
+    n = 10_000        # more than the detector processes in max_lag s (2,200-4,000 here)
     det = Proc(["run", "detector", "--ros-args", "-r", "__ns:=/fl"])
     try:
         with ros_context() as ctx:
@@ -291,33 +291,35 @@ def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_k
             for k in range(1, n + 1):                  # the flood, unpaced
                 send(live, k)
             t_end = time.monotonic()
-            # 50 Hz input after it until 20 samples in a row came back, each timed
+            # 50 Hz input after it until 20 samples in a row came back
             sent: dict[int, float] = {}
             k = n + 1
             deadline = t_end + 4 * MAX_LAG + 10.0
-            back = None
+            t_back = None
             while time.monotonic() < deadline:
                 sent[k] = time.monotonic()
                 send(live, k)
                 spin_until(ex, lambda: False, 0.02, [det])
-                if back is None:
-                    done = [j for j in sent if residual(j)]
-                    if done:
-                        back, t_back = min(done), time.monotonic() - t_end
-                if back is not None and all(residual(j) for j in range(k - 19, k + 1)) \
-                        and k - 19 > back:
+                if t_back is None and any(residual(j) for j in sent):
+                    t_back = time.monotonic() - t_end
+                if k > n + 20 and all(residual(j) for j in range(k - 19, k + 1)):
                     break
                 k += 1
-            assert back is not None, (len(got), det.output()[-2000:])
+            assert time.monotonic() < deadline, (len(got), det.output()[-2000:])
+            # recovered: the first sample after the flood from which every one came back
+            r = k
+            while r - 1 in sent and residual(r - 1):
+                r -= 1
+            t_rec = sent[r] - t_end
             flood_done = sorted(j for j in got if 1 <= j <= n)
-            assert flood_done == list(range(1, len(flood_done) + 1))   # a prefix, in order
-            assert len(flood_done) < n                                 # the rest was shed
+            m = next(i for i, j in enumerate([*flood_done, -1], 1) if j != i) - 1
+            # processed in order while less than max_lag behind, the rest shed (but for one
+            # sample per max_lag s while the node could not catch up: doc)
+            assert m >= 500 and len(flood_done) < n, (m, len(flood_done))
             assert spin_until(ex, lambda: int(input_values().get("shed_samples", 0))
                               >= n - len(flood_done), 5.0, [det]), input_values()
             values = input_values()
             assert "unmarked backlog older than 2 s shed" in values["shed_rule"], values
-            # every sample published from `back` on came back (none shed after recovery)
-            assert all(residual(j) for j in range(back, k + 1))
             # the same flood with the batch mark: every sample, in order, nothing more shed
             shed_before = int(values["shed_samples"])
             k0 = k + 100
@@ -333,11 +335,12 @@ def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_k
             assert int(input_values()["shed_samples"]) == shed_before
     finally:
         det.stop()
-    print(f"unmarked flood of {n} sent in {t_end - t0:.2f} s: {len(flood_done)} processed, "
-          f"shed {shed_before}; residuals of the input after it back {t_back:.2f} s after "
-          f"the flood's end (sample published {sent[back] - t_end:.2f} s after it); marked "
-          f"flood of {n}: all processed in {t_marked:.2f} s")
-    assert t_back <= MAX_LAG + 2.0
+    print(f"unmarked flood of {n} sent in {t_end - t0:.2f} s: {len(flood_done)} processed "
+          f"({m} in order from the first), shed {shed_before}; first residual of the input "
+          f"after it {t_back:.2f} s after the flood's end, every sample from the one "
+          f"published {t_rec:.2f} s after it; marked flood of {n}: all processed in "
+          f"{t_marked:.2f} s")
+    assert t_rec <= MAX_LAG + 2.0
     assert "Traceback" not in det.output()
 
 

@@ -48,20 +48,21 @@ up with). The restarted peer processes the samples published after it subscribed
 feedback message, even one for a sample already processed, makes the node wait for that
 feedback again from its next sample on: the peer then follows the run in lock step.
 
-A node that cannot keep up sheds load (``max_lag``): when the next sample has been complete
-for more than ``max_lag`` s (it waits behind a backlog), the join skips to the newest complete
-sample, as across a hole: stamps ``k_next .. newest - 1`` are lost (:attr:`Sample.shed`,
-counted in :attr:`StampJoin.shed`); the entry role bridges the newest (at most ``max_gap``
-skipped) or restarts the run there, a downstream node restarts there (the entry node's
-stream goes on: its flags are followed again from the next sample). Live, a sample is
-therefore processed at most ``max_lag`` s (plus one check period) after it was complete,
-whatever came before it -- unless the backlog is a *batch*: a backlog whose stamps span more
-than ``batch_pace`` times the wall time over which it arrived (``sample_time`` s per stamp)
-came faster than a plant produces samples, from a source that asked for every one (a
-flat-out replay or simulation, which pace by acknowledgements and promise no loss); it is
-processed completely, however late (counted in :attr:`StampJoin.batch_waits`). A robot's
-data come at real time, so its backlog is shed; a batch that turns into a live stream is
-shed once the live part dominates the backlog.
+A node that cannot keep up sheds load (``max_lag``): when the next sample was received
+(``arrived``: live, when it was published) more than ``max_lag`` s ago, the join skips to the
+newest complete sample, as across a hole: stamps ``k_next .. newest - 1`` are lost
+(:attr:`Sample.shed`, counted in :attr:`StampJoin.shed`); the entry role bridges the newest
+(at most ``max_gap`` skipped) or restarts the run there, a downstream node restarts there
+(the entry node's stream goes on: its flags are followed again from the next sample). When
+nothing newer is here (a node that processes each message in the callback that took it:
+its backlog waits in DDS), the old samples are skipped as they are taken, in one episode,
+until one at most ``max_lag / 2`` s old comes (:meth:`StampJoin._shed_to`). Live, a sample is
+therefore processed at most ``max_lag`` s after it was published, or skipped -- unless the
+backlog is a *batch*: its next sample carried the batch mark (``put(batch=True)``: a sender
+that asked for every sample, e.g. a replay), processed completely however late (counted in
+:attr:`StampJoin.batch_waits`); a skip never passes a marked sample. ``batch_pace`` (opt-in)
+makes an unmarked backlog whose stamps span more than ``batch_pace`` times the wall time over
+which it arrived a batch too (:attr:`StampJoin.pace_waits`).
 
 A stamp cannot blind the join. A stamp below the next one (a source that restarted its
 stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
