@@ -10,6 +10,8 @@ order, duplicates keep the first.
 
 from __future__ import annotations
 
+import pytest
+
 from fd_monitor.wire.conversions import readable_stamp, to_msg
 from fd_monitor.wire.join import StampJoin
 
@@ -664,3 +666,26 @@ def test_a_node_that_cannot_even_take_the_flood_processes_one_sample_per_max_lag
         j.put("est", k, f"e{k}", t, arrived=t - 2.5)
         done += [(s.k, round(t, 3), s.shed) for s in j.ready(t)]
     assert [d[0] for d in done] == [1001, 2002] and done[0][2] == 1000, done
+
+
+def test_sent_time_sees_a_queue_whatever_the_publishers_clock():
+    """The lag counts from publication, on the node's clock: a publisher whose clock is 100 s
+    ahead (another machine) gives the same publication times as one on ours; a message that
+    waited 3 s (in the publisher's history or the DDS reader) is 3 s old when taken; the
+    clock offset estimate follows a drift of up to 1 ms per s."""
+    from fd_monitor.wire.stream import SentTime
+
+    for skew in (0.0, 100.0, -100.0):
+        st = SentTime()
+        # (source on the publisher's clock, received and taken on ours): 1 ms transport
+        assert st.sent(10.0 + skew, 10.001, now=5.002, now_wall=10.002) == pytest.approx(5.001)
+        # published at 11.0, taken 3 s later (it waited): 3 s old (within the drift
+        # allowance of 1 ms per s since the last message)
+        assert st.sent(11.0 + skew, 14.0, now=9.0, now_wall=14.0) == pytest.approx(6.0,
+                                                                                  abs=0.006)
+        # drift: the publisher's clock 0.5 ms/s slower for 100 s; a message that did not
+        # wait is still about as fresh as the transport makes it
+        got = st.sent(111.0 + skew - 0.05, 111.001, now=106.001, now_wall=111.001)
+        assert 106.001 - got <= 0.001 + 1e-9
+    # never later than now
+    assert SentTime().sent(20.0, 10.0, now=1.0, now_wall=10.0) == 1.0

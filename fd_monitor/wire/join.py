@@ -74,7 +74,7 @@ stamps become a new run (restart at the smallest complete one, :attr:`Sample.new
   forgotten: a duplicate or a stray stamp inside a live stream);
 * downstream role: at once, when the sequence input flags a restart at a held stamp.
 
-Why one module of ~530 lines: one class, ``StampJoin``, whose state (pending samples, holes,
+Why one module of ~800 lines: one class, ``StampJoin``, whose state (pending samples, holes,
 bridges, restarts, feedback waits) keeps one invariant; a third of the lines are docstrings
 and comments stating its rules.
 """
@@ -486,7 +486,9 @@ class StampJoin:
             # the common case, kept short: the next sample in order
             self.k_next = k + 1
             self._last = (0, slot, False)
-            return Sample(k, slot, False, None, adopted, lost, batch=marked)
+            if marked:
+                return Sample(k, slot, False, None, adopted, lost, False, 0, 0, True)
+            return Sample(k, slot, False, None, adopted, lost)
         if self._dropping is not None:
             # the first sample after a shed of a backlog held in DDS: it reports the shed
             first, _, dropped = self._dropping
@@ -563,7 +565,8 @@ class StampJoin:
                 return None
             return self._release(min(self._complete_since), True, None)
         t = self._complete_since.get(k)
-        if t is not None and self.max_lag is not None and self._late(k, now):
+        if t is not None and self.max_lag is not None and now - self._rx[k] > (
+                self.max_lag if self._dropping is None else self.max_lag / 2):
             newest = self._shed_to(k, now)
             if newest is not None:
                 return None if newest < 0 else self._shed(k, newest)
@@ -610,10 +613,10 @@ class StampJoin:
         The skip stops before the first marked stamp beyond ``k`` (a batch that follows a
         live stream is processed completely). A backlog held in DDS is skipped one message
         at a time as the node takes them (cheap: no processing), in one episode, until a
-        message received at most ``max_lag / 2`` s ago comes (:meth:`_late`: the node has
-        caught up with the source) or the episode has lasted ``max_lag`` s (a source faster
-        than the node can even take messages: it then processes the one it has, so it is
-        never blind for longer).
+        message received at most ``max_lag / 2`` s ago comes (the node has caught up with
+        the source: stopping just under ``max_lag`` would skip a sample every few) or the
+        episode has lasted ``max_lag`` s (a source faster than the node can even take
+        messages: it then processes the one it has, so it is never blind for longer).
         """
         if k in self._marked:
             self.batch_waits += 1
@@ -643,15 +646,6 @@ class StampJoin:
             self._drop_to(k, now)
             return -1
         return None
-
-    def _late(self, k: int, now: float) -> bool:
-        """Complete sample ``k`` was received more than ``max_lag`` s ago (more than half
-        of it while a shed of a backlog held in DDS goes on: the node stops skipping once it
-        has caught up, not when it is just under the limit, which would skip a sample every
-        few)."""
-        lag = now - self._rx[k]
-        assert self.max_lag is not None
-        return lag > self.max_lag or (self._dropping is not None and lag > self.max_lag / 2)
 
     def _drop_to(self, s: int, now: float) -> None:
         """Skip every stamp up to ``s`` without releasing any (a backlog held in DDS, see
@@ -722,7 +716,8 @@ class StampJoin:
             s, slot = later, self.pending[later]
             skipped = True
         t = self._complete_since.get(s)
-        if t is not None and self.max_lag is not None and self._late(s, now):
+        if t is not None and self.max_lag is not None and now - self._rx[s] > (
+                self.max_lag if self._dropping is None else self.max_lag / 2):
             newest = self._shed_to(s, now)
             if newest is not None and newest < 0:
                 return None
