@@ -30,6 +30,11 @@ stamps it on arrival with a per-topic :class:`ArrivalStamper`.
 Pure functions over duck-typed messages: the same code decodes rclpy messages and the
 dataclasses ``rosbags`` deserialises, so this module imports no ROS package at import time
 (``fd_monitor.wire.bag_reader`` uses it offline). :func:`to_msg` imports ``std_msgs`` when called.
+
+Why one module of ~550 lines: the message convention in one place -- building a message,
+decoding one (checked), reading its CDR bytes without a type store (the nodes' and the bag
+reader's fast path) and setting the batch mark on those bytes must agree field for field,
+and the tests compare them with each other (``test/test_raw_decode.py``).
 """
 
 from __future__ import annotations
