@@ -232,7 +232,7 @@ def test_overload_is_shed_visibly_and_input_after_it_is_processed_in_time():
 def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_kept():
     """Issue 26's blinding case with default parameters: ``ros2 run fd_monitor detector``
     (the detector node alone, its own process: it processes each ``fd/state_estimate`` in
-    the callback that took it, so its backlog waits in DDS) flooded with 10,000 unmarked
+    the callback that took it, so its backlog waits in DDS) flooded with 12,000 unmarked
     stamped samples published as fast as DDS takes them (about 1,000 x real time at Ts
     0.1 s), then fed 50 Hz input: the flood is processed while the node is less than
     ``max_lag`` (2 s) behind, the rest skipped (counted as shed_samples on /diagnostics,
@@ -254,14 +254,18 @@ def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_k
     est = np.zeros(len(lay.labels))
     est[lay.index["x_hat"]] = (0.4, 0.2, 0.3)              # y~ = 0: residual 0, no alarm
     live, marked = SerializedArray(lay.labels), SerializedArray(lay.labels, batch=True)
-    n = 10_000        # more than the detector processes in max_lag s (2,200-4,000 here)
+    # more than the detector processes in max_lag s (1,400 to 4,800 measured here, by load;
+    # its reader holds 5,000, the publisher's history the rest)
+    n = 12_000
     det = Proc(["run", "detector", "--ros-args", "-r", "__ns:=/fl"])
     try:
         with ros_context() as ctx:
             col = Collector(ctx, ["/fl/fd/residual"], diagnostics=True)
             drv = Node("flood_driver", context=ctx)
+            # a history that holds a flood and the input after it: no sample is lost in DDS
+            # (unacknowledged ones would be overwritten while the detector's reader is full)
             pub = drv.create_publisher(Float64MultiArray, "/fl/fd/state_estimate",
-                                       data_pub_qos(n + 200))
+                                       data_pub_qos(n + 2000))
             ex = SingleThreadedExecutor(context=ctx)
             ex.add_node(col.node)
             ex.add_node(drv)
@@ -276,7 +280,7 @@ def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_k
                 pub.publish(ser.encode(k, est))
 
             def input_values() -> dict[str, str]:
-                st = [s for s in col.statuses("detector: input")
+                st = [s for s in col.statuses("fl/detector: input")
                       if any(v.key == "shed_samples" for v in s.values)]
                 return {v.key: v.value for v in st[-1].values} if st else {}
 
@@ -317,7 +321,8 @@ def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_k
             # sample per max_lag s while the node could not catch up: doc)
             assert m >= 500 and len(flood_done) < n, (m, len(flood_done))
             assert spin_until(ex, lambda: int(input_values().get("shed_samples", 0))
-                              >= n - len(flood_done), 5.0, [det]), input_values()
+                              >= n - len(flood_done), 5.0, [det]), (
+                n - len(flood_done), input_values(), det.output()[-3000:])
             values = input_values()
             assert "unmarked backlog older than 2 s shed" in values["shed_rule"], values
             # the same flood with the batch mark: every sample, in order, nothing more shed
@@ -329,9 +334,11 @@ def test_a_detector_flooded_with_unmarked_input_sheds_it_and_a_marked_flood_is_k
                 send(marked, j)
             assert spin_until(ex, lambda: residual(k0 + n - 1), 60.0, [det]), len(got)
             t_marked = time.monotonic() - t1
-            assert all(residual(j) for j in range(k0, k0 + n))
+            missing = [j for j in range(k0, k0 + n) if not residual(j)]
+            assert not missing, (len(missing), missing[:5], missing[-5:], input_values())
+            # it was more than max_lag behind on the batch, and did not shed it
             assert spin_until(ex, lambda: int(input_values().get("batch_waits", 0)) > 0, 5.0,
-                              [det]) or t_marked < MAX_LAG
+                              [det]), (t_marked, input_values())
             assert int(input_values()["shed_samples"]) == shed_before
     finally:
         det.stop()
