@@ -23,7 +23,7 @@ subscriptions, then pace by acknowledgements every ``ack_window`` samples; see
 Flat out, the stream is a *batch* (recorded-like data whose every sample is to be processed):
 its messages carry the batch mark (:data:`~fd_monitor.wire.conversions.BATCH_LABEL`), so a
 node more than ``max_lag`` s behind processes them however late instead of shedding them as
-it sheds a live stream's; ``batch_mark`` (auto, on, off) overrides it.
+it sheds a live stream's; ``batch_mark`` (auto, always, never) overrides it.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ PARAMS = (
           "subscribers keep up without loss", low=0.0, high=1.0e6),
     Param("batch_mark", "auto", "mark plant/* messages as a batch (every sample processed "
           "however late; unmarked, a node more than max_lag s behind sheds them): auto = "
-          "when flat out (rate_factor 0.0), on, off", choices=("auto", "on", "off")),
+          "when flat out (rate_factor 0.0), always, never", choices=("auto", "always", "never")),
     Param("duration", 0.0, "s of plant time to simulate; 0.0 = the scenario's duration",
           low=0.0, high=1.0e9),
     Param("keep_going", False, "keep simulating after the scenario's end (until shut down)"),
@@ -188,8 +188,9 @@ class PlantSimNode(Node):
         self.tick_period = (max(self.dt / p.rate_factor, _FLAT_OUT_TICK) if p.rate_factor > 0
                             else _FLAT_OUT_TICK)
         self._timer = self.create_timer(self.tick_period, self._on_tick)
-        #: plant/* messages carry the batch mark (flat out, or batch_mark on)
-        self.batch = p.batch_mark == "on" or (p.batch_mark == "auto" and p.rate_factor == 0)
+        #: plant/* messages carry the batch mark (flat out, or batch_mark always)
+        self.batch = p.batch_mark == "always" or (p.batch_mark == "auto"
+                                                  and p.rate_factor == 0)
         self.get_logger().info(
             f"scenario {sc.name} ({sys_.name}), seed {simulator.seeds[0]}, "
             f"{self.n_samples} samples of {self.dt:g} s, rate_factor {p.rate_factor:g}"
