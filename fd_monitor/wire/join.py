@@ -279,7 +279,7 @@ class StampJoin:
         #: The newest complete stamp and when it was received (the backlog's pace), and the
         #: one before it.
         self._newest, self._newest_t = -1, 0.0
-        self._prev: tuple[int, float] = (-1, 0.0)
+        self._prev_k, self._prev_t = -1, 0.0
         #: Checks that found the node more than ``max_lag`` s behind on a batch (not shed):
         #: all, and those that were a batch by ``batch_pace`` (unmarked).
         self.batch_waits = 0
@@ -353,7 +353,7 @@ class StampJoin:
             self._complete_since[stamp] = now
             rx = self._rx[stamp] = now if arrived is None or arrived > now else arrived
             if stamp > self._newest:
-                self._prev = (self._newest, self._newest_t)
+                self._prev_k, self._prev_t = self._newest, self._newest_t
                 self._newest, self._newest_t = stamp, rx
         if len(self.pending) > self.max_pending:
             oldest = min(self.pending)
@@ -411,7 +411,7 @@ class StampJoin:
         self._restart_next = False
         self._missing, self._carry = 0, None
         self.new_runs += 1
-        self._newest, self._prev, self._rx, self._dropping = -1, (-1, 0.0), {}, None
+        self._newest, self._prev_k, self._rx, self._dropping = -1, -1, {}, None
         self._marked &= held.keys()
         for stamp, slot in held.items():
             self.pending[stamp] = slot
@@ -627,7 +627,7 @@ class StampJoin:
             self._newest, self._newest_t = newest, self._rx[newest]
         if self.batch_pace and self.sample_time:
             # the backlog's pace; held in DDS (k the newest here): since the sample before
-            a, ta = (k, self._rx[k]) if newest > k else self._prev
+            a, ta = (k, self._rx[k]) if newest > k else (self._prev_k, self._prev_t)
             if 0 <= a < newest and ((newest - a) * self.sample_time
                                     > self.batch_pace * (self._newest_t - ta)):
                 self.batch_waits += 1
