@@ -35,8 +35,15 @@ SIGUSR2: start-up is left out; the profiler's own cost inflates its CPU figures)
 one sample every 1/rate s (``paced``, as live), per tree: the figure a change to the node's
 Python is seen in without the 10-30 % run-to-run noise of the DDS figures.
 
+DDS configurations side by side (``--dds LABEL=SPEC``, repeatable; :func:`dds_variants`): a
+Fast DDS profile file and/or environment variables per variant (``benchmarks/dds/*.xml``),
+against the nodes' profile, ``--repeat`` rounds alternating; the floors of
+:data:`DDS_FLOORS` (with ``--floor``) and the monitors of each N; best of each printed with
+the main-thread / DDS-thread split, RSS and PSS.
+
 Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
-[--seconds 10] [--floor] [--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]``.
+[--seconds 10] [--floor] [--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]
+[--dds hb100=benchmarks/dds/hb100.xml]``.
 Isolated ROS_DOMAIN_ID, loopback discovery.
 """
 
