@@ -1,7 +1,8 @@
 """N robots' monitors at 100 Hz on this machine: latency, CPU and memory per robot.
 
-For each N (default 1, 8, 16, 32): N ``monitor`` processes (the fused node, three_tank
-thresholds gain file, namespaces ``/robot0`` ... ``/robot<N-1>``); one driver process
+For each N (default 1, 8, 16, 32): N robots' monitors (the fused node, three_tank
+thresholds gain file, namespaces ``/robot0`` ... ``/robot<N-1>``), a process each or M to a
+process (``--per-process``); one driver process
 publishes every robot's ``plant/u`` and ``plant/y`` at ``--rate`` Hz (default 100; the demo
 scenario, stamped) for ``--seconds`` s; this process subscribes to every robot's
 ``fd/alarm`` (the only output subscribed: the monitor builds no message nobody subscribes
@@ -24,6 +25,16 @@ Printed per N (the 1-minute load average with each line):
 * below each row, the first process's CPU per sample by thread name (the Python main thread,
   Fast DDS's threads).
 
+Robots per process (``--per-process M ...``, one layout per value, run side by side for each
+N): 1 (default) is a ``monitor`` process per robot; M > 1 hosts M robots in each process
+(``monitor --ros-args -p robots:=[robot0, ...]``: one executor and one DDS participant per
+process), so N = 32 with M = 16 is two processes. RSS is then also printed per robot (the
+processes' RSS over the robots they host), and the threads' CPU per sample of the first
+process's robots. ``--subscribe supervisor`` (beside or instead of ``alarm``): the receiver
+subscribes to what a fleet supervisor reads, every robot's ``fd/fault`` and ``/diagnostics``,
+plus the first robot's ``fd/alarm`` for the latency (so the other robots publish no data
+topic per sample).
+
 Side by side (``--tree LABEL=DIR``, repeatable): the monitors of each N are also run from
 another source tree (e.g. the base commit, ``git archive BASE | tar -x -C DIR``) on
 ``PYTHONPATH``, alternating with this tree, each ``--repeat`` times; the best run of each tree
@@ -42,7 +53,8 @@ against the nodes' profile, ``--repeat`` rounds alternating; the floors of
 the main-thread / DDS-thread split, RSS and PSS.
 
 Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
-[--seconds 10] [--floor] [--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]
+[--seconds 10] [--per-process 1 16] [--subscribe alarm supervisor] [--floor]
+[--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]
 [--dds hb100=benchmarks/dds/hb100.xml]``.
 Isolated ROS_DOMAIN_ID, loopback discovery.
 """
@@ -57,7 +69,9 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -83,6 +97,12 @@ sc = load_scenario("three_tank_bias_h1")
 K = int(rate * secs)
 tr = simulate(sc, None, K + 20)
 u, y = tr.u[0].tolist(), tr.y[0].tolist()
+# serialized once per sample (every robot gets the same u_k, y_k): the driver's own cost per
+# message is one publish of bytes, so 32 robots' 6,400 messages/s leave the cores to the
+# monitors
+from rclpy.serialization import serialize_message
+su = [serialize_message(to_msg(sc.system.inputs, k, u[k])) for k in range(K + 10)]
+sy = [serialize_message(to_msg(sc.system.outputs, k, y[k])) for k in range(K + 10)]
 pubs = [(node.create_publisher(Float64MultiArray, f"/robot{i}{PLANT_U.absolute}", data_pub_qos()),
          node.create_publisher(Float64MultiArray, f"/robot{i}{PLANT_Y.absolute}", data_pub_qos()))
         for i in range(N)]
@@ -99,10 +119,11 @@ for k in range(K + 10):
     if d > 0:
         time.sleep(d)
     row = []
+    mu, my = su[k], sy[k]
     for pu, py in pubs:
-        pu.publish(to_msg(sc.system.inputs, k, u[k]))
+        pu.publish(mu)
         row.append(time.perf_counter())
-        py.publish(to_msg(sc.system.outputs, k, y[k]))
+        py.publish(my)
     sent.append(row)
 print(json.dumps({"sent": sent}), flush=True)
 """
@@ -338,18 +359,43 @@ def pss_mb(pid: int) -> float:
     return float("nan")
 
 
+def monitor_commands(n_robots: int, per_process: int) -> list[list[str]]:
+    """The ``fd_monitor run monitor`` arguments of each process of an N-robot fleet:
+    ``per_process`` 1, one process per robot (``-r __ns:=/robot<i>``); M > 1, robots
+    ``robot0`` ... hosted M to a process (``-p robots:=[robot<i>, ...]``, one executor and one
+    DDS participant per process; the last process takes the rest)."""
+    if per_process <= 1:
+        return [["run", "monitor", "--ros-args", "-r", f"__ns:=/robot{i}"]
+                for i in range(n_robots)]
+    return [["run", "monitor", "--ros-args", "-p",
+             "robots:=[" + ", ".join(f"robot{i}" for i in range(a, min(a + per_process,
+                                                                     n_robots))) + "]"]
+            for a in range(0, n_robots, per_process)]
+
+
+#: What the benchmark's receiver subscribes to (``--subscribe``): ``alarm`` every robot's
+#: ``fd/alarm`` (latency of every robot and sample); ``supervisor`` what a fleet supervisor
+#: reads, every robot's ``fd/fault`` and ``/diagnostics``, plus the first robot's
+#: ``fd/alarm`` alone for the latency (one robot of N pays that one extra writer).
+SUBSCRIBE = ("alarm", "supervisor")
+
+
 def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
               floor: tuple[str, str, str] | None = None, tree: str | None = None,
-              profile: str | None = None) -> dict:
+              profile: str | None = None, per_process: int = 1,
+              subscribe: str = "alarm") -> dict:
     """One N: start, drive, measure, stop. ``tree``: the monitors' source tree (first on
     ``PYTHONPATH``; default this one); ``profile``: cProfile the first monitor's measured
-    window into this file."""
+    window into this file; ``per_process``: robots per monitor process
+    (:func:`monitor_commands`); ``subscribe``: one of :data:`SUBSCRIBE`."""
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray
 
+    from fd_monitor.nodes.fault import fault_qos
     from fd_monitor.nodes.process import _events_executor
-    from fd_monitor.nodes.qos import data_sub_qos
-    from fd_monitor.wire.topics import ALARM
+    from fd_monitor.nodes.qos import data_sub_qos, diagnostics_qos
+    from fd_monitor.wire.topics import ALARM, FAULT
 
     if profile and os.path.exists(profile):
         os.remove(profile)
@@ -359,20 +405,34 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
     else:
         me = ({**e, "PYTHONPATH": tree + os.pathsep + e.get("PYTHONPATH", "")} if tree
               else e)
+        cmds = monitor_commands(n_robots, per_process)
         procs = [subprocess.Popen([sys.executable,
                                    *(["-c", PROFILED, profile] if profile and i == 0
-                                     else ["-m", "fd_monitor"]),
-                                   "run", "monitor", "--ros-args", "-r", f"__ns:=/robot{i}"],
+                                     else ["-m", "fd_monitor"]), *cmd],
                                   env=me, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                 for i in range(n_robots)]
+                 for i, cmd in enumerate(cmds)]
     node = rclpy.create_node(f"robots_rx_{n_robots}")
     arrivals: list[dict[int, float]] = [{} for _ in range(n_robots)]
+    # the robots whose fd/alarm is received (latency), and the topics waited for at start
+    timed = range(n_robots if subscribe == "alarm" else min(1, n_robots))
+    awaited = [f"/robot{i}{ALARM.absolute}" for i in timed]
     if not floor:
-        for i in range(n_robots):
+        for i in timed:
             node.create_subscription(
                 Float64MultiArray, f"/robot{i}{ALARM.absolute}",
                 lambda m, a=arrivals[i]: a.__setitem__(int(m.data[0]), time.perf_counter()),
                 data_sub_qos())
+        if subscribe == "supervisor":
+            got = {"fault": 0, "diagnostics": 0}
+
+            def count(what: str) -> Callable[[Any], None]:
+                return lambda m: got.__setitem__(what, got[what] + 1)
+            for i in range(n_robots):
+                node.create_subscription(Float64MultiArray, f"/robot{i}{FAULT.absolute}",
+                                         count("fault"), fault_qos())
+                awaited.append(f"/robot{i}{FAULT.absolute}")
+            node.create_subscription(DiagnosticArray, "/diagnostics", count("diagnostics"),
+                                     diagnostics_qos())
     ex = _events_executor()
     ex.add_node(node)
     drv = subprocess.Popen([sys.executable, "-c", DRIVER, str(n_robots), str(rate),
@@ -385,8 +445,8 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
             raise RuntimeError("driver did not start")
         if not floor:
             deadline = time.monotonic() + 120
-            while any(node.count_publishers(f"/robot{i}{ALARM.absolute}") < 1
-                      for i in range(n_robots)) and time.monotonic() < deadline:
+            while any(node.count_publishers(t) < 1 for t in awaited) \
+                    and time.monotonic() < deadline:
                 ex.spin_once(timeout_sec=0.05)
         time.sleep(2.0)                      # start-up CPU settles
         pids = [p.pid for p in procs]
@@ -417,16 +477,22 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         wall = time.perf_counter() - t0 - 2.0
         sent = json.loads(line)["sent"][10:]
         K = len(sent)
-        rows = [(i, k) for i in range(n_robots) for k in range(10, 10 + K)]
+        rows = [(i, k) for i in timed for k in range(10, 10 + K)]
         lat = np.array([arrivals[i][k] - sent[k - 10][i] for i, k in rows
                         if k in arrivals[i]]) * 1e3
+        robots = n_robots if not floor else 1
+        # robots of the first process (its threads' CPU is per sample of those)
+        first = 1 if floor or per_process <= 1 else min(per_process, n_robots)
+        rss = [rss_mb(p) for p in pids]
         row.update(samples=K, load=round(load(), 2),
                    missing=0 if floor else len(rows) - lat.size,
-                   cpu_us_per_sample=cpu / (n_robots if not floor else 1) / K * 1e6,
-                   core_pct=100 * cpu / wall / (n_robots if not floor else 1),
-                   rss_mb=[round(rss_mb(p), 1) for p in pids],
-                   # the first process's CPU per sample by thread name, us
-                   threads={n: round(v / K * 1e6) for n, v in
+                   cpu_us_per_sample=cpu / robots / K * 1e6,
+                   core_pct=100 * cpu / wall / robots,
+                   rss_mb=[round(v, 1) for v in rss],
+                   # process RSS shared among the robots it hosts
+                   rss_per_robot=sum(rss) / robots, per_process=per_process,
+                   subscribe=subscribe, processes=len(pids),
+                   threads={n: round(v / K / first * 1e6) for n, v in
                             sorted(threads.items(), key=lambda kv: -kv[1]) if v > 0})
         if lat.size:
             row.update(p50_ms=float(np.median(lat)), p99_ms=float(np.percentile(lat, 99)),
@@ -494,7 +560,9 @@ def dds_side_by_side(args: argparse.Namespace, e: dict[str, str]) -> None:
             runs = [(1, f) for f in (DDS_FLOORS if args.floor else ())]
             runs += [(n, None) for n in args.robots]
             for n, floor in runs:
-                r = run_fleet(n, args.rate, args.seconds, me, floor=floor)
+                # the first --per-process and --subscribe layout
+                r = run_fleet(n, args.rate, args.seconds, me, floor=floor,
+                              per_process=args.per_process[0], subscribe=args.subscribe[0])
                 r["label"] = label
                 print(_fmt(r), flush=True)
                 key = (floor, n, label)
@@ -520,13 +588,18 @@ def _fmt(r: dict) -> str:
         return "-" if v is None else format(v, spec)
 
     rss = r.get("rss_mb") or [float("nan")]
+    # hosted: the processes the robots share (a process per robot: nothing), and the
+    # supervisor's subscriptions
+    hosted = ((f" in {r['processes']} proc" if r.get("per_process", 1) > 1 else "")
+              + (" sup" if r.get("subscribe") == "supervisor" else ""))
     what = (f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
-            + (f" [{r['label']}]" if r.get("label") else ""))
+            + hosted + (f" [{r['label']}]" if r.get("label") else ""))
     per_thread = ", ".join(f"{n} {v}" for n, v in list(r.get("threads", {}).items())[:5])
     return (f"{what:28} {r.get('samples', 0):6d} {f(r.get('missing'), 'd'):>7} "
             f"{f(r.get('p50_ms')):>7} {f(r.get('p99_ms')):>7} {f(r.get('max_ms')):>7} "
             f"{f(r.get('cpu_us_per_sample'), '.0f'):>9} {f(r.get('core_pct'), '.1f'):>6} "
-            f"{np.mean(rss):6.1f} {max(rss):6.1f}  load {r.get('load', load()):.2f}"
+            f"{np.mean(rss):6.1f} {max(rss):6.1f} "
+            f"{r.get('rss_per_robot', np.mean(rss)):6.1f}  load {r.get('load', load()):.2f}"
             + (f"\n{'':28} us/sample by thread (first process): {per_thread}"
                if per_thread else ""))
 
@@ -549,6 +622,14 @@ def main() -> int:
                          "nodes' (SPEC: a profile XML and/or VAR=VALUE, comma-separated; "
                          "repeatable; see dds_variants); only --floor's DDS_FLOORS and the "
                          "monitors are run")
+    ap.add_argument("--per-process", type=int, nargs="+", default=[1], metavar="M",
+                    help="robots per monitor process, one layout per value, run side by side "
+                         "(1: a process per robot; M > 1: `monitor -p robots:=[...]`, M "
+                         "robots on one executor and one DDS participant)")
+    ap.add_argument("--subscribe", nargs="+", choices=SUBSCRIBE, default=["alarm"],
+                    help="what the receiver subscribes to (alarm: every robot's fd/alarm; "
+                         "supervisor: every robot's fd/fault and /diagnostics, the first "
+                         "robot's fd/alarm for the latency); one row per value")
     ap.add_argument("--path", type=int, metavar="SAMPLES", default=0,
                     help="also time the monitor node's Python path without DDS, SAMPLES per "
                          "pass (warm and paced at --rate; per tree)")
@@ -564,7 +645,7 @@ def main() -> int:
     print(f"load average {load():.2f} (1 min, {os.cpu_count()} cores); {args.rate:g} Hz, "
           f"{args.seconds:g} s per N; per robot: cpu us per sample, % of a core, RSS MB")
     print(f"{'what':28} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
-          f"{'max ms':>7} {'cpu us/s.':>9} {'%core':>6} {'RSS':>6} {'max':>6}")
+          f"{'max ms':>7} {'cpu us/s.':>9} {'%core':>6} {'RSS':>6} {'max':>6} {'/robot':>6}")
     try:
         if args.dds:
             dds_side_by_side(args, e)
@@ -580,16 +661,20 @@ def main() -> int:
                 print(_fmt(run_fleet(1, args.rate, args.seconds, e, floor=variant)),
                       flush=True)
         for n in args.robots:
-            best: dict[str, dict] = {}
+            best: dict[tuple, dict] = {}
             for _ in range(args.repeat):
-                for label, tree in trees or [("", None)]:
-                    r = run_fleet(n, args.rate, args.seconds, e, tree=tree,
-                                  profile=args.profile)
-                    r["label"] = label
-                    print(_fmt(r), flush=True)
-                    if (label not in best or r["cpu_us_per_sample"]
-                            < best[label]["cpu_us_per_sample"]):
-                        best[label] = r
+                for m in args.per_process:
+                    for sub in args.subscribe:
+                        for label, tree in trees or [("", None)]:
+                            r = run_fleet(n, args.rate, args.seconds, e, tree=tree,
+                                          profile=args.profile, per_process=m,
+                                          subscribe=sub)
+                            r["label"] = label
+                            print(_fmt(r), flush=True)
+                            key = (m, sub, label)
+                            if (key not in best or r["cpu_us_per_sample"]
+                                    < best[key]["cpu_us_per_sample"]):
+                                best[key] = r
             if args.repeat > 1 or trees:
                 print(f"best of {args.repeat} (least CPU per sample):")
                 for r in best.values():

@@ -126,6 +126,40 @@ def test_monitor_launch_one_monitor_per_robot_namespace(suffix):
     assert [n.node_name for n in nodes(path)] == ["/robot1/monitor"]
 
 
+def test_monitor_launch_spreads_robots_over_processes():
+    """``processes:=2``: five robots in two ``monitor`` processes (two and three robots, in
+    order), each given the shipped parameter file and its share as ``robots``; rcl gives
+    every hosted robot's node (``/r3/monitor``) the shipped parameters."""
+    from ros_util import ros_context
+
+    from fd_monitor.nodes.robots import robot_namespaces
+
+    got = nodes(LAUNCH / "monitor.launch.py", robots="r0, r1, r2, r3, r4", processes="2")
+    assert len(got) == 2
+    hosted = []
+    for n in got:
+        assert (text(n.node_package), text(n.node_executable)) == ("fd_monitor", "monitor")
+        files = [p for p, is_file in n._Node__expanded_parameter_arguments if is_file]
+        assert Path(files[0]).resolve() == REPO / "config" / "launch" / "monitor.yaml"
+        with ros_context(["x", "--ros-args", *(a for f in files
+                                                for a in ("--params-file", f))]) as ctx:
+            from rclpy.node import Node
+
+            peek = Node("monitor", context=ctx, allow_undeclared_parameters=True,
+                        automatically_declare_parameters_from_overrides=True)
+            spaces = robot_namespaces(None, peek.get_parameter("robots").value)
+            hosted.append(spaces)
+            robot = Node("monitor", namespace=spaces[-1], context=ctx,
+                         automatically_declare_parameters_from_overrides=True)
+            seen = {p.name: p.value for p in robot._parameters.values()}
+            assert seen["gains"] == "three_tank_thresholds" and seen["fault_clear_after"] == 5.0
+            for x in (peek, robot):
+                x.destroy_node()
+    assert hosted == [["/r0", "/r1"], ["/r2", "/r3", "/r4"]]
+    # processes:=0 (the default): a process per robot, as before
+    assert len(nodes(LAUNCH / "monitor.launch.py", robots="r0, r1, r2")) == 3
+
+
 @pytest.mark.parametrize("suffix", [".launch.py", ".launch.xml"])
 def test_chain_launch_four_nodes_in_one_namespace(suffix):
     got = nodes(LAUNCH / f"chain{suffix}", namespace="r7")

@@ -45,8 +45,8 @@ def test_burst_degrades_to_holes_then_a_new_publisher_is_processed():
         assert obs.get_name() == "observer"
         assert rig.matched()
         for k in range(BURST):                       # unpaced: the history overflows
-            rig.pub["u"].publish(to_msg(("q1", "q2", "v13"), k, u))
-            rig.pub["y"].publish(to_msg(("h1", "h2", "h3"), k, y))
+            rig.pub["u"].publish(to_msg(("q1", "q2", "v13"), k, u, batch=True))
+            rig.pub["y"].publish(to_msg(("h1", "h2", "h3"), k, y, batch=True))
         # A new publisher (a restarted driver) continues the stamps; it must get through.
         drv2 = Node("driver2", context=ctx)
         pubs = {t: drv2.create_publisher(Float64MultiArray, f"/plant/{t}", data_pub_qos())
@@ -58,8 +58,8 @@ def test_burst_degrades_to_holes_then_a_new_publisher_is_processed():
         k0 = BURST + 10
         t0 = time.monotonic()
         for k in range(k0, k0 + NEW):
-            pubs["u"].publish(to_msg(("q1", "q2", "v13"), k, u))
-            pubs["y"].publish(to_msg(("h1", "h2", "h3"), k, y))
+            pubs["u"].publish(to_msg(("q1", "q2", "v13"), k, u, batch=True))
+            pubs["y"].publish(to_msg(("h1", "h2", "h3"), k, y, batch=True))
             rig.spin(lambda: False, 0.002)           # a 500 Hz-ish source, not a burst
 
         def new() -> list[int]:

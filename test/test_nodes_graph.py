@@ -61,12 +61,14 @@ class Rig:
         return spin_until(self.ex, lambda: all(p.get_subscription_count() >= n
                                                for p in self.pub.values()), timeout)
 
-    def send(self, u, y, ks):
+    def send(self, u, y, ks, batch=True):
+        """Publish samples ``ks``, marked as a batch (unpaced test input whose every sample
+        must be processed, however far behind the nodes fall) unless ``batch`` is False."""
         from fd_monitor.wire.conversions import to_msg
 
         for k in ks:
-            self.pub["u"].publish(to_msg(("q1", "q2", "v13"), k, u[k]))
-            self.pub["y"].publish(to_msg(("h1", "h2", "h3"), k, y[k]))
+            self.pub["u"].publish(to_msg(("q1", "q2", "v13"), k, u[k], batch=batch))
+            self.pub["y"].publish(to_msg(("h1", "h2", "h3"), k, y[k], batch=batch))
 
     def spin(self, cond, timeout=20.0):
         return spin_until(self.ex, cond, timeout)

@@ -10,6 +10,8 @@ order, duplicates keep the first.
 
 from __future__ import annotations
 
+import pytest
+
 from fd_monitor.wire.conversions import readable_stamp, to_msg
 from fd_monitor.wire.join import StampJoin
 
@@ -318,6 +320,7 @@ def test_a_backlog_that_came_faster_than_real_time_is_a_batch_and_never_shed():
         j.put("fb", k, f"fb{k}", 3.0 + k)
         assert release(j, 3.0 + k) == [(k, False, None, f"fb{k}")]
     assert (j.shed, j.shed_episodes) == (0, 0) and j.batch_waits > 0
+    assert j.pace_waits == j.batch_waits                # by pace: the opt-in rule
 
 
 def test_a_backlog_that_came_at_real_time_is_shed_and_batch_pace_0_sheds_any():
@@ -559,3 +562,130 @@ def test_downstream_bridges_where_the_entry_bridged():
     j.put("est", 6, "e6")                              # skipped without a flag: restart
     j.put("r", 6, "r6")
     assert [s[:3] for s in bridged(j)] == [(6, True, False)]
+
+
+def marked_lagging_entry(batch: bool, n: int = 60) -> StampJoin:
+    """An entry join with the defaults of the nodes (max_lag 2 s, batch_pace 0) whose
+    samples 1..n came 0.01 s apart (10 x real time at Ts 0.1 s), with the batch mark or
+    without, while it waited for the feedback of sample 1."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=0.5, max_lag=2.0, sample_time=0.1)
+    feed(j, 0)
+    assert release(j) == [(0, True, None, FB0)]
+    for k in range(1, n + 1):
+        for name in ("u", "y"):
+            assert j.put(name, k, f"{name}{k}", 0.01 * k, batch=batch) is None
+    return j
+
+
+def test_a_marked_backlog_is_a_batch_and_an_unmarked_one_is_shed_whatever_its_pace():
+    """Issue 26 item 0, by default: the same fast backlog (10 x real time) 3 s behind is
+    processed completely when its messages carry the batch mark -- to its last sample after
+    the source stopped (the end of a replay) -- and shed when they do not (a flood cannot
+    be told from a flat-out replay by its pace); the released samples say they are a batch
+    (the node marks what it publishes for them)."""
+    j = marked_lagging_entry(True)
+    j.put("fb", 1, "fb1", 3.0)
+    out = list(j.ready(3.0))
+    assert [(s.k, s.shed, s.batch) for s in out] == [(1, 0, True)]
+    for k in range(2, 61):
+        j.put("fb", k, f"fb{k}", 3.0 + k)
+        assert [(s.k, s.shed, s.batch) for s in j.ready(3.0 + k)] == [(k, 0, True)]
+    assert (j.shed, j.shed_episodes, j.pace_waits) == (0, 0, 0) and j.batch_waits >= 59
+    j = marked_lagging_entry(False)
+    j.put("fb", 1, "fb1", 3.0)
+    out = list(j.ready(3.0))
+    assert [(s.k, s.restart, s.hole, s.shed, s.batch) for s in out] == [
+        (60, True, (1, 59), 59, False)]
+    assert j.batch_waits == 0
+
+
+def test_a_shed_stops_before_a_marked_batch_that_follows_a_live_backlog():
+    """Unmarked samples 1..30 then marked 31..60 behind a feedback wait: the live part is
+    skipped up to the batch, the batch processed completely."""
+    j = StampJoin(["u", "y"], {"fb": FB0}, gap_timeout=0.5, max_lag=2.0)
+    feed(j, 0)
+    release(j)
+    for k in range(1, 61):
+        for name in ("u", "y"):
+            j.put(name, k, f"{name}{k}", 0.01 * k, batch=k > 30)
+    j.put("fb", 1, "fb1", 3.0)
+    assert [(s.k, s.hole, s.shed, s.batch) for s in j.ready(3.0)] == [(31, (1, 30), 30, True)]
+    for k in range(32, 61):
+        j.put("fb", k, f"fb{k}", 3.0 + k)
+        assert [(s.k, s.shed) for s in j.ready(3.0 + k)] == [(k, 0)]
+
+
+def flood_held_in_dds(batch: bool, n: int = 5000) -> tuple[StampJoin, list, float]:
+    """A downstream node (the standalone detector: no feedback publisher) taking a flood
+    held in DDS: est k received at 0.1 ms x k (10 kHz), taken one at a time; a sample
+    costs 1 ms to process, a skipped message 20 us. Returns the join, the released
+    samples and the time the node had taken the last one."""
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0, max_lag=2.0,
+                  feedback_source=lambda name: False)
+    out, t = [], 0.0
+    for k in range(n):
+        rx = 1e-4 * k
+        t = max(t, rx)
+        j.put("est", k, f"e{k}", t, restart=k == 0, batch=batch, arrived=rx)
+        got = list(j.ready(t))
+        out += got
+        t += 1e-3 if got else 2e-5
+    return j, out, t
+
+
+def test_a_flood_held_in_dds_is_shed_in_one_episode_and_good_input_after_it_is_processed():
+    """The backlog of a node that processes each sample in the callback that took it (the
+    standalone detector, the fused monitor) stays in DDS, where the join cannot see it: the
+    lag counts from each message's DDS reception time. Unmarked: processed while less than
+    max_lag s old (stamps 0 .. ~2,200 in order), then skipped as taken, in one episode, to
+    the end of the flood; a real-time sample after it is processed at once, restarting,
+    and reports the skip. Marked: every sample processed, in order, nothing shed."""
+    j, out, t = flood_held_in_dds(False)
+    ks = [s.k for s in out]
+    assert ks == list(range(len(ks))) and 2000 < len(ks) < 2400, len(ks)
+    assert j.shed == 5000 - len(ks) and j.shed_episodes == 1
+    j.put("est", 5000, "e5000", t + 0.1, arrived=t + 0.1)
+    s, = j.ready(t + 0.1)
+    assert (s.k, s.restart, s.hole, s.shed) == (5000, True, (len(ks), 4999), 5000 - len(ks))
+    j, out, t = flood_held_in_dds(True)
+    assert [s.k for s in out] == list(range(5000)) and all(s.batch for s in out)
+    assert (j.shed, j.shed_episodes) == (0, 0) and t > 5.0
+
+
+def test_a_node_that_cannot_even_take_the_flood_processes_one_sample_per_max_lag():
+    """A source faster than the node takes messages (it never catches up): the skip ends
+    after max_lag s of skipping with the sample in hand, so the node is never blind for
+    longer than that."""
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0, max_lag=2.0,
+                  feedback_source=lambda name: False)
+    j.put("est", 0, "e0", 0.0, restart=True)
+    assert len(list(j.ready(0.0))) == 1
+    done = []
+    for k in range(1, 3001):
+        t = 2.5 + 0.002 * k                    # taken every 2 ms, each received 2.5 s ago
+        j.put("est", k, f"e{k}", t, arrived=t - 2.5)
+        done += [(s.k, round(t, 3), s.shed) for s in j.ready(t)]
+    assert [d[0] for d in done] == [1001, 2002] and done[0][2] == 1000, done
+
+
+def test_sent_time_sees_a_queue_whatever_the_publishers_clock():
+    """The lag counts from publication, on the node's clock: a publisher whose clock is 100 s
+    ahead (another machine) gives the same publication times as one on ours; a message that
+    waited 3 s (in the publisher's history or the DDS reader) is 3 s old when taken; the
+    clock offset estimate follows a drift of up to 1 ms per s."""
+    from fd_monitor.wire.stream import SentTime
+
+    for skew in (0.0, 100.0, -100.0):
+        st = SentTime()
+        # (source on the publisher's clock, received and taken on ours): 1 ms transport
+        assert st.sent(10.0 + skew, 10.001, now=5.002, now_wall=10.002) == pytest.approx(5.001)
+        # published at 11.0, taken 3 s later (it waited): 3 s old (within the drift
+        # allowance of 1 ms per s since the last message)
+        assert st.sent(11.0 + skew, 14.0, now=9.0, now_wall=14.0) == pytest.approx(6.0,
+                                                                                  abs=0.006)
+        # drift: the publisher's clock 0.5 ms/s slower for 100 s; a message that did not
+        # wait is still about as fresh as the transport makes it
+        got = st.sent(111.0 + skew - 0.05, 111.001, now=106.001, now_wall=111.001)
+        assert 106.001 - got <= 0.001 + 1e-9
+    # never later than now
+    assert SentTime().sent(20.0, 10.0, now=1.0, now_wall=10.0) == 1.0

@@ -41,8 +41,8 @@ def test_observer_alone_runs_every_sample_without_waiting_for_feedback():
         assert spin_until(ex, lambda: pub["/plant/y"].get_subscription_count() >= 1, 10.0)
         u, y = [5e-5, 5e-5, 0.0], [0.40, 0.20, 0.30]
         for k in range(n):
-            pub["/plant/u"].publish(to_msg(system.inputs, k, u))
-            pub["/plant/y"].publish(to_msg(system.outputs, k, y))
+            pub["/plant/u"].publish(to_msg(system.inputs, k, u, batch=True))
+            pub["/plant/y"].publish(to_msg(system.outputs, k, y, batch=True))
             ex.spin_once(timeout_sec=0.0)
 
         def count():

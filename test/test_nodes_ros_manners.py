@@ -64,8 +64,8 @@ class Bench:
         from fd_monitor.wire.conversions import to_msg
 
         for k in ks:
-            self.pub[(ns, "u")].publish(to_msg(U_LABELS, k, u[k]))
-            self.pub[(ns, "y")].publish(to_msg(Y_LABELS, k, y[k]))
+            self.pub[(ns, "u")].publish(to_msg(U_LABELS, k, u[k], batch=True))
+            self.pub[(ns, "y")].publish(to_msg(Y_LABELS, k, y[k], batch=True))
 
     def spin(self, cond, timeout=20.0):
         return spin_until(self.ex, cond, timeout)

@@ -53,7 +53,7 @@ def _drive(bag, n, edit=None, params=(), expect=None, pause_at=()):
                                           if t in ("/plant/y", *node_side(node))), 10.0)
         for k in range(n):
             for t, (labels, vals) in data.items():
-                pub[t].publish(to_msg(labels, k, vals[k]))
+                pub[t].publish(to_msg(labels, k, vals[k], batch=True))
             ex.spin_once(timeout_sec=0.0)
             if k in pause_at:
                 # the plant holds this state until /diagnostics has shown it: the node has

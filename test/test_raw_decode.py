@@ -33,7 +33,10 @@ def _cases():
     stamp_nan.data[0] = math.nan                          # unreadable stamp, known layout
     stamp_frac = to_msg(LABELS, 9, [0.1, 0.2, 0.3])
     stamp_frac.data[0] = 9.5
-    return [*good, *bad, stamp_nan, stamp_frac, *good]
+    marked = [to_msg(LABELS, k, [0.1 * k, 0.2, -0.3 * k], batch=True) for k in range(10, 13)]
+    marked_bad = to_msg(LABELS, 13, [0.1, math.nan, 0.3], batch=True)
+    # unmarked, marked, unmarked again: the mark is part of the layout the fast path caches
+    return [*good, *bad, stamp_nan, stamp_frac, *good, *marked, marked_bad, *marked, *good]
 
 
 def _outcome(fn, msg):
@@ -41,7 +44,7 @@ def _outcome(fn, msg):
         d = fn(msg)
     except MessageError as exc:
         return ("error", type(exc).__name__, str(exc))
-    return ("ok", d.stamp, d.labels, d.values.tobytes())
+    return ("ok", d.stamp, d.labels, d.values.tobytes(), d.batch)
 
 
 @pytest.mark.parametrize("options", [dict(labels=LABELS, require_stamp=True),
@@ -86,3 +89,48 @@ def test_big_endian_goes_through_the_fallback():
 
     d = RawDecoder(fallback, "/t", labels=LABELS).decode(bytes(raw))
     assert seen and d.stamp == 3
+
+
+def test_the_batch_mark_is_read_by_decode_and_ignored_by_readers_that_do_not_know_it():
+    """The batch mark (``layout.dim[1]``, BATCH_LABEL, an (m, 1) layout): decode and the raw
+    decoder say so; rosbags deserialises the message and reads the same labels and values
+    from ``dim[0]`` and ``data`` (what the offline reader and older decoders read); a
+    second dimension with another label is not a mark; ``set_batch_mark`` (replay) sets and
+    clears it on serialized bytes, equal to what rclpy serialises, values unchanged."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from rosbags.typesys import Stores, get_typestore
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+    from fd_monitor.wire.conversions import BATCH_LABEL, set_batch_mark
+
+    marked = to_msg(LABELS, 7, [1.0, 2.0, 3.0], batch=True)
+    assert [d.label for d in marked.layout.dim] == [",".join(LABELS), BATCH_LABEL]
+    assert (marked.layout.dim[1].size, marked.layout.dim[1].stride) == (1, 1)
+    d = decode(marked, "/t", labels=LABELS)
+    assert d.batch and d.stamp == 7 and d.labels == LABELS
+    assert not decode(to_msg(LABELS, 7, [1.0, 2.0, 3.0]), "/t").batch
+    other = to_msg(LABELS, 7, [1.0, 2.0, 3.0])
+    dim = MultiArrayDimension()
+    dim.label, dim.size, dim.stride = "batch", 1, 1
+    other.layout.dim.append(dim)
+    assert not decode(other, "/t").batch
+    raw = serialize_message(marked)
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    rb = ts.deserialize_cdr(raw, "std_msgs/msg/Float64MultiArray")
+    assert rb.layout.dim[0].label == "h1,h2,h3" and list(rb.data) == [7.0, 1.0, 2.0, 3.0]
+    assert decode(rb, "/t").batch
+    dec = RawDecoder(partial(deserialize_message, message_type=Float64MultiArray), "/t")
+    assert [dec.decode(raw).batch for _ in range(3)] == [True] * 3
+    plain_raw = serialize_message(to_msg(LABELS, 7, [1.0, 2.0, 3.0]))
+
+    def fields(b):                   # (CDR padding bytes are not defined: compare fields)
+        m = deserialize_message(b, Float64MultiArray)
+        return ([(d.label, d.size, d.stride) for d in m.layout.dim], m.layout.data_offset,
+                list(m.data))
+    assert fields(set_batch_mark(plain_raw, True)) == fields(raw)
+    assert fields(set_batch_mark(raw, False)) == fields(plain_raw)
+    assert set_batch_mark(raw, True) is raw
+    unlabelled = serialize_message(_plain([1.0, 2.0]))
+    m = deserialize_message(set_batch_mark(unlabelled, True), Float64MultiArray)
+    assert decode(m, "/t").batch and list(m.data) == [1.0, 2.0]
+    assert set_batch_mark(b"not cdr", True) == b"not cdr"

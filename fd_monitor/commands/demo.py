@@ -219,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
         procs.start("plant_sim", [
             "run", "plant_sim", "--ros-args", "-p", f"scenario:={sc.source}",
             "-p", f"seed:={seed}", "-p", f"rate_factor:={float(args.rate_factor)}",
+            # every sample, at any rate: a batch (a chain node behind sheds a live stream)
+            "-p", "batch_mark:=always",
             "-p", "min_subscribers_u:=3", "-p", "min_subscribers_y:=3",
             "-p", "min_subscribers_truth:=1", "-p", "subscriber_timeout:=60.0"])
         while rec.poll() is None:

@@ -3,6 +3,11 @@
 Paced by the bag timestamps times ``--rate`` (1.0 = as recorded), or ``--rate 0`` = as fast
 as the subscribers keep up without loss (reliable QoS, wait for ``--wait-subscribers``,
 pace by acknowledgements). Ends once every message is published and acknowledged.
+
+A recorded stream is a batch: the Float64MultiArray messages go out with the batch mark
+(:data:`~fd_monitor.wire.conversions.BATCH_LABEL`), at any rate, so a node that falls more than
+``max_lag`` s behind processes every one however late; ``--live`` publishes them without it,
+as a robot would (such a node sheds them to stay current).
 """
 
 from __future__ import annotations
@@ -20,13 +25,17 @@ __all__ = ["add_arguments", "run", "main"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """BAGDIR, --topics, --rate, --wait-subscribers, --remap, --json, --strict."""
+    """BAGDIR, --topics, --rate, --live, --wait-subscribers, --remap, --json, --strict."""
     parser.add_argument("bag", metavar="BAGDIR", help="rosbag2 bag folder")
     parser.add_argument("--topics", nargs="+", default=None, metavar="TOPIC",
                         help="topics to replay (default: every Float64MultiArray topic)")
     parser.add_argument("--rate", type=number(0), default=1.0,
                         help="speed factor on the bag's timestamps; 0 = flat out, lossless "
                              "(default 1.0)")
+    parser.add_argument("--live", action="store_true",
+                        help="publish as a live source: without the batch mark (a node more "
+                             "than max_lag s behind sheds samples to stay current; default: "
+                             "marked, every sample processed however late)")
     parser.add_argument("--wait-subscribers", type=count(0, 10_000), default=0, metavar="N",
                         help="wait until every topic has N matched subscriptions")
     parser.add_argument("--wait-timeout", type=number(0), default=30.0, metavar="S",
@@ -61,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
 
     def make() -> ReplayNode:
         nodes.append(ReplayNode(args.bag, args.topics, args.rate, remap,
-                                args.wait_subscribers, args.wait_timeout))
+                                args.wait_subscribers, args.wait_timeout,
+                                batch=not args.live))
         return nodes[0]
 
     got: list[int] = []

@@ -29,6 +29,7 @@ from fd_monitor.nodes.qos import (
 from fd_monitor.wire.adapters import ADAPTER_TYPES
 from fd_monitor.wire.bag_scanner import bag_topics, read_raw
 from fd_monitor.wire.bag_writer import BagWriter
+from fd_monitor.wire.conversions import set_batch_mark
 from fd_monitor.wire.topics import CHAIN_DATA, DIAGNOSTIC_ARRAY, DIAGNOSTICS, FLOAT64_MULTI_ARRAY
 
 __all__ = ["KNOWN_TYPES", "RecorderNode", "ReplayNode", "message_class"]
@@ -148,13 +149,18 @@ class ReplayNode(Node):
         s to wait for them (0 = forever), then end with exit code 1.
     depth, ack_window : int
         Publisher history depth and samples between waits for acknowledgements.
+    batch : bool
+        Float64MultiArray messages are published with the batch mark (a recorded stream
+        is a batch: every sample processed however late); False (``replay --live``): without
+        it, as a live source (a node more than ``max_lag`` s behind sheds them). The
+        recorded bytes are kept otherwise (:func:`~fd_monitor.wire.conversions.set_batch_mark`).
     """
 
     def __init__(self, bag: str | Path, topics: Sequence[str] | None = None,
                  rate: float = 1.0, remap: Mapping[str, str] | None = None,
                  wait_subscribers: int = 0, wait_timeout: float = 30.0,
                  depth: int = DEFAULT_DEPTH, ack_window: int = 100,
-                 node_name: str = "replay") -> None:
+                 node_name: str = "replay", batch: bool = True) -> None:
         super().__init__(node_name)
 
         available = bag_topics(bag)
@@ -165,6 +171,9 @@ class ReplayNode(Node):
             raise BagError(f"{bag}: no topic {', '.join(missing)} in the bag (topics: "
                            f"{', '.join(sorted(available))})")
         remap = dict(remap or {})
+        self.batch = bool(batch)
+        #: topics whose messages get the batch mark set or cleared
+        self._marked = {t for t in topics if available[t][0] == FLOAT64_MULTI_ARRAY}
         self.pubs = {}
         for t in topics:
             msgtype = available[t][0]
@@ -204,6 +213,8 @@ class ReplayNode(Node):
             topic, _, t_ns, raw = self._pending
             if self.rate > 0 and (t_ns - self._bag_t0) * 1e-9 / self.rate > now - self._t0:
                 return
+            if topic in self._marked:
+                raw = set_batch_mark(raw, self.batch)
             self.pubs[topic].publish(raw)
             self.published += 1
             burst += 1

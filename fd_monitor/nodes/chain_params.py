@@ -49,14 +49,15 @@ COMMON_PARAMS = (
           high=1000000),
     Param("max_pending", 100000, "samples buffered while waiting for inputs", low=10,
           high=10000000),
-    Param("max_lag", MAX_LAG, "s a complete sample may wait behind a backlog before the "
-          "node sheds load: it skips to the newest complete sample (counted: shed_samples "
-          "on /diagnostics); at least gap_timeout; never for a batch (batch_pace); 0.0: "
-          "never", low=0.0, high=3600.0),
-    Param("batch_pace", BATCH_PACE, "x real time: a backlog that came faster than this "
-          "(a flat-out replay or simulation, lossless) is a batch: processed completely, "
-          "never shed; 0.0: nothing is a batch (every backlog older than max_lag is shed)",
-          low=0.0, high=1.0e9),
+    Param("max_lag", MAX_LAG, "s a complete sample may wait since it was received before "
+          "the node sheds load: it skips ahead to a recent sample (counted: shed_samples on "
+          "/diagnostics); at least gap_timeout; never for a batch (messages with the batch "
+          "mark: replay, plant_sim flat out; or by batch_pace); 0.0: never", low=0.0,
+          high=3600.0),
+    Param("batch_pace", BATCH_PACE, "x real time, for a fast source that cannot mark its "
+          "messages as a batch: an unmarked backlog that came faster than this is a batch "
+          "too (processed completely); 0.0: only marked messages are a batch", low=0.0,
+          high=1.0e9),
 )
 
 #: The fault verdict's rule (:class:`~fd_monitor.core.verdict.VerdictRule`), of the nodes

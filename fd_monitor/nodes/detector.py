@@ -15,6 +15,13 @@ Publishes (stamp k) ``/fd/residual`` (``r:<out>``, ``w:<out>``), ``/fd/threshold
 values: residual, threshold, margin (R - |r|), mode, sigma_hat (the latest bias estimate),
 gain file id, certificate status.
 
+While ``agei``'s threshold overrides are absent (agei killed, restarting, not started) the
+detector takes them from its own copy of AGEI (``agei_fallback``,
+:class:`~fd_monitor.core.local_agei.LocalAgei` on its own ``q^``, ``w``, ``r`` and nominal
+threshold: what agei would send), so the threshold is widened around a guard crossing as the
+fused monitor widens it; the ``agei`` status says so (WARN) and an alarm's status message
+is marked ``(agei absent: own AGEI)``.
+
 With a ``qb`` gain file it runs :class:`~fd_monitor.core.qb.QBDetector`: per channel of
 ``QBDetector.channels`` (fault-model states, ``fault_norm``, ``r_<out>``, ``r_norm``) it
 publishes the compared signal on ``/fd/residual``, rho x bound on ``/fd/threshold`` and the
@@ -30,11 +37,14 @@ import numpy as np
 from rclpy.qos import QoSProfile
 
 from fd_monitor.core.detector import ResidualDetector, no_override
+from fd_monitor.core.filters import as_floats
+from fd_monitor.core.local_agei import LocalAgei
 from fd_monitor.core.qb import QBDetector, QBObserver
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, MessageError
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
+from fd_monitor.nodes.agei_fallback import AGEI_FALLBACK, AgeiFallback
 from fd_monitor.nodes.chain_params import COMMON_PARAMS, WARN_SHARE
 from fd_monitor.nodes.fd_node import FdNode
 from fd_monitor.nodes.inputs import Input
@@ -69,6 +79,7 @@ LAYOUT = Param("layout", "", "deprecated, leave it unset: the detector is always
 PARAMS = (
     WARN_SHARE,
     LAYOUT,
+    AGEI_FALLBACK,
 )
 
 #: s after activation before a detector without an observer says so (once).
@@ -83,7 +94,8 @@ USAGE = NodeUsage(
     publishes=((RESIDUAL, "r:<out>, w:<out> (stamp k)"),
                (THRESHOLD, "R:<out> in force, rbar:<out> nominal"),
                (ALARM, "0/1 per channel"),
-               (DIAGNOSTICS, "one status per channel: residual, threshold, margin")))
+               (DIAGNOSTICS, "one status per channel: residual, threshold, margin; agei "
+                "(WARN while agei's overrides are absent)")))
 
 
 class DetectorNode(FdNode):
@@ -132,6 +144,7 @@ class DetectorNode(FdNode):
     def setup(self) -> None:
         """Publishers, detector and inputs (at configure)."""
         self.detector: Any = self._detector_arg
+        self._fallback: AgeiFallback | None = None      # thresholds: set at start
         self.pubs = {t: self.publisher(t) for t in self.outputs}
         est = STATE_ESTIMATE.layout(self.system)
         # the fields of the state estimate, resolved once
@@ -161,6 +174,8 @@ class DetectorNode(FdNode):
         s = self.system
         self.detector = (ResidualDetector(s, as_gains(s, gains)) if gains.method == "thresholds"
                          else QBDetector(s, gains))
+        if self._fallback is not None and self._fallback.local is not None:
+            self._fallback.local = LocalAgei(s, as_gains(s, gains), residuals=False)
 
     def _start_thresholds(self) -> None:
         s = self.system
@@ -171,10 +186,13 @@ class DetectorNode(FdNode):
         # The latest bias estimate, for diagnostics only (not joined: it does not enter r_k).
         self._bias = BIAS_ESTIMATE.layout(s)
         self.subscribe(BIAS_ESTIMATE.name, self._on_bias)
+        none = no_override(s.ny)
+        self._fallback = AgeiFallback(
+            self, LocalAgei(s, as_gains(s, self.gain_file), residuals=False)
+            if self.params.agei_fallback else None, none, "thresholds")
         self.start_inputs([
             Input.of("est", STATE_ESTIMATE, s, sequence=True),
-            Input.of("override", THRESHOLD_OVERRIDE, s, initial=no_override(s.ny),
-                     allow_nan=True),
+            Input.of("override", THRESHOLD_OVERRIDE, s, initial=none, allow_nan=True),
         ])
         self._step = self._step_thresholds
 
@@ -206,6 +224,8 @@ class DetectorNode(FdNode):
         """Forget the filters' history (Monitor.reset); the QB detector has no state."""
         if isinstance(self.detector, ResidualDetector):
             self.detector.reset()
+            if self._fallback is not None and self._fallback.local is not None:
+                self._fallback.local.reset()
         elif self.detector is None:
             self.detector = ResidualDetector(self.system, as_gains(self.system,
                                                                    self.gain_file))
@@ -225,13 +245,24 @@ class DetectorNode(FdNode):
         for topic, pub in self.pubs.items():
             lay = self._layouts[topic]
             self.publish_array(pub, lay.labels, k, lay.encode(pay))
+        thresholds = isinstance(self.detector, ResidualDetector)
         self.residual_report.report(k, mode, pay["residual"], pay["threshold"], pay["alarm"],
-                                    self.sigma_hat if isinstance(self.detector,
-                                                                 ResidualDetector) else None)
+                                    self.sigma_hat if thresholds else None,
+                                    self._fallback.note if self._fallback is not None else "")
 
     def _step_thresholds(self, k: int, mode: int, x_hat: np.ndarray, y_t: np.ndarray,
                          inputs: dict[str, Any]) -> dict[str, Any]:
-        return self.detector.step(k, y_t, x_hat, mode, inputs["override"]).payload()
+        override, fb = inputs["override"], self._fallback
+        assert fb is not None                    # set with this runtime
+        local = fb.local
+        # agei's override; while it is absent, the one the local AGEI decided at k - 1
+        ov = (local.override if fb.absent(k, override, self.restarting) and local is not None
+              else as_floats(override))
+        det, r, w, nominal, _ = self.detector.step1(k, as_floats(y_t), as_floats(x_hat), mode,
+                                                    ov)
+        if local is not None:
+            local.decide(k, mode, w, r, nominal)
+        return det.payload()
 
     def _step_qb(self, k: int, mode: int, x_hat: np.ndarray, y_t: np.ndarray,
                  inputs: dict[str, Any]) -> dict[str, Any]:

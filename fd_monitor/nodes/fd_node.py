@@ -126,8 +126,11 @@ class FdNode(LifecycleNode):
         self._autostarted = False
         self._shut_down = False
         self._entities: list[Any] = []
-        #: labels -> serialized layout of publish_array
+        #: labels -> serialized layout of publish_array (unmarked, batch-marked)
         self._serialized: dict[tuple[str, ...], SerializedArray] = {}
+        self._serialized_batch: dict[tuple[str, ...], SerializedArray] = {}
+        #: The sample being processed is part of a batch: its outputs carry the mark.
+        self.batch = False
         #: The robot's topics giving u and y, when the node has an adapter file (at start).
         self.adapter_input: AdapterInput | None = None
         from std_srvs.srv import Trigger
@@ -491,7 +494,7 @@ class FdNode(LifecycleNode):
         or restarts)."""
         if s.restart:
             self.reset()
-        self.restarting, self.bridging = s.restart, s.bridge
+        self.restarting, self.bridging, self.batch = s.restart, s.bridge, s.batch
         try:
             if s.bridge:
                 self.bridge(s.k, s.inputs)
@@ -521,11 +524,13 @@ class FdNode(LifecycleNode):
 
     def publish_array(self, pub: Any, labels: Sequence[str], stamp: int, values: Any) -> None:
         """Publish one stamped, labelled message (serialized directly:
-        :class:`~fd_monitor.nodes.serialized.SerializedArray`, one per layout)."""
+        :class:`~fd_monitor.nodes.serialized.SerializedArray`, one per layout); marked as a
+        batch when the sample being processed was (the node relays a batch)."""
         key = tuple(labels)
-        ser = self._serialized.get(key)
+        cache = self._serialized_batch if self.batch else self._serialized
+        ser = cache.get(key)
         if ser is None:
-            ser = self._serialized[key] = SerializedArray(key)
+            ser = cache[key] = SerializedArray(key, self.batch)
         pub.publish(ser.encode(stamp, values))
 
     def gain_values(self) -> dict[str, str]:

@@ -35,7 +35,7 @@ from fd_monitor.nodes.qos import DEFAULT_DEPTH
 from fd_monitor.wire.conversions import ArrivalStamper, RawDecoder, readable_stamp
 from fd_monitor.wire.hold import HOLD_WAIT, HeldPairing
 from fd_monitor.wire.join import StampJoin
-from fd_monitor.wire.stream import InputStream, TopicOrder
+from fd_monitor.wire.stream import InputStream, SentTime, TopicOrder
 from fd_monitor.wire.topics import RESET
 
 __all__ = ["InputPath"]
@@ -99,8 +99,10 @@ class InputPath:
             node.input_status.adapter_join = self.adapter.join
             inputs = [i for i in inputs if i.name not in ("u", "y")]
         for inp in inputs:
+            # with the MessageInfo: the DDS reception time (a load shed counts the lag of a
+            # backlog held in DDS from it) and, for plain messages, the source time
             self.data_inputs[inp.name] = node.subscribe(inp.topic, self.callback(inp),
-                                                        inp.plain_ok, raw=True)
+                                                        True, raw=True)
         self._open_loop: set[str] = set()
         # The hold rule's timer (a plain sample whose held input never comes is released
         # after HOLD_WAIT) starts with the first plain message: a stamped stream never waits,
@@ -144,6 +146,7 @@ class InputPath:
         topic = node.resolve_topic_name(inp.topic)
         order = TopicOrder(topic)
         stream = self.stream
+        sent = SentTime()
         # the restart and bridge flags of the sequence input, by field (resolved once)
         i_restart = inp.layout.index["restart"] if inp.sequence and inp.layout else None
         i_bridge = inp.layout.index["bridge"] if inp.sequence and inp.layout else None
@@ -177,9 +180,20 @@ class InputPath:
                     pairing.sample(t, time.monotonic(), (inp, int(d.stamp or 0), d.values))
                 self.pair_plain()
                 return
-            if stream.stamped(order, inp.name, int(d.stamp), d.values, time.monotonic(),
+            now = time.monotonic()
+            src = info["source_timestamp"] if info is not None else 0
+            if src > 0:
+                # when it was published (on our clock): the lag of a load shed counts from
+                # then, wherever the message waited (the join, DDS, the publisher)
+                wall = time.time_ns()
+                arrived: float | None = sent.sent(src * 1e-9, (info["received_timestamp"]
+                                                               or wall) * 1e-9, now, wall * 1e-9)
+            else:
+                arrived = None
+            if stream.stamped(order, inp.name, int(d.stamp), d.values, now,
                               inp.stamp_offset, bool(inp.sequence and d.values[i_restart] > 0.5),
-                              bool(inp.sequence and d.values[i_bridge] > 0.5)):
+                              bool(inp.sequence and d.values[i_bridge] > 0.5), d.batch,
+                              arrived):
                 status.ok()
         return cb
 

@@ -72,6 +72,7 @@ from fd_monitor.nodes.observer import ObserverNode
 from fd_monitor.nodes.params import Param
 from fd_monitor.nodes.process import run_node
 from fd_monitor.nodes.reports import BiasReport, EstimateReport, ResidualReport
+from fd_monitor.nodes.robots import ROBOTS, host_robots, robot_namespaces
 from fd_monitor.nodes.serialized import SerializedArray
 from fd_monitor.nodes.usage import NodeUsage
 from fd_monitor.wire.topics import (
@@ -95,7 +96,7 @@ from fd_monitor.wire.topics import (
 )
 
 __all__ = ["DEPRECATED_LAYOUTS", "LAYOUTS", "MonitorNode", "USAGE", "companion_name",
-           "layout_of", "make_chain", "make_nodes", "main", "peek_parameters"]
+           "layout_of", "make_chain", "make_monitors", "make_nodes", "main", "peek_parameters"]
 
 #: u of a plant without inputs; x^ of a runtime without one.
 _NO_INPUT = np.zeros(0)
@@ -125,7 +126,8 @@ PARAMS = (
 USAGE = NodeUsage(
     "monitor", "monitor: one node, one runtime step per sample, for any gain file (the "
     "registry's runtime, as analyze runs it); layout:=nodes with a thresholds gain file: the "
-    "four chain nodes in one process.", (*COMMON_PARAMS, *PARAMS),
+    "four chain nodes in one process; robots:=\"[r1, r2]\": one monitor per robot "
+    "namespace in this one process.", (*COMMON_PARAMS, *PARAMS, ROBOTS),
     subscribes=((PLANT_U, "u_k (plants with inputs; stamped, or plain: stamped on arrival)"),
                 (PLANT_Y, "y_k (stamped, or plain: stamped on arrival)"),
                 (PLANT_RHO, "measured scheduling parameters (LPV bank without a "
@@ -436,7 +438,7 @@ def peek_parameters(node_name: str, names: Sequence[str], **kwargs: Any) -> dict
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    defaults = {p.name: p.default for p in (*COMMON_PARAMS, *PARAMS)}
+    defaults = {p.name: p.default for p in (*COMMON_PARAMS, *PARAMS, ROBOTS)}
     peek = Node(node_name, allow_undeclared_parameters=True,
                 automatically_declare_parameters_from_overrides=True, **kwargs)
     try:
@@ -446,9 +448,24 @@ def peek_parameters(node_name: str, names: Sequence[str], **kwargs: Any) -> dict
         peek.destroy_node()
 
 
+def make_monitors(**kwargs: Any) -> list:
+    """:func:`make_nodes` once, or with ``robots`` (a process parameter, see
+    :mod:`fd_monitor.nodes.robots`) once per robot in ``<namespace>/<robot>``: every robot's
+    nodes in this process, on one executor. ``kwargs`` as :func:`make_nodes`'s, plus
+    ``namespace`` (the process's)."""
+    peek = {k: v for k, v in kwargs.items() if k != "node_name"}
+    robots = peek_parameters(str(kwargs.get("node_name", "monitor")), ("robots",),
+                             **peek)["robots"]
+    if not robots:
+        return make_nodes(**kwargs)
+    ns = kwargs.pop("namespace", None)
+    return host_robots(make_nodes, robot_namespaces(ns, robots), **kwargs)
+
+
 def main(args: Sequence[str] | None = None) -> int:
-    """Run the fused monitor node (or, with ``layout:=nodes``, the four chain nodes)."""
-    return run_node(make_nodes, args, prog="monitor", named=True,
+    """Run the fused monitor node (or, with ``layout:=nodes``, the four chain nodes), or
+    one per robot of ``robots``."""
+    return run_node(make_monitors, args, prog="monitor", named=True,
                     usage=[USAGE, *(m.USAGE for m in (observer, detector, agei,
                                                       bias_estimator))])
 

@@ -20,7 +20,7 @@ from typing import Any
 
 from fd_monitor.nodes.diagnostics import MAX_MESSAGE, OK, WARN, Diagnostics
 
-__all__ = ["GRAPH_OK", "GraphStatus", "InputStatus", "WARN_ONLY"]
+__all__ = ["GRAPH_OK", "GraphStatus", "InputStatus", "WARN_ONLY", "shed_rule"]
 
 #: The ``ros graph`` status without a standing problem.
 GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
@@ -28,6 +28,18 @@ GRAPH_OK = "no QoS incompatibility, no other publisher on our outputs"
 #: Input-policy reports that are warnings, not dropped messages (wire.stream kinds).
 WARN_ONLY = frozenset(("out_of_order", "hole", "bridge", "feedback_lost", "new_run",
                        "shed", "feedback_back"))
+
+
+def shed_rule(j: Any) -> str:
+    """The load-shedding rule in force (:class:`~fd_monitor.wire.join.StampJoin`), one line
+    for the ``input`` status: which backlog is shed, which is a batch."""
+    if j.max_lag is None:
+        return "never shed (max_lag 0)"
+    rule = (f"unmarked backlog older than {j.max_lag:g} s shed; marked (batch) processed "
+            f"completely")
+    if j.batch_pace:
+        rule += f"; unmarked faster than {j.batch_pace:g} x real time too (batch_pace)"
+    return rule
 
 
 class InputStatus:
@@ -128,7 +140,8 @@ class InputStatus:
         """Load shed and lost feedback (wire/join.py), for the ``input`` status."""
         j = self.join
         return {"shed_samples": j.shed, "shed_episodes": j.shed_episodes,
-                "batch_waits": j.batch_waits,
+                "batch_waits": j.batch_waits, "pace_waits": j.pace_waits,
+                "shed_rule": shed_rule(j),
                 "feedback_lost": j.feedback_losses,
                 "feedback_not_waited_for": ",".join(sorted(j.lost_feedback)) or "none"}
 

@@ -15,6 +15,12 @@ The observer is the chain's entry: it declares the holes in the data (a rejected
 a later sample complete for ``gap_timeout`` s) and bridges (at most ``max_gap`` lost
 samples) or restarts at the next valid sample, as the offline runner does
 (:func:`fd_monitor.analysis.offline.run_bag`).
+
+While ``agei``'s guard events are absent (agei killed, restarting, not started) the observer
+takes them from its own copy of AGEI (``agei_fallback``,
+:class:`~fd_monitor.core.local_agei.LocalAgei`: the same code on the same residuals), so a
+guard crossing during the outage switches the mode as the fused monitor does; the ``agei``
+status says so (WARN).
 """
 
 from __future__ import annotations
@@ -26,10 +32,14 @@ import numpy as np
 from rclpy.qos import QoSProfile
 
 from fd_monitor.core.envelope import CertifiedRegion
+from fd_monitor.core.filters import as_floats
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
+from fd_monitor.core.local_agei import LocalAgei
 from fd_monitor.core.qb import QBObserver
+from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
+from fd_monitor.nodes.agei_fallback import AGEI_FALLBACK, AgeiFallback
 from fd_monitor.nodes.chain_params import COMMON_PARAMS, GAP_TIMEOUT, MAX_GAP_PARAM
 from fd_monitor.nodes.fd_node import FdNode
 from fd_monitor.nodes.inputs import Input
@@ -50,6 +60,7 @@ __all__ = ["ObserverNode", "USAGE", "main"]
 PARAMS = (
     GAP_TIMEOUT,
     MAX_GAP_PARAM,
+    AGEI_FALLBACK,
 )
 
 USAGE = NodeUsage(
@@ -63,7 +74,8 @@ USAGE = NodeUsage(
                 "first after a hole longer than max_gap), bridge (1: first after a shorter "
                 "one) (stamp k)"),
                (DIAGNOSTICS, "input and estimate status (WARN 'outside certified "
-                "region' when x^ or u leave the gain file's certified envelope)")))
+                "region' when x^ or u leave the gain file's certified envelope), agei (WARN "
+                "while agei's guard events are absent)")))
 
 
 class ObserverNode(FdNode):
@@ -88,6 +100,7 @@ class ObserverNode(FdNode):
     def setup(self) -> None:
         """Publisher, observer and inputs (at configure)."""
         self.observer: Any = self._observer_arg
+        self._fallback: AgeiFallback | None = None      # thresholds: set by _start_hybrid
         self._outside: np.ndarray | None = None
         self.pub = self.publisher(STATE_ESTIMATE)
         self._state = STATE_ESTIMATE.layout(self.system)
@@ -100,6 +113,9 @@ class ObserverNode(FdNode):
         """A new observer for another gain file (the hybrid observer does not use gains)."""
         if gains.method == "qb":
             self.observer = QBObserver(self.system, gains)
+        elif self._fallback is not None and self._fallback.local is not None:
+            self._fallback.local = LocalAgei(self.system, as_gains(self.system, gains),
+                                             residuals=True)
 
     def _start_hybrid(self) -> None:
         s = self.system
@@ -111,6 +127,9 @@ class ObserverNode(FdNode):
         self._i_sigma, self._i_trigger = bias.index["sigma_hat"], guard.index["trigger"]
         no_trigger = np.zeros(len(guard.labels))
         no_trigger[self._i_trigger] = float(NO_TRIGGER)
+        self._fallback = AgeiFallback(
+            self, LocalAgei(s, as_gains(s, self.gain_file), residuals=True)
+            if self.params.agei_fallback else None, no_trigger, "guard events")
         self.start_inputs([
             Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
             Input.of("y", PLANT_Y, s, plain_ok=True),
@@ -142,6 +161,8 @@ class ObserverNode(FdNode):
             self.observer = HybridObserver(self.system)
         else:
             self.observer.reset()                # Monitor.reset
+        if self._fallback is not None and self._fallback.local is not None:
+            self._fallback.local.reset()
 
     def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """Carry the observer over a bridged gap, as the fused runtime does: the hybrid
@@ -152,10 +173,21 @@ class ObserverNode(FdNode):
             self.observer.bridge(k, u, inputs["y"])
         elif self.observer is not None:
             self.observer.bridge()
+            if self._fallback is not None and self._fallback.local is not None:
+                self._fallback.local.bridge()
 
     def _step_hybrid(self, k: int, inputs: dict[str, Any]) -> ObserverOutput:
-        out = self.observer.step(k, inputs["u"], inputs["y"], inputs["sigma"][self._i_sigma],
-                                 int(inputs["guard"][self._i_trigger]))
+        guard, fb = inputs["guard"], self._fallback
+        assert fb is not None                    # set with this runtime
+        local = fb.local
+        # agei's trigger; while it is absent, the one the local AGEI decided at k - 1
+        trigger = (local.trigger if fb.absent(k, guard, self.restarting) and local is not None
+                   else int(guard[self._i_trigger]))
+        out, x_hat, y_t = self.observer.step1(k, as_floats(inputs["u"]), as_floats(inputs["y"]),
+                                              as_floats(inputs["sigma"][self._i_sigma]),
+                                              trigger)
+        if local is not None:
+            local.observe(k, int(out.mode), y_t, x_hat)
         self._outside = out.outside
         return out
 

@@ -99,5 +99,7 @@ def declare_parameters(node: Node, params: Iterable[Param]) -> SimpleNamespace:
     return out
 
 
-#: Parameters rclpy itself declares on every node (not a typo when a file sets them).
-_ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+#: Parameters rclpy itself declares on every node, and the process parameter ``robots`` the
+#: executable reads before it makes its nodes (``-p`` and ``/**`` reach every node): not a
+#: typo when a file sets them.
+_ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service", "robots"})

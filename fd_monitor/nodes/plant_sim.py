@@ -19,6 +19,11 @@ as the subscribers keep up without loss (wait for ``min_subscribers_*`` matched
 subscriptions, then pace by acknowledgements every ``ack_window`` samples; see
 :mod:`fd_monitor.nodes.pacing`). The node ends after the scenario's samples (or
 ``duration``), once every sample is acknowledged, unless ``keep_going`` is true.
+
+Flat out, the stream is a *batch* (recorded-like data whose every sample is to be processed):
+its messages carry the batch mark (:data:`~fd_monitor.wire.conversions.BATCH_LABEL`), so a
+node more than ``max_lag`` s behind processes them however late instead of shedding them as
+it sheds a live stream's; ``batch_mark`` (auto, always, never) overrides it.
 """
 
 from __future__ import annotations
@@ -68,6 +73,9 @@ PARAMS = (
           high=2**31 - 1),
     Param("rate_factor", 1.0, "pace = sample rate x rate_factor; 0.0 = as fast as the "
           "subscribers keep up without loss", low=0.0, high=1.0e6),
+    Param("batch_mark", "auto", "mark plant/* messages as a batch (every sample processed "
+          "however late; unmarked, a node more than max_lag s behind sheds them): auto = "
+          "when flat out (rate_factor 0.0), always, never", choices=("auto", "always", "never")),
     Param("duration", 0.0, "s of plant time to simulate; 0.0 = the scenario's duration",
           low=0.0, high=1.0e9),
     Param("keep_going", False, "keep simulating after the scenario's end (until shut down)"),
@@ -180,9 +188,13 @@ class PlantSimNode(Node):
         self.tick_period = (max(self.dt / p.rate_factor, _FLAT_OUT_TICK) if p.rate_factor > 0
                             else _FLAT_OUT_TICK)
         self._timer = self.create_timer(self.tick_period, self._on_tick)
+        #: plant/* messages carry the batch mark (flat out, or batch_mark always)
+        self.batch = p.batch_mark == "always" or (p.batch_mark == "auto"
+                                                  and p.rate_factor == 0)
         self.get_logger().info(
             f"scenario {sc.name} ({sys_.name}), seed {simulator.seeds[0]}, "
-            f"{self.n_samples} samples of {self.dt:g} s, rate_factor {p.rate_factor:g}")
+            f"{self.n_samples} samples of {self.dt:g} s, rate_factor {p.rate_factor:g}"
+            + ("; a batch (every sample processed)" if self.batch else ""))
 
     # One tick: wait for subscribers, then publish every sample that is due.
     def _on_tick(self) -> None:
@@ -228,14 +240,16 @@ class PlantSimNode(Node):
 
     def _publish(self, s: Sample) -> None:
         k = s.k
-        self.pub_u.publish(to_msg(self.labels_u, k, s.u[0]))
-        self.pub_y.publish(to_msg(self.labels_y, k, s.y[0]))
+        batch = self.batch
+        self.pub_u.publish(to_msg(self.labels_u, k, s.u[0], batch=batch))
+        self.pub_y.publish(to_msg(self.labels_y, k, s.y[0], batch=batch))
         if self.robot is not None:
             self.robot.publish(k, s.u[0], s.y[0])
         for pub, labels, cols in self.pub_side:
-            pub.publish(to_msg(labels, k, measured_values(cols, s.mode[0], s.rho[0])))
+            pub.publish(to_msg(labels, k, measured_values(cols, s.mode[0], s.rho[0]),
+                               batch=batch))
         if self.pub_truth is not None:
-            self.pub_truth.publish(to_msg(self._truth.labels, k, truth_values(s)))
+            self.pub_truth.publish(to_msg(self._truth.labels, k, truth_values(s), batch=batch))
         self.published += 1
         self.diag.touch("simulation")
         if not self._pacer.published():

@@ -15,7 +15,7 @@ from rclpy.node import Node
 
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.nodes.pacing import use_dds_profile
-from fd_monitor.nodes.ros_args import init_ros, take_node_name
+from fd_monitor.nodes.ros_args import init_ros, take_namespace, take_node_name
 from fd_monitor.nodes.usage import NodeUsage, usage_text, wants_help
 
 __all__ = ["run_node"]
@@ -44,11 +44,14 @@ def run_node(factory: Callable[..., Node | Sequence[Node]], args: Sequence[str] 
     A node may expose ``done`` (an ``rclpy.task.Future``) to end the spin, and
     ``exit_code``. ``pacing``: a source that paces by acknowledgements (its DDS profile:
     :func:`use_dds_profile`). ``named``: an executable of several nodes; a node-name remap
-    (``-r __node:=NAME``) is taken out of the ROS arguments
-    (:func:`~fd_monitor.nodes.ros_args.take_node_name`) and passed as
-    ``factory(node_name=NAME)``, which names its nodes from it. At the end every lifecycle
-    node goes through its shutdown transition (``finish()``: one log line) before it is
-    destroyed. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
+    (``-r __node:=NAME``) and a namespace remap (``-r __ns:=/NS``) are taken out of the ROS
+    arguments (:func:`~fd_monitor.nodes.ros_args.take_node_name`,
+    :func:`~fd_monitor.nodes.ros_args.take_namespace`: rcl would apply them to every node)
+    and passed as ``factory(node_name=NAME, namespace=NS)`` (each only when given), which
+    names and places its nodes from them. One executor runs every node the factory made
+    (several robots' monitors share the process's one DDS participant). At the end every
+    lifecycle node goes through its shutdown transition (``finish()``: one log line) before
+    it is destroyed. Start-up errors (``FdMonitorError``: bad gain file, bad scenario, bad
     parameter) print one line ``<prog>: error: ...`` and return 2. SIGINT/SIGTERM end
     cleanly (KeyboardInterrupt / ExternalShutdownException), then ``destroy_node()`` and
     ``rclpy.try_shutdown()``, as the ROS 2 demos do.
@@ -57,9 +60,11 @@ def run_node(factory: Callable[..., Node | Sequence[Node]], args: Sequence[str] 
         sys.stdout.write(usage_text(prog, usage))
         return 0
     use_dds_profile(pacing)
-    name = None
+    where: dict[str, str] = {}
     if named:
         args, name = take_node_name(sys.argv if args is None else args)
+        args, ns = take_namespace(args)
+        where = {k: v for k, v in (("node_name", name), ("namespace", ns)) if v}
     try:
         init_ros(args)
     except FdMonitorError as exc:
@@ -67,7 +72,7 @@ def run_node(factory: Callable[..., Node | Sequence[Node]], args: Sequence[str] 
         return 2
     nodes: list[Node] = []
     try:
-        made = factory(node_name=name) if name else factory()
+        made = factory(**where)
         nodes = list(made) if isinstance(made, Sequence) else [made]
         # What start-up made (modules, plant, gain file, nodes) lives as long as the process:
         # frozen, a full garbage collection later does not rescan it (a ~25 ms pause of the

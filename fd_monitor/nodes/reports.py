@@ -109,15 +109,16 @@ class ResidualReport:
         self.episode = 0
 
     def report(self, k: int, mode: int, signal: Any, threshold: Any, alarm: Any,
-               sigma_hat: Any = None) -> None:
+               sigma_hat: Any = None, note: str = "") -> None:
         """Sample k's statuses: ERROR on alarm, WARN above ``warn_share`` x threshold, else
-        OK; ``sigma_hat``: the latest bias estimate per channel (thresholds), or None."""
+        OK; ``sigma_hat``: the latest bias estimate per channel (thresholds), or None;
+        ``note``: appended to an alarm's message (the detector while agei is absent)."""
         share = self.warn_share()
-        self.log_alarms(k, signal, threshold, alarm)
+        self.log_alarms(k, signal, threshold, alarm, note)
         for i, ch in enumerate(self.channels):
             r, R = float(signal[i]), float(threshold[i])
             if alarm[i]:
-                level, msg = ERROR, "alarm: |residual| > threshold"
+                level, msg = ERROR, f"alarm: |residual| > threshold{note}"
             elif abs(r) > share * R:
                 level, msg = WARN, f"|residual| > {share:g} x threshold"
             else:
@@ -128,8 +129,10 @@ class ResidualReport:
                 values["sigma_hat"] = float(sigma_hat[i])
             self.diag.update(ch, level, msg, values)
 
-    def log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any) -> None:
-        """One line when a channel's alarm starts, one when every alarm is over."""
+    def log_alarms(self, k: int, signal: Any, threshold: Any, alarm: Any,
+                   note: str = "") -> None:
+        """One line when a channel's alarm starts (``note`` appended), one when every alarm
+        is over."""
         now = {ch for i, ch in enumerate(self.channels) if alarm[i]}
         log = self.logger
         if now and not self.alarmed:
@@ -138,7 +141,7 @@ class ResidualReport:
             if ch in now and ch not in self.alarmed:
                 log.warning(f"alarm episode {self.episode}: {ch} at sample {k}: "
                             f"|r| = {abs(float(signal[i])):.4g} > R = "
-                            f"{float(threshold[i]):.4g}")
+                            f"{float(threshold[i]):.4g}{note}")
         if self.alarmed and not now:
             log.info(f"alarm episode {self.episode} over at sample {k}: every residual "
                      f"within its threshold")

@@ -23,17 +23,21 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import rclpy
+from rclpy.exceptions import InvalidNamespaceException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.validate_namespace import validate_namespace
 
 from fd_monitor.model.errors import FdMonitorError
 from fd_monitor.model.paths import config_dirs
 from fd_monitor.model.yaml_io import check_regular_file, read_yaml
 
 __all__ = ["find_params_file", "init_ros", "resolve_params_files", "shown_params_file",
-           "take_node_name"]
+           "take_namespace", "take_node_name"]
 
 #: The remap rules that rename a node (``__name`` is the older spelling rcl still reads).
 _NODE_REMAPS = ("__node:=", "__name:=")
+#: The remap rule that moves a node to another namespace.
+_NS_REMAPS = ("__ns:=",)
 #: ROS options whose value is the next argument (rcl's arguments.c): a value is never read
 #: as an option.
 _WITH_VALUE = frozenset(("--params-file", "-r", "--remap", "-p", "--param", "-e", "--enclave",
@@ -119,6 +123,20 @@ def resolve_params_files(args: Sequence[str]) -> list[str]:
     return out
 
 
+def _take_remap(args: Sequence[str], rules: tuple[str, ...]) -> tuple[list[str], str | None]:
+    """``args`` without the global remap rules starting with one of ``rules``, and the
+    value of the last one (None: none)."""
+    argv = list(args)
+    drop: set[int] = set()
+    value_of: str | None = None
+    for i, opt, value in _ros_option_pairs(argv):
+        if opt in ("-r", "--remap") and value is not None and value.startswith(rules):
+            value_of = value.split(":=", 1)[1]
+            drop.update((i, i + 1))
+    # "--ros-args" left empty is still valid for rcl
+    return [a for i, a in enumerate(argv) if i not in drop], value_of
+
+
 def take_node_name(args: Sequence[str]) -> tuple[list[str], str | None]:
     """``args`` without the node-name remap rules (``--ros-args -r __node:=NAME``, what
     launch_ros' ``Node(name=...)`` passes), and the last NAME given (None: none).
@@ -129,15 +147,28 @@ def take_node_name(args: Sequence[str]) -> tuple[list[str], str | None]:
     called ``det1`` would make rcl warn "Publisher already registered" and collide in the
     graph. A rule for one node only (``observer:__node:=x``) is left to rcl.
     """
-    argv = list(args)
-    drop: set[int] = set()
-    name: str | None = None
-    for i, opt, value in _ros_option_pairs(argv):
-        if opt in ("-r", "--remap") and value is not None and value.startswith(_NODE_REMAPS):
-            name = value.split(":=", 1)[1]
-            drop.update((i, i + 1))
-    # "--ros-args" left empty is still valid for rcl
-    return [a for i, a in enumerate(argv) if i not in drop], name
+    return _take_remap(args, _NODE_REMAPS)
+
+
+def take_namespace(args: Sequence[str]) -> tuple[list[str], str | None]:
+    """``args`` without the namespace remap rules (``--ros-args -r __ns:=/NS``, what
+    launch_ros' ``Node(namespace=...)`` passes), and the last NS given (None: none).
+
+    rcl applies such a rule to every node of the process, whatever namespace the node was
+    created with, so an executable hosting several robots' nodes (``monitor`` with
+    ``robots``: ``/NS/robot1/monitor``, ``/NS/robot2/monitor``) takes it out and gives each
+    node its namespace itself. A value rcl would refuse (not absolute, not a valid
+    namespace) is left in place for rcl to report; a rule for one node only
+    (``monitor:__ns:=/x``) is left to rcl.
+    """
+    rest, ns = _take_remap(args, _NS_REMAPS)
+    if ns is None:
+        return list(args), None
+    try:
+        validate_namespace(ns)
+    except InvalidNamespaceException:
+        return list(args), None
+    return rest, ns
 
 
 def init_ros(args: Sequence[str] | None = None) -> None:

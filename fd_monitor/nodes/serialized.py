@@ -29,12 +29,15 @@ class SerializedArray:
     ----------
     labels : sequence of str
         (m,) channel names.
+    batch : bool
+        Every message carries the batch mark
+        (:data:`~fd_monitor.wire.conversions.BATCH_LABEL`).
     """
 
-    def __init__(self, labels: Sequence[str]) -> None:
+    def __init__(self, labels: Sequence[str], batch: bool = False) -> None:
         self.labels = tuple(labels)
         n = len(self.labels) + 1
-        cdr = serialize_message(to_msg(self.labels, 0, [0.0] * len(self.labels)))
+        cdr = serialize_message(to_msg(self.labels, 0, [0.0] * len(self.labels), batch=batch))
         self.prefix = cdr[:-8 * n]
         self._pack = struct.Struct(f"<{n}d").pack
 

@@ -8,6 +8,21 @@ Message convention (DESIGN.md, "Topics")::
     layout.data_offset   = 1               # the stamp is the padding element in front
     data = [k, v_0, v_1, v_2]              # k: sample index (an integer stored as float)
 
+A sender whose stream is a *batch* -- recorded or simulated data whose every sample must be
+processed, however late (``replay``, ``plant_sim`` flat out, the chain nodes relaying such a
+sample) -- marks each message with a second dimension (:data:`BATCH_LABEL`)::
+
+    layout.dim[1].label  = "fd_monitor/batch"
+    layout.dim[1].size   = 1               # a trailing singleton: the data is an (m, 1) array
+    layout.dim[1].stride = 1
+
+A node more than ``max_lag`` s behind sheds an unmarked (live) backlog but processes a marked
+one completely (:mod:`fd_monitor.wire.join`). The mark is a valid ``MultiArrayLayout`` (an m x 1
+matrix: ``dim[0].stride = m = dim[0].size x dim[1].size``), so readers that do not know it --
+rosbags, the offline bag reader, older fd_monitor decoders (they read ``dim[0]`` only), a
+user's tools -- read the same labels and values; it costs nothing per message on the raw
+decoder's fast path (it is part of the layout bytes, cached once per layout).
+
 A plain Float64MultiArray from a user's driver (``data_offset = 0``, possibly no ``dim``) is
 accepted where a stamp is not required: :func:`decode` returns ``stamp=None`` and the node
 stamps it on arrival with a per-topic :class:`ArrivalStamper`.
@@ -15,6 +30,11 @@ stamps it on arrival with a per-topic :class:`ArrivalStamper`.
 Pure functions over duck-typed messages: the same code decodes rclpy messages and the
 dataclasses ``rosbags`` deserialises, so this module imports no ROS package at import time
 (``fd_monitor.wire.bag_reader`` uses it offline). :func:`to_msg` imports ``std_msgs`` when called.
+
+Why one module of ~550 lines: the message convention in one place -- building a message,
+decoding one (checked), reading its CDR bytes without a type store (the nodes' and the bag
+reader's fast path) and setting the batch mark on those bytes must agree field for field,
+and the tests compare them with each other (``test/test_raw_decode.py``).
 """
 
 from __future__ import annotations
@@ -22,7 +42,6 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -30,6 +49,7 @@ import numpy as np
 from fd_monitor.model.errors import MessageError, NonFiniteError, WrongLengthError
 
 __all__ = [
+    "BATCH_LABEL",
     "STAMP_OFFSET",
     "MAX_LABEL_CHARS",
     "MAX_STAMP",
@@ -37,6 +57,8 @@ __all__ = [
     "Decoded",
     "decode",
     "encode_data",
+    "is_batch",
+    "set_batch_mark",
     "join_labels",
     "readable_stamp",
     "CdrDimension",
@@ -51,6 +73,9 @@ __all__ = [
 
 #: ``layout.data_offset`` of a stamped message: one padding element, the stamp.
 STAMP_OFFSET = 1
+#: ``layout.dim[1].label`` of a message whose stream is a batch (every sample to be
+#: processed; see the module docstring). Namespaced: a user's (m, 1) array is not marked.
+BATCH_LABEL = "fd_monitor/batch"
 #: Largest stamp a float64 holds exactly.
 MAX_STAMP = 2**53
 #: Longest ``layout.dim[0].label`` accepted (characters; a message with a longer one is
@@ -114,7 +139,8 @@ def encode_data(stamp: int, values: Any) -> list[float]:
     return [float(k), *v.tolist()]
 
 
-def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None) -> Any:
+def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None,
+           batch: bool = False) -> Any:
     """Build a stamped, labelled Float64MultiArray.
 
     Parameters
@@ -128,6 +154,9 @@ def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None)
     msg_type : type, optional
         The message class and its layout classes' owner; default ``std_msgs.msg`` (rclpy).
         ``fd_monitor.wire.bag_reader`` passes the ``rosbags`` classes.
+    batch : bool
+        Mark the message as part of a batch (``layout.dim[1]``, :data:`BATCH_LABEL`): a
+        node behind by more than ``max_lag`` processes it however late (rclpy messages).
     """
     data = encode_data(stamp, values)
     if len(data) - 1 != len(labels):
@@ -141,6 +170,10 @@ def to_msg(labels: Sequence[str], stamp: int, values: Any, msg_type: Any = None)
         dim.size = len(labels)
         dim.stride = len(labels)
         msg.layout.dim = [dim]
+        if batch:
+            mark = MultiArrayDimension()
+            mark.label, mark.size, mark.stride = BATCH_LABEL, 1, 1
+            msg.layout.dim.append(mark)
         msg.layout.data_offset = STAMP_OFFSET
         msg.data = data
         return msg
@@ -165,9 +198,9 @@ def readable_stamp(msg: Any) -> int | None:
     return int(s)
 
 
-@dataclass(frozen=True)
-class Decoded:
-    """A decoded message.
+class Decoded(NamedTuple):
+    """A decoded message (a named tuple: one is made per message, and a frozen dataclass
+    costs more to create than the raw decoder's whole fast path otherwise).
 
     Attributes
     ----------
@@ -177,11 +210,20 @@ class Decoded:
         Channel names (the expected ones when the message carries none).
     values : numpy.ndarray
         (m,) finite float values.
+    batch : bool
+        The message carries the batch mark (:data:`BATCH_LABEL`).
     """
 
     stamp: int | None
     labels: tuple[str, ...]
     values: np.ndarray
+    batch: bool = False
+
+
+def is_batch(dims: Sequence[Any]) -> bool:
+    """Whether a message's ``layout.dim`` carries the batch mark (:data:`BATCH_LABEL` in
+    ``dim[1]``); any other second dimension is ignored, as before."""
+    return len(dims) > 1 and str(dims[1].label) == BATCH_LABEL
 
 
 def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
@@ -267,7 +309,7 @@ def decode(msg: Any, topic: str = "?", *, labels: Sequence[str] | None = None,
         name = names[i] if i < len(names) else f"#{i}"
         raise NonFiniteError(f"{where}: value {name} is {float(values[i])!r}: expected finite "
                              f"numbers")
-    return Decoded(stamp, got_labels or (expected or ()), values.copy())
+    return Decoded(stamp, got_labels or (expected or ()), values.copy(), is_batch(dims))
 
 
 # -- serialized (CDR) Float64MultiArray, without a type store ---------------------------------
@@ -378,6 +420,56 @@ def parse_cdr(raw: bytes) -> CdrFloat64MultiArray | None:
     return CdrFloat64MultiArray(shape[1], np.frombuffer(raw, "<f8", shape[3], shape[2]))
 
 
+def _cdr_prefix(dims: Sequence[CdrDimension], data_offset: int, size: int) -> bytes:
+    """Little-endian CDR of a Float64MultiArray up to its data (encapsulation header,
+    layout, data length, the padding before the first float64)."""
+    out = bytearray(struct.pack("<I", len(dims)))
+    for d in dims:
+        text = d.label.encode() + b"\0"
+        out += b"\0" * (-len(out) % 4) + struct.pack("<I", len(text)) + text
+        out += b"\0" * (-len(out) % 4) + struct.pack("<II", d.size, d.stride)
+    out += struct.pack("<II", data_offset, size)
+    if size:
+        out += b"\0" * (-len(out) % 8)
+    return b"\x00\x01\x00\x00" + bytes(out)
+
+
+#: (the bytes before the data, batch) -> the same message's bytes before the data with the
+#: batch mark set or cleared (a topic has one layout: one entry per topic and mark).
+_MARKED: dict[tuple[bytes, bool], bytes] = {}
+
+
+def set_batch_mark(raw: bytes, batch: bool) -> bytes:
+    """Serialized (little-endian CDR) Float64MultiArray ``raw`` with the batch mark
+    (:data:`BATCH_LABEL` in ``layout.dim[1]``) set or cleared; labels, offset and values
+    unchanged. ``raw`` itself when it already says so, or when it is not a message
+    :func:`cdr_shape` parses (another type, big-endian: published as it is).
+
+    ``replay`` sets the mark on what it publishes (a recorded stream is a batch) and clears
+    it with ``--live``: the bytes of a recorded message are otherwise kept as recorded.
+    """
+    shape = cdr_shape(raw)
+    if shape is None:
+        return raw
+    prefix, layout, start, size = shape
+    if is_batch(layout.dim) == batch:
+        return raw
+    new = _MARKED.get((prefix, batch))
+    if new is None:
+        dims = list(layout.dim)
+        if batch:
+            first = dims[0] if dims else CdrDimension("", size - layout.data_offset,
+                                                      size - layout.data_offset)
+            dims = [first, CdrDimension(BATCH_LABEL, 1, 1), *dims[1:]]
+        else:
+            del dims[1]
+        new = _cdr_prefix(dims, layout.data_offset, size)
+        if len(_MARKED) >= 256:
+            _MARKED.clear()
+        _MARKED[(prefix, batch)] = new
+    return new + bytes(raw[start:start + 8 * size])
+
+
 class RawDecoder:
     """:func:`decode` for serialized (CDR) Float64MultiArray messages of one input, fast.
 
@@ -408,8 +500,8 @@ class RawDecoder:
                      else np.isnan if allow_inf else None)
         self._finite_only = not (allow_nan or allow_inf)
         #: the layout :func:`decode` accepted last (a cached :func:`cdr_shape` object), stamped,
-        #: labels, the unpacker of its values
-        self._known: tuple[CdrLayout, bool, tuple[str, ...], Any] | None = None
+        #: labels, the unpacker of its values, the batch mark (part of the layout bytes)
+        self._known: tuple[CdrLayout, bool, tuple[str, ...], Any, bool] | None = None
 
     def message(self, raw: bytes) -> Any:
         """The message's fields (for the error path: :func:`readable_stamp`)."""
@@ -435,11 +527,11 @@ class RawDecoder:
                        else self._bad is not None and self._bad(np.array(values)).any()):
                 ok = False
             if ok:
-                return Decoded(stamp, known[2], np.array(values, dtype=np.float64))
+                return Decoded(stamp, known[2], np.array(values, dtype=np.float64), known[4])
         d = decode(self.message(raw), self.topic, **self.options)
         if shape is not None:
             self._known = (shape[1], d.stamp is not None, d.labels,
-                           struct.Struct(f"<{shape[3]}d").unpack_from)
+                           struct.Struct(f"<{shape[3]}d").unpack_from, d.batch)
         return d
 
 
@@ -456,6 +548,6 @@ class ArrivalStamper:
         """Return ``decoded`` with its stamp, or the next counter value if it has none."""
         if decoded.stamp is not None:
             return decoded
-        out = Decoded(self.next, decoded.labels, decoded.values)
+        out = Decoded(self.next, decoded.labels, decoded.values, decoded.batch)
         self.next += 1
         return out

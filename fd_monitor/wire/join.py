@@ -48,20 +48,21 @@ up with). The restarted peer processes the samples published after it subscribed
 feedback message, even one for a sample already processed, makes the node wait for that
 feedback again from its next sample on: the peer then follows the run in lock step.
 
-A node that cannot keep up sheds load (``max_lag``): when the next sample has been complete
-for more than ``max_lag`` s (it waits behind a backlog), the join skips to the newest complete
-sample, as across a hole: stamps ``k_next .. newest - 1`` are lost (:attr:`Sample.shed`,
-counted in :attr:`StampJoin.shed`); the entry role bridges the newest (at most ``max_gap``
-skipped) or restarts the run there, a downstream node restarts there (the entry node's
-stream goes on: its flags are followed again from the next sample). Live, a sample is
-therefore processed at most ``max_lag`` s (plus one check period) after it was complete,
-whatever came before it -- unless the backlog is a *batch*: a backlog whose stamps span more
-than ``batch_pace`` times the wall time over which it arrived (``sample_time`` s per stamp)
-came faster than a plant produces samples, from a source that asked for every one (a
-flat-out replay or simulation, which pace by acknowledgements and promise no loss); it is
-processed completely, however late (counted in :attr:`StampJoin.batch_waits`). A robot's
-data come at real time, so its backlog is shed; a batch that turns into a live stream is
-shed once the live part dominates the backlog.
+A node that cannot keep up sheds load (``max_lag``): when the next sample was received
+(``arrived``: live, when it was published) more than ``max_lag`` s ago, the join skips to the
+newest complete sample, as across a hole: stamps ``k_next .. newest - 1`` are lost
+(:attr:`Sample.shed`, counted in :attr:`StampJoin.shed`); the entry role bridges the newest
+(at most ``max_gap`` skipped) or restarts the run there, a downstream node restarts there
+(the entry node's stream goes on: its flags are followed again from the next sample). When
+nothing newer is here (a node that processes each message in the callback that took it:
+its backlog waits in DDS), the old samples are skipped as they are taken, in one episode,
+until one at most ``max_lag / 2`` s old comes (:meth:`StampJoin._shed_to`). Live, a sample is
+therefore processed at most ``max_lag`` s after it was published, or skipped -- unless the
+backlog is a *batch*: its next sample carried the batch mark (``put(batch=True)``: a sender
+that asked for every sample, e.g. a replay), processed completely however late (counted in
+:attr:`StampJoin.batch_waits`); a skip never passes a marked sample. ``batch_pace`` (opt-in)
+makes an unmarked backlog whose stamps span more than ``batch_pace`` times the wall time over
+which it arrived a batch too (:attr:`StampJoin.pace_waits`).
 
 A stamp cannot blind the join. A stamp below the next one (a source that restarted its
 stamps, a bag replayed again) or more than ``horizon`` samples ahead of it (a stray stamp
@@ -73,7 +74,7 @@ stamps become a new run (restart at the smallest complete one, :attr:`Sample.new
   forgotten: a duplicate or a stray stamp inside a live stream);
 * downstream role: at once, when the sequence input flags a restart at a held stamp.
 
-Why one module of ~530 lines: one class, ``StampJoin``, whose state (pending samples, holes,
+Why one module of ~800 lines: one class, ``StampJoin``, whose state (pending samples, holes,
 bridges, restarts, feedback waits) keeps one invariant; a third of the lines are docstrings
 and comments stating its rules.
 """
@@ -144,6 +145,9 @@ class Sample(NamedTuple):
     shed : int
         Samples skipped just before ``k`` because the node was more than ``max_lag`` s
         behind (load shed; ``hole`` names them).
+    batch : bool
+        A required input of ``k`` carried the batch mark (:meth:`StampJoin.put`
+        ``batch``): the node marks what it publishes for ``k`` (it relays a batch).
     """
 
     k: int
@@ -155,6 +159,7 @@ class Sample(NamedTuple):
     bridge: bool = False
     gap: int = 0
     shed: int = 0
+    batch: bool = False
 
 
 class StampJoin:
@@ -195,10 +200,12 @@ class StampJoin:
     sample_time : float, optional
         s of plant time per stamp (the plant's Ts), for ``batch_pace``.
     batch_pace : float
-        A backlog that came faster than ``batch_pace`` times real time is a *batch* and is
-        never shed: its stamps span more than ``batch_pace`` x the wall time between the
-        arrival of the next sample and of the newest one (a flat-out replay or simulation,
-        which asked for every sample). 0 (or no ``sample_time``): nothing is a batch.
+        Opt-in for a fast source that cannot mark its messages: an unmarked backlog that
+        came faster than ``batch_pace`` times real time is a batch too: its stamps span
+        more than ``batch_pace`` x the wall time between the reception of the next sample
+        and of the newest one (of the sample taken before it, when the backlog is held in
+        DDS and the next one is the newest here). 0 (or no ``sample_time``, the default):
+        only marked messages are a batch.
     """
 
     def __init__(self, required: Sequence[str], feedback: Mapping[str, Any] | None = None,
@@ -269,10 +276,23 @@ class StampJoin:
         self.feedback_losses = 0
         self.shed = 0
         self.shed_episodes = 0
-        #: The newest complete stamp and when it became complete (the backlog's pace).
+        #: The newest complete stamp and when it was received (the backlog's pace), and the
+        #: one before it.
         self._newest, self._newest_t = -1, 0.0
-        #: Checks that found the node more than ``max_lag`` s behind on a batch (not shed).
+        self._prev_k, self._prev_t = -1, 0.0
+        #: Checks that found the node more than ``max_lag`` s behind on a batch (not shed):
+        #: all, and those that were a batch by ``batch_pace`` (unmarked).
         self.batch_waits = 0
+        self.pace_waits = 0
+        #: Stamps (pending or held) with a required input that carried the batch mark.
+        self._marked: set[int] = set()
+        #: Complete stamps -> when their completing input was received (``arrived``: the DDS
+        #: reception time when the caller knows it, else the time put): the lag of a load
+        #: shed counts from it, a backlog held in DDS included.
+        self._rx: dict[int, float] = {}
+        #: A load shed of a backlog held in DDS in progress: (first stamp skipped, when it
+        #: started, samples skipped so far); the next release reports it.
+        self._dropping: tuple[int, float, int] | None = None
 
     def reset(self) -> None:
         """Forget everything: the next complete sample starts a run (a reset service)."""
@@ -288,8 +308,14 @@ class StampJoin:
     # -- input ---------------------------------------------------------------------------------
 
     def put(self, name: str, stamp: int, value: Any, now: float = 0.0,
-            restart: bool = False, bridge: bool = False) -> Note | None:
+            restart: bool = False, bridge: bool = False, batch: bool = False,
+            arrived: float | None = None) -> Note | None:
         """Store one input. Returns a one-line reason when it is ignored, else None.
+
+        ``batch``: the message carried the batch mark (a required input with it makes the
+        sample part of a batch: never shed). ``arrived``: when the message was received (the
+        DDS reception time, on the clock of ``now``; earlier when it waited in DDS for the
+        node to take it), for the load shed; default ``now``.
 
         ``restart``, ``bridge`` (downstream role, sequence input only): the entry node
         restarted, or bridged a gap, at ``stamp``. A late input for a stamp inside a hole is
@@ -308,6 +334,8 @@ class StampJoin:
                 return None
             return Note(f"{name} stamp {stamp}: arrived after its hole was declared; ignored",
                         "late")
+        if batch and name in self.required:
+            self._marked.add(stamp)
         if self.k_next is not None and (stamp < self.k_next or (
                 self.horizon is not None and stamp > self.k_next + self.horizon)):
             return self._hold(name, stamp, value, now, restart, bridge)
@@ -323,8 +351,10 @@ class StampJoin:
                 self._bridge_at.add(stamp)
         if name in self.required and all(n in slot for n in self.required):
             self._complete_since[stamp] = now
+            rx = self._rx[stamp] = now if arrived is None or arrived > now else arrived
             if stamp > self._newest:
-                self._newest, self._newest_t = stamp, now
+                self._prev_k, self._prev_t = self._newest, self._newest_t
+                self._newest, self._newest_t = stamp, rx
         if len(self.pending) > self.max_pending:
             oldest = min(self.pending)
             self._forget(oldest)
@@ -355,6 +385,7 @@ class StampJoin:
             oldest = min(self.held)
             self.held.pop(oldest)
             self._held_t.pop(oldest, None)
+            self._marked.discard(oldest)
             self.dropped += 1
         if not first or self.sequence is not None:
             return None
@@ -380,11 +411,12 @@ class StampJoin:
         self._restart_next = False
         self._missing, self._carry = 0, None
         self.new_runs += 1
-        self._newest = -1
+        self._newest, self._prev_k, self._rx, self._dropping = -1, -1, {}, None
+        self._marked &= held.keys()
         for stamp, slot in held.items():
             self.pending[stamp] = slot
             if all(n in slot for n in self.required):
-                self._complete_since[stamp] = held_t[stamp]
+                self._complete_since[stamp] = self._rx[stamp] = held_t[stamp]
                 if stamp > self._newest:
                     self._newest, self._newest_t = stamp, held_t[stamp]
         self._seq = seq
@@ -398,6 +430,7 @@ class StampJoin:
         for stamp in [j for j, t in self._held_t.items() if t <= cutoff]:
             self.held.pop(stamp, None)
             self._held_t.pop(stamp)
+            self._marked.discard(stamp)
         if not self.held:
             self.held_messages = 0
 
@@ -445,6 +478,7 @@ class StampJoin:
         ``shed``: samples skipped before it (load shed)."""
         if self.rejected:
             self.rejected = {j for j in self.rejected if j > k}
+        marked = k in self._marked
         slot = self._forget(k)
         self._restart_next = False
         adopted, self._adopted = self._adopted, None
@@ -452,7 +486,15 @@ class StampJoin:
             # the common case, kept short: the next sample in order
             self.k_next = k + 1
             self._last = (0, slot, False)
+            if marked:
+                return Sample(k, slot, False, None, adopted, lost, False, 0, 0, True)
             return Sample(k, slot, False, None, adopted, lost)
+        if self._dropping is not None:
+            # the first sample after a shed of a backlog held in DDS: it reports the shed
+            first, _, dropped = self._dropping
+            self._dropping = None
+            shed += dropped
+            hole = (first, k - 1) if first < k else hole
         gap = self._missing + (0 if hole is None else hole[1] - hole[0] + 1)
         # Stamps below k: a jump, or the partial inputs of a hole's stamps.
         for j in [j for j in self.pending if j < k]:
@@ -473,7 +515,7 @@ class StampJoin:
             inputs = slot
         self._last = (gap, inputs, restart)
         return Sample(k, inputs, restart, hole, adopted, lost, bridge is not None,
-                      gap if (hole is not None or bridge is not None) else 0, shed)
+                      gap if (hole is not None or bridge is not None) else 0, shed, marked)
 
     def release_complete(self, k: int, inputs: dict[str, Any], now: float) -> Sample | None:
         """Release sample ``k`` whose required inputs all came together, without buffering
@@ -505,6 +547,8 @@ class StampJoin:
 
     def _forget(self, k: int) -> dict[str, Any]:
         self._complete_since.pop(k, None)
+        self._rx.pop(k, None)
+        self._marked.discard(k)
         self._restart_at.discard(k)
         self._bridge_at.discard(k)
         return self.pending.pop(k, {})
@@ -521,10 +565,11 @@ class StampJoin:
                 return None
             return self._release(min(self._complete_since), True, None)
         t = self._complete_since.get(k)
-        if t is not None and self.max_lag is not None and now - t > self.max_lag:
-            newest = self._shed_to(k, t)
+        if t is not None and self.max_lag is not None and now - self._rx[k] > (
+                self.max_lag if self._dropping is None else self.max_lag / 2):
+            newest = self._shed_to(k, now)
             if newest is not None:
-                return self._shed(k, newest)
+                return None if newest < 0 else self._shed(k, newest)
         if t is not None:
             if self._restart_next or self._missing > self.max_gap:
                 return self._release(k, True, None)
@@ -558,23 +603,79 @@ class StampJoin:
                                  bridge=self._lose(k, self.pending.get(k, {})))
         return self._release(s, False, (k, s - 1), bridge=fb)
 
-    def _shed_to(self, k: int, t: float) -> int | None:
-        """The node is more than ``max_lag`` s behind at ``k`` (complete since ``t``): the
-        newest complete stamp to skip to, or None when there is none beyond ``k`` or the
-        backlog ``k .. newest`` is a batch (it came faster than ``batch_pace`` x real time:
-        its stamps span more plant time than ``batch_pace`` x the wall time between the
-        arrivals of ``k`` and ``newest``)."""
+    def _shed_to(self, k: int, now: float) -> int | None:
+        """The node is more than ``max_lag`` s behind at ``k`` (received that long ago):
+        the newest complete stamp to skip to; None when the backlog is a batch (``k``
+        marked, or by ``batch_pace``) or there is nothing to skip; -1 when nothing newer is
+        here -- the backlog is held in DDS, taken a message at a time -- and ``k`` was
+        skipped (:meth:`_drop_to`): nothing to release now.
+
+        The skip stops before the first marked stamp beyond ``k`` (a batch that follows a
+        live stream is processed completely). A backlog held in DDS is skipped one message
+        at a time as the node takes them (cheap: no processing), in one episode, until a
+        message received at most ``max_lag / 2`` s ago comes (the node has caught up with
+        the source: stopping just under ``max_lag`` would skip a sample every few) or the
+        episode has lasted ``max_lag`` s (a source faster than the node can even take
+        messages: it then processes the one it has, so it is never blind for longer).
+        """
+        if k in self._marked:
+            self.batch_waits += 1
+            return None
         newest = self._newest
         if newest not in self._complete_since:     # released or dropped since: look again
             newest = max(self._complete_since)
-            self._newest, self._newest_t = newest, self._complete_since[newest]
-        if newest <= k:
-            return None
-        if self.batch_pace and self.sample_time and (
-                (newest - k) * self.sample_time > self.batch_pace * (self._newest_t - t)):
-            self.batch_waits += 1
-            return None
-        return newest
+            self._newest, self._newest_t = newest, self._rx[newest]
+        if self.batch_pace and self.sample_time:
+            # the backlog's pace; held in DDS (k the newest here): since the sample before
+            a, ta = (k, self._rx[k]) if newest > k else (self._prev_k, self._prev_t)
+            if 0 <= a < newest and ((newest - a) * self.sample_time
+                                    > self.batch_pace * (self._newest_t - ta)):
+                self.batch_waits += 1
+                self.pace_waits += 1
+                return None
+        if self._marked and newest > k:
+            first = min((j for j in self._marked if j > k), default=None)
+            if first is not None and first <= newest:
+                newest = max((j for j in self._complete_since if k < j <= first), default=k)
+        if newest > k:
+            return newest
+        # Nothing newer here: the backlog, if any, is held in DDS (the node takes it a
+        # message at a time, each processed in the callback that took it).
+        assert self.max_lag is not None
+        if self._dropping is None or now - self._dropping[1] < self.max_lag:
+            self._drop_to(k, now)
+            return -1
+        return None
+
+    def _drop_to(self, s: int, now: float) -> None:
+        """Skip every stamp up to ``s`` without releasing any (a backlog held in DDS, see
+        :meth:`_shed_to`): they are a hole (a late input for one of them is ignored), the
+        next release restarts and reports the skip (:attr:`Sample.shed`)."""
+        k = self.k_next
+        if self.sequence is None:
+            assert k is not None
+            first, n = k, s - k + 1
+            for j in [j for j in self.pending if j <= s]:
+                self._forget(j)
+        else:
+            seq, n = self._seq, 0
+            first = k if k is not None else s
+            while seq and seq[0] <= s:
+                self._forget(seq.popleft())
+                n += 1
+            for j in [j for j in self.pending if j <= s]:
+                self._forget(j)
+        if self._dropping is None:
+            self._dropping = (first, now, n)
+            self.shed_episodes += 1
+        else:
+            first = self._dropping[0]
+            self._dropping = (first, self._dropping[1], self._dropping[2] + n)
+        self.shed += n
+        self.holes.append((first, s))
+        self.k_next = s + 1
+        self._restart_next = True
+        self._missing, self._carry = 0, None
 
     def _shed(self, k: int, s: int) -> Sample:
         """The node is more than ``max_lag`` s behind at ``k``: skip to the newest complete
@@ -615,8 +716,11 @@ class StampJoin:
             s, slot = later, self.pending[later]
             skipped = True
         t = self._complete_since.get(s)
-        if t is not None and self.max_lag is not None and now - t > self.max_lag:
-            newest = self._shed_to(s, t)
+        if t is not None and self.max_lag is not None and now - self._rx[s] > (
+                self.max_lag if self._dropping is None else self.max_lag / 2):
+            newest = self._shed_to(s, now)
+            if newest is not None and newest < 0:
+                return None
             if newest is not None:
                 # behind by more than max_lag: skip to the newest complete sequence stamp
                 # (a restart of this node there; the entry node's own stamps go on)

@@ -30,10 +30,12 @@ lost) is not a new run: the sample goes on without it (its initial value) and th
 waiting for that feedback until it comes again (``feedback_back``: a restarted peer rejoins).
 
 No input pattern blinds a node for good (doc/howto/overload-and-recovery.md): a node more
-than ``max_lag`` s behind a live stream sheds load (``shed``: skips to the newest complete
-sample, as across a hole; a backlog that came faster than ``batch_pace`` x real time is a
-batch, processed completely), a dead feedback source costs ``gap_timeout`` s once, a stopped
-or restarted source is a hole or a new run.
+than ``max_lag`` s behind a live stream sheds load (``shed``: skips to a recent sample, as
+across a hole); a *batch* -- messages that carry the batch mark
+(:data:`~fd_monitor.wire.conversions.BATCH_LABEL`: ``replay``, ``plant_sim`` flat out), or
+with ``batch_pace`` set, a backlog that came faster than that x real time -- is processed
+completely. A dead feedback source costs ``gap_timeout`` s once, a stopped or restarted
+source is a hole or a new run.
 
 Reports go to the caller's ``note(kind, line, stamp)``; ``kind`` is the step's kind above,
 ``hole`` (``stamp`` is the inclusive ``(first, last)``; bridged or restarted), ``bridge`` (a
@@ -57,7 +59,7 @@ from typing import Any
 from fd_monitor.wire.join import Sample, StampJoin
 
 __all__ = ["BATCH_PACE", "GAP_TIMEOUT", "InputStream", "MAX_GAP", "MAX_LAG",
-           "RESTART_AFTER", "STAMP_HORIZON", "TopicOrder"]
+           "RESTART_AFTER", "STAMP_HORIZON", "SentTime", "TopicOrder"]
 
 #: s a later sample must have been complete before a missing one is declared lost.
 GAP_TIMEOUT = 1.0
@@ -67,18 +69,63 @@ STAMP_HORIZON = 100_000
 RESTART_AFTER = 1.0
 #: Lost samples in a row that are bridged (the run goes on, its memory kept); more: a restart.
 MAX_GAP = 10
-#: s a complete sample may wait (behind a backlog) before the node skips to the newest one;
-#: 0: never. A batch (see :data:`BATCH_PACE`) is never shed.
+#: s a complete sample may wait (since it was received) before the node skips ahead to a
+#: recent one; 0: never. A batch -- marked messages (``replay``, ``plant_sim`` flat out: the
+#: sender asks for every sample), see :data:`BATCH_PACE` for unmarked ones -- is never shed.
 MAX_LAG = 2.0
-#: x real time: a backlog that came faster than this is a batch -- ``replay --rate 0``,
-#: ``plant_sim`` flat out, which pace by acknowledgements and promise that no sample is
-#: lost -- and is processed completely, however late; 0: nothing is a batch (every backlog
-#: older than ``max_lag`` is shed, e.g. a simulation run far faster than real time where
-#: latency matters more than completeness).
-BATCH_PACE = 2.0
+#: x real time, an opt-in for a fast source that cannot mark its messages: an unmarked
+#: backlog that came faster than this is a batch too, processed completely; 0 (default):
+#: only marked messages are a batch, any other backlog older than ``max_lag`` is shed
+#: whatever its pace (a flood cannot be told from a flat-out simulation by pace alone).
+BATCH_PACE = 0.0
 
 #: ``note(kind, line, stamp)``: stamp an int, a hole's ``(first, last)``.
 NoteFn = Callable[[str, str, Any], None]
+
+
+class SentTime:
+    """When each message of one topic was published, on the receiver's clock: what the lag
+    of a load shed counts from (:meth:`StampJoin.put <fd_monitor.wire.join.StampJoin.put>`
+    ``arrived``), so a backlog is seen wherever it waits -- in the node's join, in its DDS
+    reader (a node that processes each message in the callback that took it), or in the
+    publisher's history once the reader is full (Fast DDS holds 5,000 samples per reader).
+
+    The publisher stamps each message with its own clock (the DDS source timestamp), which
+    may be offset from ours (another machine). The offset is estimated as the smallest
+    ``receive - source`` difference seen (the transport delay of an unqueued message, plus
+    the clock offset); it may grow by :data:`DRIFT` s per s (clocks drift, NTP steps), so a
+    queued message -- whose difference is larger by the time it waited -- shows its wait.
+    ``sent = now - (now_wall - source - offset)``, never later than ``now``.
+    """
+
+    #: s per s the offset estimate may rise (clock drift; 1 ms/s is far above a crystal's
+    #: and far below a queue's growth under a flood, which is about 1 s/s).
+    DRIFT = 1e-3
+
+    def __init__(self) -> None:
+        self.offset: float | None = None
+        self._t = 0.0
+
+    def sent(self, source: float, received: float, now: float, now_wall: float) -> float:
+        """Publication time of a message on the clock of ``now`` (monotonic, s).
+
+        Parameters
+        ----------
+        source : float
+            The publisher's timestamp of the message (wall clock, s).
+        received : float
+            When DDS received it here (wall clock, s); ``now_wall`` when unknown.
+        now, now_wall : float
+            The receiver's monotonic and wall clocks now (s).
+        """
+        d = received - source
+        off = self.offset
+        if off is None or d < off + self.DRIFT * (now - self._t):
+            off = d
+        else:
+            off += self.DRIFT * (now - self._t)
+        self.offset, self._t = off, now
+        return now - max(0.0, now_wall - source - off)
 
 
 class TopicOrder:
@@ -132,17 +179,21 @@ class InputStream:
             self.release(now)
 
     def stamped(self, order: TopicOrder, name: str, stamp: int, values: Any, now: float,
-                offset: int = 0, restart: bool = False, bridge: bool = False) -> bool:
+                offset: int = 0, restart: bool = False, bridge: bool = False,
+                batch: bool = False, arrived: float | None = None) -> bool:
         """One decoded stamped message of input ``name`` (its topic's ``order``), joined at
-        ``stamp + offset``; ``restart``, ``bridge``: the flags of a sequence input. True when
-        joined (samples released), False when reported and dropped or held."""
+        ``stamp + offset``; ``restart``, ``bridge``: the flags of a sequence input;
+        ``batch``: it carried the batch mark; ``arrived``: when it was received, if before
+        ``now`` (it waited in DDS). True when joined (samples released), False when
+        reported and dropped or held."""
         line, duplicate = order.check(stamp)
         if line is not None:
             self.note("duplicate" if duplicate else "out_of_order", line, stamp)
             if duplicate:
                 return False
         stamp += offset
-        return stamp >= 0 and self.put(name, stamp, values, now, restart, bridge)
+        return stamp >= 0 and self.put(name, stamp, values, now, restart, bridge, batch,
+                                       arrived)
 
     def new_run(self, k: int, line: str) -> None:
         """The source says its stream restarted (an adapter's clock jumped): forget the
@@ -151,11 +202,12 @@ class InputStream:
         self.note("new_run", line, k)
 
     def put(self, name: str, stamp: int, values: Any, now: float,
-            restart: bool = False, bridge: bool = False) -> bool:
+            restart: bool = False, bridge: bool = False, batch: bool = False,
+            arrived: float | None = None) -> bool:
         """Join one input (already order-checked, or paired by sample-and-hold) and release
         what became ready; False when the join reported and did not join it."""
         join = self.join
-        line = join.put(name, stamp, values, now, restart, bridge)
+        line = join.put(name, stamp, values, now, restart, bridge, batch, arrived)
         if join.resumed:
             for n in join.resumed:
                 self.note("feedback_back", f"{n}: feedback came again (stamp {stamp}): waiting "
@@ -186,9 +238,9 @@ class InputStream:
             elif s.shed:
                 a, b = s.hole or (s.k, s.k)
                 what = "bridged" if s.bridge else "restarted"
-                self.note("shed", f"behind by more than {join.max_lag:g} s: skipped stamps "
-                          f"{a}..{b} ({s.shed} samples) to the newest complete one; {what} at "
-                          f"{s.k}", (a, b))
+                self.note("shed", f"behind by more than {join.max_lag:g} s on a live "
+                          f"stream (unmarked): skipped stamps {a}..{b} ({s.shed} samples) to "
+                          f"a recent one; {what} at {s.k}", (a, b))
             elif s.hole is not None:
                 a, b = s.hole
                 span = f"stamp {a}" if a == b else f"stamps {a}..{b}"
