@@ -46,9 +46,16 @@ SIGUSR2: start-up is left out; the profiler's own cost inflates its CPU figures)
 one sample every 1/rate s (``paced``, as live), per tree: the figure a change to the node's
 Python is seen in without the 10-30 % run-to-run noise of the DDS figures.
 
+DDS configurations side by side (``--dds LABEL=SPEC``, repeatable; :func:`dds_variants`): a
+Fast DDS profile file and/or environment variables per variant (``benchmarks/dds/*.xml``),
+against the nodes' profile, ``--repeat`` rounds alternating; the floors of
+:data:`DDS_FLOORS` (with ``--floor``) and the monitors of each N; best of each printed with
+the main-thread / DDS-thread split, RSS and PSS.
+
 Run: ``.venv/bin/python benchmarks/bench_robots.py [--robots 1 8 16 32] [--rate 100]
 [--seconds 10] [--per-process 1 16] [--subscribe alarm supervisor] [--floor]
-[--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]``.
+[--tree before=DIR] [--repeat 3] [--profile FILE] [--path 500]
+[--dds hb100=benchmarks/dds/hb100.xml]``.
 Isolated ROS_DOMAIN_ID, loopback discovery.
 """
 
@@ -123,7 +130,9 @@ print(json.dumps({"sent": sent}), flush=True)
 
 #: A bare rclpy node with the monitor's two subscriptions (the floor):
 #: ``python -c BARE <executor> <messages> <imports>`` with executor ``events`` (rclpy's
-#: EventsExecutor in a spin_once loop, as the monitor) or ``single``
+#: EventsExecutor in a spin_once loop, as the monitor), ``until`` (its
+#: ``spin_until_future_complete``: the C++ loop, no Python turn per event; in these wheels
+#: it polls, a whole core busy, as its ``spin()`` does) or ``single``
 #: (SingleThreadedExecutor.spin); messages ``msg`` (deserialized message objects), ``raw``
 #: (serialized bytes, not read), ``decode`` (serialized, decoded by the project's
 #: RawDecoder as the monitor does), ``publish`` (decode, and publish one serialized
@@ -176,6 +185,14 @@ try:
         ex = EventsExecutor(); ex.add_node(n)
         while rclpy.ok():
             ex.spin_once(timeout_sec=0.1)
+    elif executor == "until":
+        # the EventsExecutor's own C++ loop, until a future set at shutdown
+        from rclpy.experimental import EventsExecutor
+        from rclpy.task import Future
+        ex = EventsExecutor(); ex.add_node(n)
+        stop = Future()
+        n.context.on_shutdown(lambda: stop.set_result(None))
+        ex.spin_until_future_complete(stop)
     else:
         ex = SingleThreadedExecutor(); ex.add_node(n)
         ex.spin()
@@ -258,7 +275,10 @@ node.destroy_node(); rx.destroy_node(); rclpy.try_shutdown()
 #: The floor variants ``--floor`` measures: (executor, messages, imports).
 FLOORS = (("single", "msg", "ros"), ("events", "msg", "ros"), ("events", "raw", "ros"),
           ("events", "raw", "numpy"), ("events", "decode", "monitor"),
-          ("events", "publish", "monitor"))
+          ("events", "publish", "monitor"), ("until", "publish", "monitor"))
+
+#: The floors ``--dds`` measures under each DDS configuration (with ``--floor``).
+DDS_FLOORS = (("events", "publish", "monitor"),)
 
 
 def env() -> dict[str, str]:
@@ -310,7 +330,13 @@ def thread_cpu(pid: int) -> dict[str, float]:
             continue
         name = raw[raw.index("(") + 1:raw.rindex(")")]
         f = raw.rsplit(")", 1)[1].split()
-        out[name] = out.get(name, 0.0) + (int(f[11]) + int(f[12])) / tick
+        try:
+            # the scheduler's ns count: a clock tick (10 ms) is 10 us per sample of a 10 s
+            # run at 100 Hz, as much as the differences measured
+            v = int(Path(f"/proc/{pid}/task/{t}/schedstat").read_text().split()[0]) * 1e-9
+        except (OSError, ValueError, IndexError):
+            v = (int(f[11]) + int(f[12])) / tick
+        out[name] = out.get(name, 0.0) + v
     return out
 
 
@@ -319,6 +345,17 @@ def rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def pss_mb(pid: int) -> float:
+    """Proportional set size of a process, MB (/proc/<pid>/smaps_rollup)."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
     return float("nan")
 
 
@@ -460,6 +497,9 @@ def run_fleet(n_robots: int, rate: float, seconds: float, e: dict[str, str],
         if lat.size:
             row.update(p50_ms=float(np.median(lat)), p99_ms=float(np.percentile(lat, 99)),
                        max_ms=float(lat.max()))
+        # PSS: a shared library's or shared segment's pages divided among the processes
+        # that map them (RSS counts them whole in each); N x PSS is what N processes take
+        row["pss_mb"] = [round(pss_mb(p), 1) for p in pids]
     finally:
         for p in [drv, *procs]:
             p.terminate()
@@ -479,6 +519,68 @@ def node_path(samples: int, rate: float, e: dict[str, str], tree: str | None = N
     out = subprocess.run([sys.executable, "-c", NODE_PATH, str(samples), str(rate)], env=me,
                          capture_output=True, text=True, check=True).stdout
     return dict(json.loads(out.strip().splitlines()[-1]), load=round(load(), 2))
+
+
+def dds_variants(specs: list[str], e: dict[str, str]) -> list[tuple[str, dict[str, str]]]:
+    """The DDS configurations of ``--dds LABEL=SPEC``: SPEC is comma-separated items, each a
+    Fast DDS profile file (XML; relative to the working directory or this repository; it
+    goes into ``FASTRTPS_DEFAULT_PROFILES_FILE`` and ``FASTDDS_DEFAULT_PROFILES_FILE``, so
+    ``use_dds_profile`` keeps it as a user's profile) or ``VAR=VALUE`` (any environment
+    variable, e.g. ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``). The first configuration is
+    ``nodes``: the environment as the nodes get it (``config/fastdds.xml``)."""
+    out = [("nodes", e)]
+    for spec in specs:
+        label, _, items = spec.partition("=")
+        me = dict(e)
+        for item in filter(None, items.split(",")):
+            if "=" in item:
+                var, _, value = item.partition("=")
+                me[var] = value
+                continue
+            xml = Path(item) if Path(item).is_file() else REPO / item
+            if not xml.is_file():
+                raise SystemExit(f"--dds {spec}: no profile file {item}")
+            for var in ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE"):
+                me[var] = str(xml.resolve())
+        out.append((label, me))
+    return out
+
+
+def dds_side_by_side(args: argparse.Namespace, e: dict[str, str]) -> None:
+    """``--dds``: every configuration of :func:`dds_variants` in turn, ``--repeat`` rounds
+    (alternating, so a change of the machine's load hits them alike): the floors of
+    :data:`DDS_FLOORS` (with ``--floor``) and the monitors of each ``--robots`` N. The
+    environment goes to the driver and the measured processes; the receiver (this process)
+    keeps the nodes' profile. Best run (least CPU per sample) of each printed last, with the
+    first process's CPU per sample split main thread / Fast DDS threads (``dds.*``)."""
+    variants = dds_variants(args.dds, e)
+    best: dict[tuple, dict] = {}
+    for _ in range(args.repeat):
+        for label, me in variants:
+            runs = [(1, f) for f in (DDS_FLOORS if args.floor else ())]
+            runs += [(n, None) for n in args.robots]
+            for n, floor in runs:
+                # the first --per-process and --subscribe layout
+                r = run_fleet(n, args.rate, args.seconds, me, floor=floor,
+                              per_process=args.per_process[0], subscribe=args.subscribe[0])
+                r["label"] = label
+                print(_fmt(r), flush=True)
+                key = (floor, n, label)
+                if key not in best or r["cpu_us_per_sample"] < best[key]["cpu_us_per_sample"]:
+                    best[key] = r
+    print(f"best of {args.repeat} (least CPU per sample); first process, us per sample: "
+          f"main thread ('python') / Fast DDS threads ('dds.*'):")
+    for key in sorted(best, key=lambda k: (k[0] is None, k[0] or (), k[1])):
+        r = best[key]
+        th = r.get("threads", {})
+        dds = sum(v for name, v in th.items() if name.startswith("dds."))
+        what = f"floor {'/'.join(r['floor'])}" if r["floor"] else f"{r['robots']} monitors"
+        print(f"{what + ' [' + r['label'] + ']':44} cpu {r['cpu_us_per_sample']:5.0f} us "
+              f"(main {th.get('python', 0):4d}, dds {dds:4d})  missing "
+              f"{r.get('missing', 0):4d}  p99 {r.get('p99_ms', float('nan')):6.2f} ms  "
+              f"RSS {np.mean(r.get('rss_mb') or [float('nan')]):5.1f} MB  "
+              f"PSS {np.mean(r.get('pss_mb') or [float('nan')]):5.1f} MB  "
+              f"load {r['load']:.2f}", flush=True)
 
 
 def _fmt(r: dict) -> str:
@@ -515,6 +617,11 @@ def main() -> int:
                     help="runs per N and tree (alternating); the best is printed last")
     ap.add_argument("--profile", metavar="FILE",
                     help="cProfile the first monitor's measured window into FILE")
+    ap.add_argument("--dds", action="append", default=[], metavar="LABEL=SPEC",
+                    help="also run under another DDS configuration, side by side with the "
+                         "nodes' (SPEC: a profile XML and/or VAR=VALUE, comma-separated; "
+                         "repeatable; see dds_variants); only --floor's DDS_FLOORS and the "
+                         "monitors are run")
     ap.add_argument("--per-process", type=int, nargs="+", default=[1], metavar="M",
                     help="robots per monitor process, one layout per value, run side by side "
                          "(1: a process per robot; M > 1: `monitor -p robots:=[...]`, M "
@@ -540,6 +647,9 @@ def main() -> int:
     print(f"{'what':28} {'samples':>6} {'missing':>7} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'max ms':>7} {'cpu us/s.':>9} {'%core':>6} {'RSS':>6} {'max':>6} {'/robot':>6}")
     try:
+        if args.dds:
+            dds_side_by_side(args, e)
+            args.robots, args.floor, args.path = [], False, 0
         if args.path:
             for label, tree in trees or [("", None)]:
                 r = node_path(args.path, args.rate, e, tree)
