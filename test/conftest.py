@@ -17,8 +17,10 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 # Set before any rclpy import (the RMW reads them at init).
-# UDP on loopback only: Fast DDS's shared-memory transport can hang at start on segments a
-# killed process left in /dev/shm (tests kill processes on purpose).
+# Asks for UDP only (Fast DDS's shared-memory transport can hang at start on segments a killed
+# process left in /dev/shm, and tests kill processes on purpose). Measured (h-dds, issue 25):
+# under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, set below, rmw_fastrtps builds its own
+# transports (shared memory + UDP) and ignores this; it takes effect for a wider range only.
 os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
 try:
     import importlib.util
