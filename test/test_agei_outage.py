@@ -193,14 +193,16 @@ def test_the_h1_bias_is_alarmed_as_without_the_outage(plant):
 
 @pytest.mark.ros
 def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
-    """Real DDS, default parameters: the observer and the detector in process, ``agei`` a
-    process, SIGKILLed before the crossing (and not restarted). The two nodes go on with
-    their own AGEI: outputs continue, the observer switches at the crossing, no alarm, and
-    every residual, threshold and mode equals the fused monitor's on the same samples; the
-    ``agei`` status of both nodes says WARN from the first sample without agei."""
+    """Real DDS, default parameters: the observer, the detector and the bias estimator in
+    process, ``agei`` a process, SIGKILLed before the crossing (and not restarted). The three
+    nodes go on with their own AGEI: outputs continue (bias estimates included), the
+    observer switches at the crossing, no alarm, and every residual, threshold, mode and
+    bias estimate equals the fused monitor's on the same samples; the ``agei`` status of the
+    three nodes says WARN from the first sample without agei."""
     from ros_util import Proc, ros_context, spin_until
     from test_nodes_graph import Rig
 
+    from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
     from fd_monitor.nodes.detector import DetectorNode
     from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.observer import ObserverNode
@@ -213,8 +215,10 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
     agei = Proc(["run", "agei"])
     with ros_context() as ctx:
         obs, det = ObserverNode(context=ctx), DetectorNode(context=ctx)
-        rig = Rig(ctx, [obs, det], topics=("fd/state_estimate", "fd/residual", "fd/threshold",
-                                           "fd/alarm", "fd/guard_event"))
+        bias = BiasEstimatorNode(context=ctx)
+        rig = Rig(ctx, [obs, det, bias], topics=(
+            "fd/state_estimate", "fd/residual", "fd/threshold", "fd/alarm", "fd/guard_event",
+            "fd/bias_estimate"))
         col = rig.col
 
         def last(topic: str) -> int:
@@ -222,7 +226,10 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
 
         try:
             # agei subscribed to every input and matched by both nodes' feedback inputs
-            feedback = [obs._data_inputs["guard"].sub, det._data_inputs["override"].sub]
+            # (the estimator: every input, and its estimate by the observer)
+            feedback = [obs._data_inputs["guard"].sub, det._data_inputs["override"].sub,
+                        obs._data_inputs["sigma"].sub,
+                        *(i.sub for i in bias._data_inputs.values())]
             assert rig.spin(lambda: all(s.get_publisher_count() for s in feedback)
                             and obs.pub.get_subscription_count() >= 3
                             and all(det.pubs[t].get_subscription_count() >= 2
@@ -238,7 +245,9 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
             # for the dead peer (gap_timeout); then the rest, open loop
             assert rig.spin(lambda: last("/fd/alarm") > kill, 10.0), last("/fd/alarm")
             t_on = time.monotonic() - t_kill
-            assert rig.spin(lambda: last("/fd/alarm") >= end - 1, 30.0), last("/fd/alarm")
+            assert rig.spin(lambda: last("/fd/alarm") >= end - 1
+                            and last("/fd/bias_estimate") >= end, 30.0), (
+                last("/fd/alarm"), last("/fd/bias_estimate"))
             t_done = time.monotonic() - t_kill
         finally:
             agei.stop()
@@ -251,12 +260,23 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
         q, r, R, _, _ = ref[d_r.stamp - start]
         assert (int(d_e.values[0]), tuple(d_r.values[:ny]), tuple(d_t.values[:ny])) == (q, r, R)
     assert not any(d.values.any() for d in col.decoded("/fd/alarm"))
+    # the estimator went on without agei: every sample's estimate, the fused monitor's
+    bias_est = col.decoded("/fd/bias_estimate")
+    assert [d.stamp for d in bias_est] == list(range(start + 1, end + 1))
+    for d in bias_est:
+        active, iso, sigma = ref[d.stamp - 1 - start][4]
+        assert (tuple(d.values[:ny]), tuple(d.values[ny:2 * ny] > 0.5),
+                bool(d.values[2 * ny] > 0.5)) == (sigma, iso, active), d.stamp
     k_switch = next(d.stamp for d in est if d.values[0] != est[0].values[0])
     assert k_switch == start + switches(ref)[0] and k_switch > kill
     assert "guard" in obs.join.lost_feedback and det.join.lost_feedback == {"override"}
-    for node in ("observer", "detector"):
+    assert bias.join.lost_feedback == {"guard"}
+    # agei's last decision was for sample kill - 1: the estimator (which needs the decision
+    # at k) is without it from kill, the observer and the detector (at k - 1) from kill + 1
+    for node, first in (("observer", kill + 1), ("detector", kill + 1),
+                        ("bias_estimator", kill)):
         warn = [s.message for s in col.statuses(f"{node}: agei") if s.level == WARN]
-        assert any(f"since sample {kill + 1} " in m for m in warn), (node, warn)
+        assert any(f"since sample {first} " in m for m in warn), (node, warn)
     print(f"agei killed at sample {kill}: outputs on {t_on:.2f} s later, the rest "
           f"({end - kill} samples) {t_done:.2f} s later; observer switched at {k_switch}")
     # gap_timeout (1 s) for the observer, the detector's wait counts from its own last

@@ -759,10 +759,13 @@ class StampJoin:
                 return self._release(newest, True, None if k is None else (k, newest - 1),
                                      shed=n)
         lost = False
+        k_prev = self.k_next
         if self.optional and not self._optional_here(s, slot):
-            # data of this sample, waited for as lost feedback is (not replaced at a restart
-            # or a bridge: it is this stamp's or None)
-            if not self._feedback_overdue(s, now, self.restart_after):
+            # data of this sample, waited for as lost feedback is, from the previous release
+            # (from its completion for the first sample); not replaced at a restart or a
+            # bridge: it is this stamp's or None
+            since = self._progress if k_prev is not None else self._complete_since[s]
+            if now - since < self.restart_after:
                 return None
             self._lose_optional(slot)
             lost = True
