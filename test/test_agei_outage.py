@@ -12,9 +12,9 @@ thresholds: 1-3 alarmed samples (the cause of the issue's 1-in-3 false alarm).
 Now the observer, the detector and the bias estimator run their own copy of AGEI
 (:class:`~fd_monitor.core.local_agei.LocalAgei`: the same code on the same numbers) and use
 its decisions while agei's are absent (``agei_fallback``, default on); the estimator used to
-stop while agei was away (no estimate, no isolation, sigma^ = 0 for the observer). The chain's arithmetic
-is computed here in process (deterministic, no DDS) with the nodes' choice per sample, and
-once over real DDS with a killed ``agei`` process.
+stop while agei was away (no estimate, no isolation, sigma^ = 0 for the observer). The
+chain's arithmetic is computed here in process (deterministic, no DDS) with the nodes' choice
+per sample, and once over real DDS with a killed ``agei`` process.
 """
 
 from __future__ import annotations
