@@ -2,17 +2,19 @@
 
 The four-process chain without ``agei`` for a while: the observer and the detector get no
 guard trigger and no threshold override (the join gives them their initial values), the bias
-estimator, which joins AGEI's guard event, stops, and the restarted ``agei`` starts fresh.
+estimator gets no ``mode_uncertain`` (an optional input: absent), and the restarted ``agei``
+starts fresh.
 On ``three_tank_bias_h1`` (seed 2: the plant crosses the upper pipe at sample 936, AGEI
 widens the thresholds from about 767 and switches the observer at 1017; a +1 cm bias on h1
 from sample 2000) an outage across 1017 left the observer in the dry mode under the nominal
 thresholds: 1-3 alarmed samples (the cause of the issue's 1-in-3 false alarm).
 
-Now the observer and the detector run their own copy of AGEI
+Now the observer, the detector and the bias estimator run their own copy of AGEI
 (:class:`~fd_monitor.core.local_agei.LocalAgei`: the same code on the same numbers) and use
-its decisions while agei's are absent (``agei_fallback``, default on). The chain's arithmetic
-is computed here in process (deterministic, no DDS) with the nodes' choice per sample, and
-once over real DDS with a killed ``agei`` process.
+its decisions while agei's are absent (``agei_fallback``, default on); the estimator used to
+stop while agei was away (no estimate, no isolation, sigma^ = 0 for the observer). The
+chain's arithmetic is computed here in process (deterministic, no DDS) with the nodes' choice
+per sample, and once over real DDS with a killed ``agei`` process.
 """
 
 from __future__ import annotations
@@ -44,22 +46,27 @@ def plant() -> Any:
     return system, gains, traj.u[0].tolist(), traj.y[0].tolist()
 
 
-def chain(plant: Any, a: int, b: int, fallback: bool = True,
-          start: int = 0) -> list[tuple[Any, ...]]:
+def chain(plant: Any, a: int, b: int, fallback: bool = True, start: int = 0,
+          estimator_stops: bool = False) -> list[tuple[Any, ...]]:
     """The four-process chain with ``agei`` away for samples ``[a, b)``: per sample k, (q^_k,
-    r_k, R_k, alarm_k, (active, isolated) of the estimator or None when it did not run).
+    r_k, R_k, alarm_k, (active, isolated, sigma^_{k+1}) of the estimator).
 
     The nodes' rule: agei's decision for k (made at k - 1) is absent when agei did not
     process k - 1; the observer then uses its LocalAgei's trigger, the detector its
-    LocalAgei's override (``fallback``; else none), and sigma^ is at its initial value 0
-    (the estimator needs agei's guard event for k, so it stops with agei). At ``b`` agei is
-    a fresh process and the estimator starts a run of its own (its join skips to the first
-    sample with all its inputs: a restart).
+    LocalAgei's override (``fallback``; else none). The estimator needs agei's
+    ``mode_uncertain`` decided at k: absent when agei did not process k; it then uses its
+    own LocalAgei's (``fallback``; else "certain") and goes on, so sigma^ keeps coming. At
+    ``b`` agei is a fresh process.
+
+    ``estimator_stops``: the estimator before it had its own AGEI (agei's guard event a
+    required input): it stops while agei is away (None), sigma^ is 0 meanwhile, and at ``b``
+    its join skips to the first sample with all its inputs (a restart).
     """
     system, gains, U, Y = plant
     m = Monitor(system, gains)                   # the components and their feedback
     obs_agei = LocalAgei(system, m.gains, residuals=True) if fallback else None
     det_agei = LocalAgei(system, m.gains, residuals=False) if fallback else None
+    est_agei = LocalAgei(system, m.gains, residuals=True) if fallback else None
     zero = [0.0] * system.ny
     out = []
     for k in range(start, N):
@@ -67,9 +74,11 @@ def chain(plant: Any, a: int, b: int, fallback: bool = True,
         absent = a <= k - 1 < b and k > start
         if k == b:
             m.agei.reset()
-            m.estimator.reset()
+            if estimator_stops:
+                m.estimator.reset()
         trigger = (obs_agei.trigger if obs_agei else NO_TRIGGER) if absent else m._trigger
-        obs, x_hat, y_t = m.observer.step1(k, U[k], Y[k], zero if absent else m._sigma, trigger)
+        sigma = zero if absent and estimator_stops else m._sigma
+        obs, x_hat, y_t = m.observer.step1(k, U[k], Y[k], sigma, trigger)
         q = int(obs.mode)
         if obs_agei:
             obs_agei.observe(k, q, y_t, x_hat)
@@ -77,13 +86,18 @@ def chain(plant: Any, a: int, b: int, fallback: bool = True,
         det, r, w, nominal, alarm = m.detector.step1(k, y_t, x_hat, q, override)
         if det_agei:
             det_agei.decide(k, q, w, r, nominal)
-        est = None
+        if est_agei:
+            est_agei.observe(k, q, y_t, x_hat)
+        uncertain = bool(est_agei.mode_uncertain) if est_agei else False
         if runs:
             ag, ov = m.agei.step1(k, q, w, r, nominal)
             m._override = ov if ag.row >= 0 else None
             m._trigger = int(ag.trigger)
-            e, m._sigma = m.estimator.step1(k, U[k], Y[k], q, alarm, bool(ag.mode_uncertain))
-            est = (bool(e.active), tuple(e.isolated.tolist()))
+            uncertain = bool(ag.mode_uncertain)
+        est = None
+        if runs or not estimator_stops:
+            e, m._sigma = m.estimator.step1(k, U[k], Y[k], q, alarm, uncertain)
+            est = (bool(e.active), tuple(e.isolated.tolist()), tuple(e.sigma_hat.tolist()))
         out.append((q, tuple(r), tuple(det.threshold.tolist()), tuple(alarm), est))
     return out
 
@@ -97,7 +111,8 @@ def fused(plant: Any, start: int = 0) -> list[tuple[Any, ...]]:
         o = m.step(k, U[k], Y[k])
         out.append((o.mode, tuple(o.detector.residual.tolist()),
                     tuple(o.detector.threshold.tolist()), tuple(o.detector.alarm.tolist()),
-                    (bool(o.estimator.active), tuple(o.estimator.isolated.tolist()))))
+                    (bool(o.estimator.active), tuple(o.estimator.isolated.tolist()),
+                     tuple(o.estimator.sigma_hat.tolist()))))
     return out
 
 
@@ -149,7 +164,8 @@ def test_the_h1_bias_is_alarmed_as_without_the_outage(plant):
     """The +1 cm h1 bias at 2000: after an outage across the crossing (agei back at 1058) it
     is alarmed at its first sample and isolated at the same sample as by the fused monitor;
     during an outage (agei away from 1950 to 2100) it is alarmed at its first sample too, by
-    the detector's own thresholds (the estimator, which needs agei, waits for it)."""
+    the detector's own thresholds, and estimated and isolated as by the fused monitor, by the
+    estimator's own AGEI (an estimator that waits for agei had not isolated it by 2300)."""
     ref = fused(plant)
     k_alarm = alarms(ref)[0]
     k_iso = next(k for k, s in enumerate(ref) if s[4] and any(s[4][1]))
@@ -160,21 +176,33 @@ def test_the_h1_bias_is_alarmed_as_without_the_outage(plant):
     assert run[k_iso][4][1] == (True, False, False)     # h1
     run = chain(plant, 1950, 2100)
     assert alarms(run)[0] == k_alarm
-    # the same numbers up to the alarm; then the fused monitor's estimator accommodates the
-    # bias (y~ = y - sigma^), the chain's waits for agei
-    assert [k for k in range(FAULT + 1) if run[k][:4] != ref[k][:4]] == []
+    # every number -- mode, residual, threshold, alarm, the estimator's active flag,
+    # isolation and sigma^ -- is the fused monitor's at every sample, during the outage
+    # (agei's decisions from the nodes' own AGEI) and after it (the fresh agei decides as
+    # the fused one: no guard near); bit for bit, no tolerance
+    assert [k for k in range(N) if run[k] != ref[k]] == []
+    assert next(k for k, s in enumerate(run) if any(s[4][1])) == k_iso == 2217
+    assert run[k_iso][4][1] == (True, False, False)     # h1
+    assert run[-1][4][2][0] == pytest.approx(0.01, abs=5e-4)     # the +1 cm bias, 0.5 mm
+    # the estimator that waited for agei (before): it restarts at 2100, its detection at
+    # 2000 lost with the outage: no isolation by 2300
+    old = chain(plant, 1950, 2100, estimator_stops=True)
+    assert alarms(old)[0] == k_alarm
+    assert not any(s[4] and any(s[4][1]) for s in old)
 
 
 @pytest.mark.ros
 def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
-    """Real DDS, default parameters: the observer and the detector in process, ``agei`` a
-    process, SIGKILLed before the crossing (and not restarted). The two nodes go on with
-    their own AGEI: outputs continue, the observer switches at the crossing, no alarm, and
-    every residual, threshold and mode equals the fused monitor's on the same samples; the
-    ``agei`` status of both nodes says WARN from the first sample without agei."""
+    """Real DDS, default parameters: the observer, the detector and the bias estimator in
+    process, ``agei`` a process, SIGKILLed before the crossing (and not restarted). The three
+    nodes go on with their own AGEI: outputs continue (bias estimates included), the
+    observer switches at the crossing, no alarm, and every residual, threshold, mode and
+    bias estimate equals the fused monitor's on the same samples; the ``agei`` status of the
+    three nodes says WARN from the first sample without agei."""
     from ros_util import Proc, ros_context, spin_until
     from test_nodes_graph import Rig
 
+    from fd_monitor.nodes.bias_estimator import BiasEstimatorNode
     from fd_monitor.nodes.detector import DetectorNode
     from fd_monitor.nodes.diagnostics import WARN
     from fd_monitor.nodes.observer import ObserverNode
@@ -187,8 +215,10 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
     agei = Proc(["run", "agei"])
     with ros_context() as ctx:
         obs, det = ObserverNode(context=ctx), DetectorNode(context=ctx)
-        rig = Rig(ctx, [obs, det], topics=("fd/state_estimate", "fd/residual", "fd/threshold",
-                                           "fd/alarm", "fd/guard_event"))
+        bias = BiasEstimatorNode(context=ctx)
+        rig = Rig(ctx, [obs, det, bias], topics=(
+            "fd/state_estimate", "fd/residual", "fd/threshold", "fd/alarm", "fd/guard_event",
+            "fd/bias_estimate"))
         col = rig.col
 
         def last(topic: str) -> int:
@@ -196,7 +226,10 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
 
         try:
             # agei subscribed to every input and matched by both nodes' feedback inputs
-            feedback = [obs._data_inputs["guard"].sub, det._data_inputs["override"].sub]
+            # (the estimator: every input, and its estimate by the observer)
+            feedback = [obs._data_inputs["guard"].sub, det._data_inputs["override"].sub,
+                        obs._data_inputs["sigma"].sub,
+                        *(i.sub for i in bias._data_inputs.values())]
             assert rig.spin(lambda: all(s.get_publisher_count() for s in feedback)
                             and obs.pub.get_subscription_count() >= 3
                             and all(det.pubs[t].get_subscription_count() >= 2
@@ -212,7 +245,9 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
             # for the dead peer (gap_timeout); then the rest, open loop
             assert rig.spin(lambda: last("/fd/alarm") > kill, 10.0), last("/fd/alarm")
             t_on = time.monotonic() - t_kill
-            assert rig.spin(lambda: last("/fd/alarm") >= end - 1, 30.0), last("/fd/alarm")
+            assert rig.spin(lambda: last("/fd/alarm") >= end - 1
+                            and last("/fd/bias_estimate") >= end, 30.0), (
+                last("/fd/alarm"), last("/fd/bias_estimate"))
             t_done = time.monotonic() - t_kill
         finally:
             agei.stop()
@@ -225,12 +260,23 @@ def test_agei_killed_before_the_crossing_no_false_alarm_over_dds(plant):
         q, r, R, _, _ = ref[d_r.stamp - start]
         assert (int(d_e.values[0]), tuple(d_r.values[:ny]), tuple(d_t.values[:ny])) == (q, r, R)
     assert not any(d.values.any() for d in col.decoded("/fd/alarm"))
+    # the estimator went on without agei: every sample's estimate, the fused monitor's
+    bias_est = col.decoded("/fd/bias_estimate")
+    assert [d.stamp for d in bias_est] == list(range(start + 1, end + 1))
+    for d in bias_est:
+        active, iso, sigma = ref[d.stamp - 1 - start][4]
+        assert (tuple(d.values[:ny]), tuple(d.values[ny:2 * ny] > 0.5),
+                bool(d.values[2 * ny] > 0.5)) == (sigma, iso, active), d.stamp
     k_switch = next(d.stamp for d in est if d.values[0] != est[0].values[0])
     assert k_switch == start + switches(ref)[0] and k_switch > kill
     assert "guard" in obs.join.lost_feedback and det.join.lost_feedback == {"override"}
-    for node in ("observer", "detector"):
+    assert bias.join.lost_feedback == {"guard"}
+    # agei's last decision was for sample kill - 1: the estimator (which needs the decision
+    # at k) is without it from kill, the observer and the detector (at k - 1) from kill + 1
+    for node, first in (("observer", kill + 1), ("detector", kill + 1),
+                        ("bias_estimator", kill)):
         warn = [s.message for s in col.statuses(f"{node}: agei") if s.level == WARN]
-        assert any(f"since sample {kill + 1} " in m for m in warn), (node, warn)
+        assert any(f"since sample {first} " in m for m in warn), (node, warn)
     print(f"agei killed at sample {kill}: outputs on {t_on:.2f} s later, the rest "
           f"({end - kill} samples) {t_done:.2f} s later; observer switched at {k_switch}")
     # gap_timeout (1 s) for the observer, the detector's wait counts from its own last

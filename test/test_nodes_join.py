@@ -689,3 +689,63 @@ def test_sent_time_sees_a_queue_whatever_the_publishers_clock():
         assert 106.001 - got <= 0.001 + 1e-9
     # never later than now
     assert SentTime().sent(20.0, 10.0, now=1.0, now_wall=10.0) == 1.0
+
+
+def optional_rows(j, now):
+    return [(s.k, s.restart, s.bridge, s.feedback_lost, s.inputs["g"]) for s in j.ready(now)]
+
+
+def test_an_optional_input_is_its_own_stamps_or_none_never_a_substitute():
+    """An optional input (the bias estimator's AGEI decision at k: the node has its own AGEI)
+    is waited for like a required one while its publisher is there; unlike feedback it is
+    not replaced at a restart or a bridge (the sample gets its own stamp's message)."""
+    there = {"g": True}
+    j = StampJoin(["est"], {"fb": FB0}, sequence="est", restart_after=1.0,
+                  feedback_source=lambda n: there[n], optional=["g"])
+    j.put("est", 0, "e0", 0.0, restart=True)
+    assert optional_rows(j, 0.5) == []                 # waited for, at a restart too
+    j.put("g", 0, "g0", 0.5)
+    assert optional_rows(j, 0.5) == [(0, True, False, False, "g0")]
+    j.put("fb", 1, "fb1", 0.6)
+    j.put("est", 3, "e3", 0.6, bridge=True)            # the entry lost 1, 2
+    assert optional_rows(j, 0.7) == []
+    j.put("g", 3, "g3", 0.7)
+    assert optional_rows(j, 0.7) == [(3, False, True, False, "g3")]
+    there["g"] = False                                 # no publisher: not waited for
+    j.put("fb", 4, "fb4", 0.8)
+    j.put("est", 4, "e4", 0.8)
+    assert optional_rows(j, 0.8) == [(4, False, False, False, None)]
+    assert j.lost_feedback == set() and j.feedback_losses == 0
+    with pytest.raises(ValueError, match="downstream role only"):
+        StampJoin(["u", "y"], optional=["g"])
+
+
+def test_a_lost_optional_input_is_none_until_its_publisher_is_back():
+    """Its publisher killed (still matched until its lease ends): the sample is released
+    with None after restart_after s, as lost feedback is, and the input is not waited for
+    until a message of it arrives. The restarted publisher's first message is for a later
+    stamp: the stamps before it get None at once (in order per topic, theirs will not come),
+    no wait, no restart; from then on it is waited for again."""
+    j = StampJoin(["est"], sequence="est", restart_after=1.0, optional=["g"])
+    j.put("est", 0, "e0", 0.0, restart=True)
+    j.put("g", 0, "g0", 0.0)
+    assert optional_rows(j, 0.0) == [(0, True, False, False, "g0")]
+    j.put("est", 1, "e1", 0.1)
+    assert optional_rows(j, 0.9) == []
+    assert optional_rows(j, 1.0) == [(1, False, False, True, None)]
+    assert j.lost_feedback == {"g"} and j.last_lost == ("g",) and j.feedback_losses == 1
+    j.put("est", 2, "e2", 1.1)
+    j.put("est", 3, "e3", 1.1)
+    assert optional_rows(j, 1.1) == [(2, False, False, False, None),
+                                     (3, False, False, False, None)]
+    j.put("est", 4, "e4", 1.2)
+    j.put("est", 5, "e5", 1.2)
+    j.put("g", 5, "g5", 1.3)                           # the restarted publisher's first
+    assert j.lost_feedback == set() and j.resumed == ["g"]
+    assert optional_rows(j, 1.3) == [(4, False, False, False, None),
+                                     (5, False, False, False, "g5")]
+    j.put("est", 6, "e6", 1.4)
+    assert optional_rows(j, 1.4) == []                 # waited for again
+    j.put("g", 6, "g6", 1.5)
+    assert optional_rows(j, 1.5) == [(6, False, False, False, "g6")]
+    assert j.restarts == 0 and j.feedback_losses == 1

@@ -1,9 +1,11 @@
 """A chain node's stand-in for a lost ``agei`` node (observer: the guard trigger; detector: the
-threshold override): :class:`AgeiFallback`, its parameter and its ``agei`` status.
+threshold override; bias estimator: ``mode_uncertain``): :class:`AgeiFallback`, its parameter
+and its ``agei`` status.
 
 The node runs :class:`~fd_monitor.core.local_agei.LocalAgei` at every sample and uses its
 decision for a sample whose AGEI feedback is absent -- the join gave that input its initial
-value because its publisher is lost or not there (``doc/howto/overload-and-recovery.md``).
+value because its publisher is lost or not there (``doc/howto/overload-and-recovery.md``);
+the bias estimator's is an optional input, None when absent.
 A restart sample is not an absence: every node starts a run with no trigger and no override,
 and so does the local AGEI.
 """
@@ -18,13 +20,13 @@ from fd_monitor.nodes.params import Param
 
 __all__ = ["AGEI_FALLBACK", "AgeiFallback"]
 
-#: Of the observer and the detector (the consumers of AGEI's decisions).
+#: Of the observer, the detector and the bias estimator (the consumers of AGEI's decisions).
 AGEI_FALLBACK = Param(
     "agei_fallback", True, "while the agei node's decisions are absent (agei killed, "
     "restarting or not started) decide them with this node's own copy of AGEI (the same code "
     "on the same numbers: the guard events and thresholds agei would send); false: go on "
-    "without them (no trigger, no override: a guard crossing then leaves the mode estimate "
-    "in the old mode and can alarm)")
+    "without them (no trigger, no override, mode certain: a guard crossing then leaves the "
+    "mode estimate in the old mode and can alarm)")
 
 
 class AgeiFallback:

@@ -6,6 +6,14 @@ at k (``/fd/guard_event`` stamped k + 1: its ``mode_uncertain``, 1 while q^ may 
 which case sigma^ is held). Publishes
 ``/fd/bias_estimate`` stamped k + 1: sigma^_{k+1} (per output), ``iso:<out>`` isolation
 flags, ``active``, ``k_detect`` (-1 before detection).
+
+AGEI's decision is an *optional* input (:class:`~fd_monitor.nodes.inputs.Input`): waited
+for while ``agei`` is there, absent when it is away (killed, restarting, not started). The
+node runs its own copy of AGEI on the state estimate (``agei_fallback``,
+:class:`~fd_monitor.core.local_agei.LocalAgei`: the residuals from q^, x^, y~ as the detector
+computes them, then AGEI: the same code on the same numbers) and uses its ``mode_uncertain``
+for an absent sample, so it keeps estimating and isolating while agei is away; the ``agei``
+status says WARN meanwhile. With agei there, its message is used: the numbers are unchanged.
 """
 
 from __future__ import annotations
@@ -16,9 +24,12 @@ from typing import Any
 from rclpy.qos import QoSProfile
 
 from fd_monitor.core.bias_estimator import BiasEstimator
+from fd_monitor.core.filters import as_floats
+from fd_monitor.core.local_agei import LocalAgei
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
+from fd_monitor.nodes.agei_fallback import AGEI_FALLBACK, AgeiFallback
 from fd_monitor.nodes.chain_params import COMMON_PARAMS, FAULT_PARAMS
 from fd_monitor.nodes.fault import FaultReport, fault_report
 from fd_monitor.nodes.fd_node import FdNode
@@ -39,7 +50,7 @@ from fd_monitor.wire.topics import (
 
 __all__ = ["BiasEstimatorNode", "USAGE", "main"]
 
-PARAMS: tuple = FAULT_PARAMS
+PARAMS: tuple = (*FAULT_PARAMS, AGEI_FALLBACK)
 
 USAGE = NodeUsage(
     "bias_estimator", "bias_estimator: adaptive sensor-bias estimator (thresholds gain files "
@@ -47,12 +58,14 @@ USAGE = NodeUsage(
     subscribes=((PLANT_U, "u_k"), (PLANT_Y, "raw y_k"),
                 (STATE_ESTIMATE, "q^_k from observer"),
                 (ALARM, "alarm_k from detector (the first one starts estimation)"),
-                (GUARD_EVENT, "AGEI mode_uncertain at k (stamped k + 1)")),
+                (GUARD_EVENT, "AGEI mode_uncertain at k (stamped k + 1; while agei is away: "
+                 "this node's own AGEI's)")),
     publishes=((BIAS_ESTIMATE, "sigma^_{k+1}, iso:<out>, active, k_detect "
                 "(stamp k + 1)"),
                (FAULT, "the latched fault verdict per output: fault, isolated, estimate, "
                 "since (on change; transient local)"),
-               (DIAGNOSTICS, "input, estimate and fault status")))
+               (DIAGNOSTICS, "input, estimate, fault and agei status (WARN while agei's "
+                "decisions are absent)")))
 
 
 class BiasEstimatorNode(FdNode):
@@ -74,6 +87,7 @@ class BiasEstimatorNode(FdNode):
         self._estimator_arg = estimator
         self.bias_report: BiasReport | None = None
         self.fault: FaultReport | None = None
+        self._fallback: AgeiFallback | None = None
         super().__init__(node_name, PARAMS, system, gains, qos, **kwargs)
 
     def setup(self) -> None:
@@ -84,6 +98,9 @@ class BiasEstimatorNode(FdNode):
     def build_core(self, gains: Any) -> None:
         """A new estimator for another gain file (runtime swap)."""
         self.estimator = BiasEstimator(self.system, as_gains(self.system, gains))
+        if self._fallback is not None and self._fallback.local is not None:
+            self._fallback.local = LocalAgei(self.system, as_gains(self.system, gains),
+                                             residuals=True)
 
     def _thresholds_only(self) -> None:
         """The sensor-bias chain's runtime (any other method is refused at start)."""
@@ -107,16 +124,23 @@ class BiasEstimatorNode(FdNode):
             Input.of("y", PLANT_Y, s, plain_ok=True),
             Input.of("est", STATE_ESTIMATE, s, sequence=True),
             Input.of("alarm", ALARM, s),
-            Input.of("guard", GUARD_EVENT, s, stamp_offset=-1),
+            # agei's decision at k; absent (None) while agei is away: the local AGEI's
+            Input.of("guard", GUARD_EVENT, s, stamp_offset=-1, optional=True),
         ]
-        # the fields read, resolved once: q^, the alarms, mode_uncertain
+        # the fields read, resolved once: q^, x^, y~, the alarms, mode_uncertain
         lay = {i.name: i.layout.index for i in inputs if i.layout is not None}
         self._i = (lay["est"]["mode"], lay["alarm"]["alarm"], lay["guard"]["mode_uncertain"])
+        self._i_xy = (lay["est"]["x_hat"], lay["est"]["y_tilde"])
+        self._fallback = AgeiFallback(
+            self, LocalAgei(s, as_gains(s, self.gain_file), residuals=True)
+            if self.params.agei_fallback else None, None, "guard events")
         self.start_inputs(inputs)
 
     def reset(self) -> None:
         """Back to inactive, sigma^ = 0 (Monitor.reset)."""
         self.estimator.reset()
+        if self._fallback is not None and self._fallback.local is not None:
+            self._fallback.local.reset()
         if self.bias_report is not None:
             self.bias_report.reset()
         if self.fault is not None:
@@ -126,13 +150,26 @@ class BiasEstimatorNode(FdNode):
         """sigma^, K_d and isolation kept over a bridged gap, the state predicted through it
         (Monitor.bridge)."""
         self.estimator.bridge(k, inputs["u"], inputs["y"])
+        if self._fallback is not None and self._fallback.local is not None:
+            self._fallback.local.bridge()
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """u_k, y_k, q^_k, alarm_k, AGEI row at k -> sigma^_{k+1}, isolation flags."""
         i_mode, i_alarm, i_uncertain = self._i
-        out = self.estimator.step(k, inputs["u"], inputs["y"], int(inputs["est"][i_mode]),
-                                  inputs["alarm"][i_alarm] > 0.5,
-                                  bool(inputs["guard"][i_uncertain] > 0.5))
+        est, guard, fb = inputs["est"], inputs["guard"], self._fallback
+        assert fb is not None                    # configured
+        mode, local = int(est[i_mode]), fb.local
+        if local is not None:
+            # AGEI's decision at k on this sample's numbers (its filters follow the run)
+            i_x, i_y = self._i_xy
+            local.observe(k, mode, as_floats(est[i_y]), as_floats(est[i_x]))
+        # agei's mode_uncertain; while it is absent, the local AGEI's (none without it)
+        if fb.absent(k, guard, False):
+            uncertain = local is not None and local.mode_uncertain
+        else:
+            uncertain = bool(guard[i_uncertain] > 0.5)
+        out = self.estimator.step(k, inputs["u"], inputs["y"], mode,
+                                  inputs["alarm"][i_alarm] > 0.5, uncertain)
         lay = self._bias
         self.publish_array(self.pub, lay.labels, k + 1, lay.encode(out.payload()))
         assert self.bias_report is not None and self.fault is not None   # configured

@@ -74,7 +74,7 @@ class InputPath:
             node._entities.append(node.create_subscription(Empty, RESET.name,
                                                            node._on_reset_request, 10))
         max_gap = int(getattr(params, "max_gap", 0))
-        self.join = StampJoin([i.name for i in inputs if i.initial is None],
+        self.join = StampJoin([i.name for i in inputs if i.initial is None and not i.optional],
                               {i.name: i.initial for i in inputs if i.initial is not None},
                               params.max_pending, sequence=seq[0] if seq else None,
                               gap_timeout=None if seq else gap_timeout,
@@ -83,7 +83,8 @@ class InputPath:
                               feedback_source=self.feedback_source,
                               max_gap=max_gap, max_lag=params.max_lag or None,
                               sample_time=float(node.system.sample_time),
-                              batch_pace=params.batch_pace)
+                              batch_pace=params.batch_pace,
+                              optional=[i.name for i in inputs if i.optional])
         node.input_status.join = self.join
         #: The input policy shared with offline reading (order check, join, release).
         self.stream = InputStream(self.join, node._run, node.input_status.note)

@@ -36,6 +36,11 @@ class Input:
     stamp_offset : int
         Joined at ``stamp + stamp_offset``: -1 for a feedback message (stamped k + 1) that
         is needed at the sample it was decided at (k).
+    optional : bool
+        Needed at the sample itself (not feedback) but the node can do without it: waited
+        for while its publisher is matched, else (or lost, as feedback is) ``None`` in
+        ``process`` (``fd/guard_event`` for the bias estimator, which then runs its own
+        AGEI; downstream nodes only: :class:`~fd_monitor.wire.join.StampJoin` ``optional``).
     sequence : bool
         ``fd/state_estimate`` of the entry node: its stamps are the samples this node
         processes and its ``restart`` field flags a restart (downstream role of
@@ -54,6 +59,7 @@ class Input:
     hold: bool = False
     allow_nan: bool = False
     stamp_offset: int = 0
+    optional: bool = False
     sequence: bool = False
     layout: Layout | None = None
 

@@ -35,6 +35,17 @@ Feedback is waited for only while its source exists (``feedback_source``: the no
 whether a publisher is matched); without one the sample is released with that feedback at its
 initial value and no restart: the node runs open loop.
 
+An *optional* input (downstream role: ``optional``, e.g. the bias estimator's AGEI decision
+at k, which the node can compute itself) is data of the sample itself, not feedback: it is
+waited for like a required input while its publisher is matched, and released as ``None``
+(absent: the node uses its own copy) when it has no publisher, when it is declared lost as
+lost feedback is (``restart_after`` s, below; :attr:`Sample.feedback_lost`,
+:attr:`StampJoin.lost_feedback`), or when a later stamp has it (delivery is in order per
+topic: the message for this stamp will not come -- a restarted publisher's first samples).
+Unlike feedback it is never replaced at restarts and bridges: a sample gets the message of
+its own stamp or ``None``, so while the publisher is there the node's numbers are those of a
+required input.
+
 Lost feedback is not a reason to forget. When the feedback for a sample has not come in time
 (``gap_timeout`` s after the sample was complete, entry role; ``restart_after`` s,
 downstream), the sample is released with that feedback at its initial value
@@ -123,7 +134,8 @@ class Sample(NamedTuple):
     ----------
     k : int
     inputs : dict
-        Input name -> value (feedback at its initial value at a restart).
+        Input name -> value (feedback at its initial value at a restart; an absent optional
+        input: None).
     restart : bool
         First sample, or first after a hole longer than ``max_gap``: reset the core
         component before it.
@@ -171,6 +183,9 @@ class StampJoin:
         Inputs needed at every sample.
     feedback : mapping of str to object
         Inputs needed at every sample but a restart, with their value at a restart.
+    optional : sequence of str
+        Downstream role: inputs of the sample itself that the node can do without (None
+        when absent; see the module docstring). Waited for while ``feedback_source(name)``.
     max_pending : int
         Stamps buffered at most; beyond, the oldest incomplete stamps are dropped (the node
         reports it).
@@ -214,8 +229,13 @@ class StampJoin:
                  restart_after: float = 1.0,
                  feedback_source: Callable[[str], bool] | None = None,
                  max_gap: int = 0, max_lag: float | None = None,
-                 sample_time: float | None = None, batch_pace: float = 0.0) -> None:
+                 sample_time: float | None = None, batch_pace: float = 0.0,
+                 optional: Sequence[str] = ()) -> None:
         self.required = tuple(required)
+        self.optional = tuple(optional)
+        if self.optional and sequence is None:
+            raise ValueError(f"optional inputs {self.optional}: downstream role only (give "
+                             f"the sequence input)")
         self.sample_time = sample_time
         self.batch_pace = float(batch_pace) if sample_time else 0.0
         self.max_gap = int(max_gap)
@@ -223,7 +243,7 @@ class StampJoin:
             float(max_lag), gap_timeout or 0.0, restart_after if sequence is not None else 0.0))
         self.feedback_source = feedback_source
         self.feedback = dict(feedback or {})
-        self.names = (*self.required, *self.feedback)
+        self.names = (*self.required, *self.feedback, *self.optional)
         if sequence is not None and sequence not in self.required:
             raise ValueError(f"sequence input {sequence!r} is not a required input")
         self.sequence = sequence
@@ -303,7 +323,7 @@ class StampJoin:
                       horizon=self.horizon, restart_after=self.restart_after,
                       feedback_source=self.feedback_source, max_gap=self.max_gap,
                       max_lag=self.max_lag, sample_time=self.sample_time,
-                      batch_pace=self.batch_pace)
+                      batch_pace=self.batch_pace, optional=self.optional)
 
     # -- input ---------------------------------------------------------------------------------
 
@@ -480,6 +500,9 @@ class StampJoin:
             self.rejected = {j for j in self.rejected if j > k}
         marked = k in self._marked
         slot = self._forget(k)
+        for n in self.optional:
+            if n not in slot:
+                slot[n] = None                   # absent: the node uses its own copy
         self._restart_next = False
         adopted, self._adopted = self._adopted, None
         if not restart and hole is None and bridge is None:
@@ -735,11 +758,21 @@ class StampJoin:
                 k = self.k_next
                 return self._release(newest, True, None if k is None else (k, newest - 1),
                                      shed=n)
+        lost = False
+        k_prev = self.k_next
+        if self.optional and not self._optional_here(s, slot):
+            # data of this sample, waited for as lost feedback is, from the previous release
+            # (from its completion for the first sample); not replaced at a restart or a
+            # bridge: it is this stamp's or None
+            since = self._progress if k_prev is not None else self._complete_since[s]
+            if now - since < self.restart_after:
+                return None
+            self._lose_optional(slot)
+            lost = True
         k = self.k_next
         bridged = s in self._bridge_at and not skipped
         restart = (k is None or s in self._restart_at or self._restart_next
                    or (s != k and not bridged))
-        lost = False
         fb: dict[str, Any] | None = None
         if not restart and bridged:
             # across the entry's bridged gap: the feedback stamped k, decided at the last
@@ -772,6 +805,25 @@ class StampJoin:
             return False
         slot.update((n, self.feedback[n]) for n in missing)
         return True
+
+    def _optional_here(self, k: int, slot: dict[str, Any]) -> bool:
+        """Every optional input of ``slot`` (stamp ``k``) is here or not waited for: declared
+        lost, no publisher, or a later stamp has it (in order per topic: the message for
+        ``k`` will not come). The absent ones are released as None."""
+        for n in self.optional:
+            if n in slot or n in self.lost_feedback or not (
+                    self.feedback_source is None or self.feedback_source(n)):
+                continue
+            if not any(n in other for j, other in self.pending.items() if j > k):
+                return False
+        return True
+
+    def _lose_optional(self, slot: dict[str, Any]) -> None:
+        """The optional inputs missing from ``slot`` did not come in time: not waited for
+        until a message of theirs arrives (as lost feedback)."""
+        self.last_lost = tuple(n for n in self.optional if n not in slot)
+        self.lost_feedback.update(self.last_lost)
+        self.feedback_losses += 1
 
     def _lose(self, k: int, slot: dict[str, Any]) -> dict[str, Any]:
         """The feedback missing from ``slot`` (stamp ``k``) did not come in time: put its
