@@ -135,8 +135,8 @@ class InputPath:
                 log.info(f"{topic}: a publisher is here: waiting for its feedback again")
             else:
                 self._open_loop.add(name)
-                log.info(f"{topic}: no publisher: running without this feedback (its "
-                         f"initial value) until one appears")
+                log.info(f"{topic}: no publisher: running without it (feedback at its "
+                         f"initial value, an optional input absent) until one appears")
         return there
 
     def callback(self, inp: Input) -> Callable[..., None]:

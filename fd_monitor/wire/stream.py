@@ -227,7 +227,8 @@ class InputStream:
                 names = ", ".join(join.last_lost) or "feedback"
                 gone = ", ".join(sorted(join.lost_feedback))
                 self.note("feedback_lost", f"feedback for sample {s.k} did not come in time "
-                          f"({names}): processed with its initial value, state kept"
+                          f"({names}): processed without it (feedback at its initial value, "
+                          f"an optional input absent), state kept"
                           + (f"; not waited for until it comes again ({gone})" if gone
                              else " (a later one is here)"), s.k)
             if s.new_run is not None:
