@@ -10,57 +10,35 @@ the fused monitor gives the mode switches; around each, ``agei`` is away from ``
 before to ``d2`` after (``d1`` in 1, 5, 30, 80; ``d2`` in 1, 5, 20, 60, 150), and the
 four-process chain's arithmetic is run in process with the nodes' rule per sample (the one
 ``test/test_agei_outage.py`` checks: the observer's and the detector's ``LocalAgei`` decide
-while agei's decisions are absent; the estimator, which needs agei, stops; agei comes back
-fresh). Prints the outages with a false alarm, with the fallback and without it (figures
+while agei's decisions are absent, the estimator's its ``mode_uncertain``; agei comes
+back fresh). Prints the outages with a false alarm, with the fallback and without it (figures
 only, no assertion).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 from typing import Any
 
-from fd_monitor.core.hybrid_observer import NO_TRIGGER
-from fd_monitor.core.local_agei import LocalAgei
 from fd_monitor.core.methods import load_gains
-from fd_monitor.core.monitor import Monitor
 from fd_monitor.core.simulator import simulate
 from fd_monitor.model.scenario import load_scenario
 from fd_monitor.model.system import load_system
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
+
+from test_agei_outage import chain
+
 
 def chain_alarms(system: Any, gains: Any, U: list[list[float]], Y: list[list[float]], a: int,
                  b: int, fallback: bool) -> tuple[list[int], list[int]]:
-    """Alarmed samples and q^ per sample of the chain with agei away for ``[a, b)``."""
-    m = Monitor(system, gains)
-    obs_agei = LocalAgei(system, m.gains, residuals=True) if fallback else None
-    det_agei = LocalAgei(system, m.gains, residuals=False) if fallback else None
-    zero = [0.0] * system.ny
-    alarms, modes = [], []
-    for k in range(len(U)):
-        absent = a <= k - 1 < b                  # agei did not decide at k - 1
-        if k == b:
-            m.agei.reset()
-            m.estimator.reset()
-        trigger = (obs_agei.trigger if obs_agei else NO_TRIGGER) if absent else m._trigger
-        obs, x_hat, y_t = m.observer.step1(k, U[k], Y[k], zero if absent else m._sigma, trigger)
-        q = int(obs.mode)
-        if obs_agei:
-            obs_agei.observe(k, q, y_t, x_hat)
-        override = (det_agei.override if det_agei else None) if absent else m._override
-        _, r, w, nominal, alarm = m.detector.step1(k, y_t, x_hat, q, override)
-        if det_agei:
-            det_agei.decide(k, q, w, r, nominal)
-        if not a <= k < b:
-            ag, ov = m.agei.step1(k, q, w, r, nominal)
-            m._override = ov if ag.row >= 0 else None
-            m._trigger = int(ag.trigger)
-            _, m._sigma = m.estimator.step1(k, U[k], Y[k], q, alarm, bool(ag.mode_uncertain))
-        if any(alarm):
-            alarms.append(k)
-        modes.append(q)
-    return alarms, modes
+    """Alarmed samples and q^ per sample of the chain with agei away for ``[a, b)``: the
+    test's harness (:func:`test_agei_outage.chain`, one copy of the nodes' rule)."""
+    run = chain((system, gains, U, Y), a, b, fallback=fallback)
+    return [k for k, s in enumerate(run) if any(s[3])], [s[0] for s in run]
 
 
 def main() -> None:

@@ -48,7 +48,8 @@ def plant() -> Any:
 
 def chain(plant: Any, a: int, b: int, fallback: bool = True, start: int = 0,
           estimator_stops: bool = False) -> list[tuple[Any, ...]]:
-    """The four-process chain with ``agei`` away for samples ``[a, b)``: per sample k, (q^_k,
+    """The four-process chain with ``agei`` away for samples ``[a, b)`` (``plant``: system,
+    gains, u and y as lists; ``benchmarks/agei_outage_sweep.py`` runs it too): per sample k, (q^_k,
     r_k, R_k, alarm_k, (active, isolated, sigma^_{k+1}) of the estimator).
 
     The nodes' rule: agei's decision for k (made at k - 1) is absent when agei did not
@@ -69,7 +70,7 @@ def chain(plant: Any, a: int, b: int, fallback: bool = True, start: int = 0,
     est_agei = LocalAgei(system, m.gains, residuals=True) if fallback else None
     zero = [0.0] * system.ny
     out = []
-    for k in range(start, N):
+    for k in range(start, len(U)):
         runs = not a <= k < b
         absent = a <= k - 1 < b and k > start
         if k == b:
