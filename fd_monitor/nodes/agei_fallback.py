@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from fd_monitor.core.local_agei import LocalAgei
+from fd_monitor.core.thresholds import as_gains
 from fd_monitor.nodes.diagnostics import OK, WARN
 from fd_monitor.nodes.params import Param
 
@@ -36,20 +37,47 @@ class AgeiFallback:
     Parameters
     ----------
     node : FdNode
-        Configured (``diag``, ``get_logger``); the status is added to its diagnostics.
-    local : LocalAgei or None
-        None: ``agei_fallback`` false (absent decisions stay at their initial value).
+        Configured (``diag``, ``get_logger``, ``params.agei_fallback``, ``system``,
+        ``gain_file``); the status is added to its diagnostics.
+    residuals : bool
+        The node has no residuals of its own (observer, bias estimator): the local copy
+        computes them (:class:`LocalAgei` ``residuals``).
     initial : object
         The feedback input's initial value, as given to the join: an absent decision is
         that very object (the join fills it in; a received message is a new array).
     what : str
         What the node takes from AGEI, for the status (``"guard events"``, ``"thresholds"``).
+
+    Attributes
+    ----------
+    local : LocalAgei or None
+        None: ``agei_fallback`` false (absent decisions stay at their initial value).
     """
 
-    def __init__(self, node: Any, local: LocalAgei | None, initial: object, what: str) -> None:
-        self.node, self.local, self.initial, self.what = node, local, initial, what
+    def __init__(self, node: Any, residuals: bool, initial: object, what: str) -> None:
+        self.node, self.residuals, self.initial, self.what = node, residuals, initial, what
+        self.local = self._copy(node.gain_file) if node.params.agei_fallback else None
         self.absent_since: int | None = None
         node.diag.add("agei", follows="input", message=f"{what} from agei")
+
+    def _copy(self, gains: Any) -> LocalAgei:
+        s = self.node.system
+        return LocalAgei(s, as_gains(s, gains), residuals=self.residuals)
+
+    def new_gains(self, gains: Any) -> None:
+        """A gain-file swap: a new local copy for ``gains`` (none while the fallback is off)."""
+        if self.local is not None:
+            self.local = self._copy(gains)
+
+    def reset(self) -> None:
+        """The node's restart (:meth:`LocalAgei.reset`)."""
+        if self.local is not None:
+            self.local.reset()
+
+    def bridge(self) -> None:
+        """A bridged gap (:meth:`LocalAgei.bridge`)."""
+        if self.local is not None:
+            self.local.bridge()
 
     def absent(self, k: int, value: object, restarting: bool) -> bool:
         """Sample k's AGEI feedback ``value`` is absent (lost, or no publisher); reported on

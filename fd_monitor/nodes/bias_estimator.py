@@ -25,7 +25,6 @@ from rclpy.qos import QoSProfile
 
 from fd_monitor.core.bias_estimator import BiasEstimator
 from fd_monitor.core.filters import as_floats
-from fd_monitor.core.local_agei import LocalAgei
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
@@ -98,9 +97,8 @@ class BiasEstimatorNode(FdNode):
     def build_core(self, gains: Any) -> None:
         """A new estimator for another gain file (runtime swap)."""
         self.estimator = BiasEstimator(self.system, as_gains(self.system, gains))
-        if self._fallback is not None and self._fallback.local is not None:
-            self._fallback.local = LocalAgei(self.system, as_gains(self.system, gains),
-                                             residuals=True)
+        if self._fallback is not None:
+            self._fallback.new_gains(gains)
 
     def _thresholds_only(self) -> None:
         """The sensor-bias chain's runtime (any other method is refused at start)."""
@@ -131,16 +129,14 @@ class BiasEstimatorNode(FdNode):
         lay = {i.name: i.layout.index for i in inputs if i.layout is not None}
         self._i = (lay["est"]["mode"], lay["alarm"]["alarm"], lay["guard"]["mode_uncertain"])
         self._i_xy = (lay["est"]["x_hat"], lay["est"]["y_tilde"])
-        self._fallback = AgeiFallback(
-            self, LocalAgei(s, as_gains(s, self.gain_file), residuals=True)
-            if self.params.agei_fallback else None, None, "guard events")
+        self._fallback = AgeiFallback(self, True, None, "guard events")
         self.start_inputs(inputs)
 
     def reset(self) -> None:
         """Back to inactive, sigma^ = 0 (Monitor.reset)."""
         self.estimator.reset()
-        if self._fallback is not None and self._fallback.local is not None:
-            self._fallback.local.reset()
+        if self._fallback is not None:
+            self._fallback.reset()
         if self.bias_report is not None:
             self.bias_report.reset()
         if self.fault is not None:
@@ -150,8 +146,8 @@ class BiasEstimatorNode(FdNode):
         """sigma^, K_d and isolation kept over a bridged gap, the state predicted through it
         (Monitor.bridge)."""
         self.estimator.bridge(k, inputs["u"], inputs["y"])
-        if self._fallback is not None and self._fallback.local is not None:
-            self._fallback.local.bridge()
+        if self._fallback is not None:
+            self._fallback.bridge()
 
     def process(self, k: int, inputs: dict[str, Any]) -> None:
         """u_k, y_k, q^_k, alarm_k, AGEI row at k -> sigma^_{k+1}, isolation flags."""

@@ -38,7 +38,6 @@ from rclpy.qos import QoSProfile
 
 from fd_monitor.core.detector import ResidualDetector, no_override
 from fd_monitor.core.filters import as_floats
-from fd_monitor.core.local_agei import LocalAgei
 from fd_monitor.core.qb import QBDetector, QBObserver
 from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.errors import FdMonitorError, MessageError
@@ -174,8 +173,8 @@ class DetectorNode(FdNode):
         s = self.system
         self.detector = (ResidualDetector(s, as_gains(s, gains)) if gains.method == "thresholds"
                          else QBDetector(s, gains))
-        if self._fallback is not None and self._fallback.local is not None:
-            self._fallback.local = LocalAgei(s, as_gains(s, gains), residuals=False)
+        if self._fallback is not None:
+            self._fallback.new_gains(gains)
 
     def _start_thresholds(self) -> None:
         s = self.system
@@ -187,9 +186,7 @@ class DetectorNode(FdNode):
         self._bias = BIAS_ESTIMATE.layout(s)
         self.subscribe(BIAS_ESTIMATE.name, self._on_bias)
         none = no_override(s.ny)
-        self._fallback = AgeiFallback(
-            self, LocalAgei(s, as_gains(s, self.gain_file), residuals=False)
-            if self.params.agei_fallback else None, none, "thresholds")
+        self._fallback = AgeiFallback(self, False, none, "thresholds")
         self.start_inputs([
             Input.of("est", STATE_ESTIMATE, s, sequence=True),
             Input.of("override", THRESHOLD_OVERRIDE, s, initial=none, allow_nan=True),
@@ -224,8 +221,8 @@ class DetectorNode(FdNode):
         """Forget the filters' history (Monitor.reset); the QB detector has no state."""
         if isinstance(self.detector, ResidualDetector):
             self.detector.reset()
-            if self._fallback is not None and self._fallback.local is not None:
-                self._fallback.local.reset()
+            if self._fallback is not None:
+                self._fallback.reset()
         elif self.detector is None:
             self.detector = ResidualDetector(self.system, as_gains(self.system,
                                                                    self.gain_file))

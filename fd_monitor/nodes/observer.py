@@ -34,9 +34,7 @@ from rclpy.qos import QoSProfile
 from fd_monitor.core.envelope import CertifiedRegion
 from fd_monitor.core.filters import as_floats
 from fd_monitor.core.hybrid_observer import NO_TRIGGER, HybridObserver, ObserverOutput
-from fd_monitor.core.local_agei import LocalAgei
 from fd_monitor.core.qb import QBObserver
-from fd_monitor.core.thresholds import as_gains
 from fd_monitor.model.gains import GainFile
 from fd_monitor.model.system import System
 from fd_monitor.nodes.agei_fallback import AGEI_FALLBACK, AgeiFallback
@@ -113,9 +111,8 @@ class ObserverNode(FdNode):
         """A new observer for another gain file (the hybrid observer does not use gains)."""
         if gains.method == "qb":
             self.observer = QBObserver(self.system, gains)
-        elif self._fallback is not None and self._fallback.local is not None:
-            self._fallback.local = LocalAgei(self.system, as_gains(self.system, gains),
-                                             residuals=True)
+        elif self._fallback is not None:
+            self._fallback.new_gains(gains)
 
     def _start_hybrid(self) -> None:
         s = self.system
@@ -127,9 +124,7 @@ class ObserverNode(FdNode):
         self._i_sigma, self._i_trigger = bias.index["sigma_hat"], guard.index["trigger"]
         no_trigger = np.zeros(len(guard.labels))
         no_trigger[self._i_trigger] = float(NO_TRIGGER)
-        self._fallback = AgeiFallback(
-            self, LocalAgei(s, as_gains(s, self.gain_file), residuals=True)
-            if self.params.agei_fallback else None, no_trigger, "guard events")
+        self._fallback = AgeiFallback(self, True, no_trigger, "guard events")
         self.start_inputs([
             Input.of("u", PLANT_U, s, plain_ok=True, hold=True),
             Input.of("y", PLANT_Y, s, plain_ok=True),
@@ -161,8 +156,8 @@ class ObserverNode(FdNode):
             self.observer = HybridObserver(self.system)
         else:
             self.observer.reset()                # Monitor.reset
-        if self._fallback is not None and self._fallback.local is not None:
-            self._fallback.local.reset()
+        if self._fallback is not None:
+            self._fallback.reset()
 
     def bridge(self, k: int, inputs: dict[str, Any]) -> None:
         """Carry the observer over a bridged gap, as the fused runtime does: the hybrid
@@ -173,8 +168,8 @@ class ObserverNode(FdNode):
             self.observer.bridge(k, u, inputs["y"])
         elif self.observer is not None:
             self.observer.bridge()
-            if self._fallback is not None and self._fallback.local is not None:
-                self._fallback.local.bridge()
+            if self._fallback is not None:
+                self._fallback.bridge()
 
     def _step_hybrid(self, k: int, inputs: dict[str, Any]) -> ObserverOutput:
         guard, fb = inputs["guard"], self._fallback
